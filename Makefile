@@ -1,0 +1,25 @@
+# humanoid_reach_ros: `make demo` runs the main job, `make test` the tests.
+# Both set up what is missing first (tools/setup.sh is idempotent and quick when done).
+SHELL := /bin/bash
+ENV := . tools/env.sh &&
+PYTEST_ARGS ?=
+
+.PHONY: setup test demo bench clean urdf
+
+setup:
+	@tools/setup.sh
+
+test: setup
+	@$(ENV) python -m pytest test $(PYTEST_ARGS)
+
+demo: setup
+	@$(ENV) python -m humanoid_reach_ros.demo
+
+bench: setup
+	@$(ENV) for b in bench/*.py; do echo "== $$b"; python $$b || exit 1; done
+
+urdf: setup
+	@$(ENV) python tools/gen_hrp2_urdf.py
+
+clean:
+	rm -rf build install log .pytest_cache

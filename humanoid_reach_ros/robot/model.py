@@ -1,0 +1,147 @@
+"""The HRP-2-class robot model: pinocchio model from the URDF plus the semantic YAML.
+
+Conventions used throughout the package:
+
+* ``q`` is pinocchio's configuration of the floating-base model: base position (3),
+  base quaternion (x, y, z, w) and the 30 joint angles in URDF/pinocchio order
+  (``RobotModel.joint_names``). ``model.nq == 37``, ``model.nv == 36``.
+* ``joints`` is the 30-vector of joint angles alone (``q[7:]``).
+* The world frame is the stance frame: origin on the floor midway between the
+  soles of the half-sitting stance, x forward, z up.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+import pinocchio as pin
+import yaml
+
+from humanoid_reach_ros.paths import config_path
+
+N_BASE_Q = 7
+N_BASE_V = 6
+
+
+@dataclass(frozen=True)
+class LimbSpec:
+    """A 6-DOF limb: joints from ``root`` link to ``tip`` frame."""
+
+    name: str
+    root: str
+    tip: str
+    joints: tuple[str, ...]
+    joint_index: tuple[int, ...]  # indices into the 30-vector of joint angles
+
+
+class RobotModel:
+    """Pinocchio model of the robot with the groups and postures the planner needs."""
+
+    def __init__(self, semantic_yaml: str | Path = "robots/hrp2.yaml") -> None:
+        self.semantic_path = config_path(str(semantic_yaml))
+        with open(self.semantic_path) as f:
+            self.semantic = yaml.safe_load(f)
+        base = self.semantic_path.parent
+        self.urdf_path = (base / self.semantic["urdf"]).resolve()
+        self.collision_path = (base / self.semantic["collision_model"]).resolve()
+        self.urdf_xml = self.urdf_path.read_text()
+        self.model: pin.Model = pin.buildModelFromXML(self.urdf_xml, pin.JointModelFreeFlyer())
+        self.data: pin.Data = self.model.createData()
+        # joint 0 is "universe", joint 1 the free flyer
+        self.joint_names: tuple[str, ...] = tuple(self.model.names[2:])
+        self.n_joints = len(self.joint_names)
+        self.joint_index = {n: i for i, n in enumerate(self.joint_names)}
+        self.lower = np.array(self.model.lowerPositionLimit[N_BASE_Q:])
+        self.upper = np.array(self.model.upperPositionLimit[N_BASE_Q:])
+        self.velocity_limit = np.array(self.model.velocityLimit[N_BASE_V:])
+        self.mass = float(pin.computeTotalMass(self.model))
+        self.limbs: dict[str, LimbSpec] = {}
+        for name, spec in self.semantic["limbs"].items():
+            joints = tuple(spec["joints"])
+            self.limbs[name] = LimbSpec(
+                name, spec["root"], spec["tip"], joints, tuple(self.joint_index[j] for j in joints)
+            )
+        self.base_link = self.semantic["base_link"]
+
+    # ------------------------------------------------------------ conversions
+    def frame_id(self, name: str) -> int:
+        if not self.model.existFrame(name):
+            raise KeyError(f"unknown frame {name!r}")
+        return self.model.getFrameId(name)
+
+    def joints_from_dict(self, values: Mapping[str, float], default: np.ndarray | None = None) -> np.ndarray:
+        """30-vector from a {joint name: angle [rad]} mapping; missing joints from ``default``."""
+        out = np.zeros(self.n_joints) if default is None else np.array(default, dtype=float)
+        for name, v in values.items():
+            if name not in self.joint_index:
+                raise KeyError(f"unknown joint {name!r}")
+            out[self.joint_index[name]] = v
+        return out
+
+    def config(self, joints: Sequence[float], base: pin.SE3 | None = None) -> np.ndarray:
+        """Full configuration q from the 30 joint angles and a base (waist) pose."""
+        base = pin.SE3.Identity() if base is None else base
+        q = np.empty(self.model.nq)
+        q[:N_BASE_Q] = pin.SE3ToXYZQUAT(base)
+        q[N_BASE_Q:] = joints
+        return q
+
+    @staticmethod
+    def base_pose(q: np.ndarray) -> pin.SE3:
+        return pin.XYZQUATToSE3(q[:N_BASE_Q])
+
+    # ------------------------------------------------------------ kinematics
+    def forward(self, q: np.ndarray) -> pin.Data:
+        """Forward kinematics of every frame (and nothing else) into ``self.data``."""
+        pin.framesForwardKinematics(self.model, self.data, q)
+        return self.data
+
+    def frame_pose(self, q: np.ndarray, frame: str) -> pin.SE3:
+        self.forward(q)
+        return self.data.oMf[self.frame_id(frame)].copy()
+
+    def com(self, q: np.ndarray) -> np.ndarray:
+        """Exact centre of mass of the distributed link masses [m, world]."""
+        return pin.centerOfMass(self.model, self.data, q).copy()
+
+    def in_limits(self, joints: np.ndarray, tol: float = 0.0) -> bool:
+        return bool(np.all(joints >= self.lower - tol) and np.all(joints <= self.upper + tol))
+
+    # ------------------------------------------------------------ postures
+    @cached_property
+    def half_sitting_joints(self) -> np.ndarray:
+        deg = {k: np.radians(v) for k, v in self.semantic["half_sitting"].items()}
+        return self.joints_from_dict(deg)
+
+    def base_on_feet(self, joints: np.ndarray) -> pin.SE3:
+        """Waist pose that puts the right sole flat on the floor at its stance pose.
+
+        The stance frame has its origin midway between the soles of the half-sitting
+        posture; for other leg angles the right foot stays where half-sitting puts it.
+        """
+        right = self._stance_soles[0]
+        q0 = self.config(joints)
+        sole_in_base = self.frame_pose(q0, "r_sole")
+        return right * sole_in_base.inverse()
+
+    @cached_property
+    def _stance_soles(self) -> tuple[pin.SE3, pin.SE3]:
+        q0 = self.config(self.half_sitting_joints)
+        r = self.frame_pose(q0, "r_sole")
+        l_ = self.frame_pose(q0, "l_sole")
+        mid = 0.5 * (r.translation + l_.translation)
+        shift = pin.SE3(np.eye(3), -mid)
+        return shift * r, shift * l_
+
+    @property
+    def stance_soles(self) -> tuple[pin.SE3, pin.SE3]:
+        """World poses of the right and left sole in the half-sitting stance."""
+        return tuple(s.copy() for s in self._stance_soles)  # type: ignore[return-value]
+
+    def half_sitting(self) -> np.ndarray:
+        """Full configuration of the half-sitting posture standing in the stance frame."""
+        joints = self.half_sitting_joints
+        return self.config(joints, self.base_on_feet(joints))

@@ -1,0 +1,42 @@
+"""ament_python package humanoid_reach_ros (see package.xml)."""
+from glob import glob
+from pathlib import Path
+
+from setuptools import find_packages, setup
+
+PACKAGE = "humanoid_reach_ros"
+
+
+def tree(src: str) -> list[tuple[str, list[str]]]:
+    """data_files entries installing every file under ``src`` into share/<pkg>/<src>/..."""
+    out: dict[str, list[str]] = {}
+    for f in sorted(Path(src).rglob("*")):
+        if f.is_file():
+            out.setdefault(f"share/{PACKAGE}/{f.parent.as_posix()}", []).append(f.as_posix())
+    return sorted(out.items())
+
+
+# One executable per node / tool: `ros2 run humanoid_reach_ros <name>`.
+EXECUTABLES = {
+    "joint_driver": "humanoid_reach_ros.nodes.joint_driver:main",
+}
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", glob("launch/*.py")),
+        *tree("config"),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="humanoid_reach_ros developers",
+    maintainer_email="humanoid-reach@example.com",
+    description="Reaching-motion planning and execution for an HRP-2-class humanoid (ROS 2 Jazzy).",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={"console_scripts": [f"{k} = {v}" for k, v in EXECUTABLES.items()]},
+)
