@@ -24,7 +24,8 @@ if [ -z "$PY" ]; then
     fi
   done
 fi
-[ -n "$PY" ] || die "Python 3.11 is required (the ROS 2 Jazzy wheels are cp311); install python3.11 and python3.11-venv"
+[ -n "$PY" ] && "$PY" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' 2>/dev/null ||
+  die "Python 3.11 is required (the ROS 2 Jazzy wheels are cp311); install python3.11 and python3.11-venv"
 "$PY" -c 'import venv, ensurepip' 2>/dev/null || die "python venv/ensurepip missing: apt-get install python3.11-venv"
 for tool in cmake gcc g++ make; do
   command -v "$tool" >/dev/null 2>&1 || die "'$tool' not found: apt-get install cmake build-essential"
