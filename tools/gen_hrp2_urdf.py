@@ -150,7 +150,7 @@ class Urdf:
             lo, hi, vel, eff = limit
             self.out.append(f'    <axis xyz="{axis}"/>')
             self.out.append(
-                f'    <limit lower="{D(lo):.9f}" upper="{D(hi):.9f}" velocity="{vel:.6g}" effort="{eff:.6g}"/>'
+                f'    <limit lower="{D(lo)!r}" upper="{D(hi)!r}" velocity="{vel:.6g}" effort="{eff:.6g}"/>'
             )
         self.out.append("  </joint>")
 
