@@ -1,0 +1,193 @@
+"""Process orchestration for node graphs: isolated ROS domains and node processes.
+
+Used by the demo (``humanoid_reach_ros.demo``) and by the node-level tests.
+
+* ``allocate_domain`` gives a ``ROS_DOMAIN_ID`` (1..101) that no other process on this
+  machine holds (an exclusive lock file per id), and ``graph_env`` the environment for
+  it with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` (DESIGN.md: graph isolation).
+* ``NodeProcess.start`` runs ``python -m humanoid_reach_ros.nodes.<name> --ros-args ...``
+  as a real process with its output in a log file; ``stop`` sends SIGINT, waits, kills.
+* ``wait_for`` polls a condition with a timeout.
+
+No rclpy here: this module only starts and stops processes.
+"""
+from __future__ import annotations
+
+import fcntl
+import itertools
+import os
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping, TypeVar
+
+PACKAGE_ROOT = Path(__file__).resolve().parent.parent  # the directory holding humanoid_reach_ros/
+DOMAIN_MIN, DOMAIN_MAX = 1, 101
+_LOCK_DIR = Path(tempfile.gettempdir()) / "humanoid_reach_ros_domains"
+_counter = itertools.count()
+
+T = TypeVar("T")
+
+
+# ---------------------------------------------------------------- waiting
+def wait_for(condition: Callable[[], T], timeout: float, what: str = "condition",
+             on_timeout: Callable[[], str] | None = None, step: Callable[[], None] | None = None) -> T:
+    """Call ``condition`` until it returns a truthy value (returned) or ``timeout`` s pass
+    (``AssertionError`` naming ``what``, plus ``on_timeout()`` text, e.g. a node log).
+    Between calls ``step()`` runs (default: sleep 10 ms; a probe spins its executor)."""
+    deadline = time.monotonic() + timeout
+    step = step or (lambda: time.sleep(0.01))
+    while True:
+        value = condition()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            extra = f"\n{on_timeout()}" if on_timeout else ""
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}{extra}")
+        step()
+
+
+# ---------------------------------------------------------------- graph isolation
+@dataclass
+class DomainLease:
+    """An exclusive ``ROS_DOMAIN_ID`` for this process while held."""
+
+    domain_id: int
+    _fd: int | None = None
+
+    def release(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)  # closing drops the flock
+            self._fd = None
+
+
+def allocate_domain() -> DomainLease:
+    """Lock a free domain id in 1..101, starting from one derived from pid + a counter."""
+    _LOCK_DIR.mkdir(parents=True, exist_ok=True)
+    span = DOMAIN_MAX - DOMAIN_MIN + 1
+    start = (os.getpid() * 7 + next(_counter)) % span
+    for k in range(span):
+        domain = DOMAIN_MIN + (start + k) % span
+        fd = os.open(_LOCK_DIR / f"{domain}.lock", os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            continue
+        return DomainLease(domain, fd)
+    raise RuntimeError("no free ROS_DOMAIN_ID in 1..101 (all locked by other tests)")
+
+
+def graph_env(domain_id: int, base: Mapping[str, str] | None = None) -> dict[str, str]:
+    """Environment for processes of an isolated graph (localhost discovery, own domain)."""
+    env = dict(os.environ if base is None else base)
+    env.update({
+        "ROS_DOMAIN_ID": str(domain_id),
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+        "PYTHONUNBUFFERED": "1",
+        "RCUTILS_COLORIZED_OUTPUT": "0",
+        "RCUTILS_LOGGING_BUFFERED_STREAM": "0",
+    })
+    env.pop("ROS_STATIC_PEERS", None)
+    path = env.get("PYTHONPATH", "")
+    if str(PACKAGE_ROOT) not in path.split(os.pathsep):
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (str(PACKAGE_ROOT), path) if p)
+    return env
+
+
+# ---------------------------------------------------------------- node processes
+def _param_text(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ",".join(_param_text(v) for v in value) + "]"
+    return str(value)
+
+
+def node_command(module: str, params_file: str | Path | None = None, params: Mapping[str, Any] | None = None,
+                 extra_ros_args: list[str] | None = None) -> list[str]:
+    """Command line for a node module (``joint_driver`` -> ``humanoid_reach_ros.nodes.joint_driver``)."""
+    if "." not in module:
+        module = f"humanoid_reach_ros.nodes.{module}"
+    cmd = [sys.executable, "-m", module, "--ros-args"]
+    if params_file is not None:
+        cmd += ["--params-file", str(params_file)]
+    for k, v in (params or {}).items():
+        cmd += ["-p", f"{k}:={_param_text(v)}"]
+    return cmd + list(extra_ros_args or [])
+
+
+@dataclass
+class NodeProcess:
+    """A node running as a real process; stdout and stderr go to ``log_path``."""
+
+    name: str
+    proc: subprocess.Popen
+    log_path: Path
+    cmd: list[str] = field(default_factory=list)
+    ok_exit_codes: tuple[int, ...] = (0, -signal.SIGINT)  # what teardown accepts; a test may expect others
+
+    @classmethod
+    def start(cls, module: str, log_dir: Path, env: Mapping[str, str], params_file: str | Path | None = None,
+              params: Mapping[str, Any] | None = None, extra_ros_args: list[str] | None = None) -> "NodeProcess":
+        cmd = node_command(module, params_file, params, extra_ros_args)
+        name = module.rsplit(".", 1)[-1]
+        log_path = Path(log_dir) / f"{name}.{time.monotonic_ns()}.log"
+        with open(log_path, "wb") as log:
+            proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                    env=dict(env), cwd=PACKAGE_ROOT)
+        return cls(name, proc, log_path, cmd)
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def log(self) -> str:
+        try:
+            return self.log_path.read_text(errors="replace")
+        except FileNotFoundError:
+            return ""
+
+    def log_tail(self, lines: int = 60) -> str:
+        text = self.log().splitlines()[-lines:]
+        return f"--- log of {self.name} (pid {self.pid}, {self.log_path}) ---\n" + "\n".join(text)
+
+    def log_lines(self, pattern: str) -> list[str]:
+        rx = re.compile(pattern)
+        return [line for line in self.log().splitlines() if rx.search(line)]
+
+    def wait_for_log(self, pattern: str, timeout: float = 20.0) -> str:
+        """First log line matching ``pattern``; fails early if the process exits."""
+        def found() -> str | None:
+            lines = self.log_lines(pattern)
+            if lines:
+                return lines[0]
+            if not self.alive():
+                raise AssertionError(f"{self.name} exited with {self.proc.returncode} before logging "
+                                     f"{pattern!r}\n{self.log_tail()}")
+            return None
+        return wait_for(found, timeout, f"{self.name} to log {pattern!r}", on_timeout=self.log_tail)
+
+    def stop(self, timeout: float = 10.0) -> int:
+        """SIGINT (Ctrl-C), wait ``timeout`` s, then SIGKILL. Returns the exit code."""
+        if self.alive():
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5.0)
+        return self.proc.returncode
+
+    def exited_cleanly(self) -> bool:
+        return self.proc.returncode in self.ok_exit_codes

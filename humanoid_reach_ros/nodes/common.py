@@ -1,0 +1,82 @@
+"""What every node of the package shares: declared parameters and a clean ``main``.
+
+* ``ParamSpec`` / ``declare_parameters``: a table of parameters with defaults, descriptions,
+  ranges and read-only flags, declared with ROS parameter descriptors (so ``ros2 param
+  describe`` shows them and out-of-range values are refused by rclpy).
+* ``run_node``: ``rclpy.init``, construct, spin, and stop cleanly on Ctrl-C / SIGTERM
+  (exit 0, no traceback); a configuration error exits 2 with one FATAL log line.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.exceptions import ParameterException
+from rclpy.executors import Executor, ExternalShutdownException
+from rclpy.logging import get_logger
+from rclpy.node import Node
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """A declared parameter: default (its type is the parameter's type), description,
+    optional inclusive float range, read-only (fixed after start-up) or not."""
+
+    default: Any
+    description: str
+    range: tuple[float, float] | None = None
+    read_only: bool = True
+    constraints: str = ""
+
+    def descriptor(self) -> ParameterDescriptor:
+        d = ParameterDescriptor(description=self.description, read_only=self.read_only,
+                                additional_constraints=self.constraints)
+        if self.range is not None:
+            d.floating_point_range = [FloatingPointRange(from_value=self.range[0], to_value=self.range[1], step=0.0)]
+        return d
+
+
+def declare_parameters(node: Node, table: Mapping[str, ParamSpec]) -> dict[str, Any]:
+    """Declare every parameter of ``table`` with its descriptor; returns the values in effect."""
+    for name, spec in table.items():
+        node.declare_parameter(name, spec.default, spec.descriptor())
+    return {name: node.get_parameter(name).value for name in table}
+
+
+def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = None,
+             executor: Callable[[], Executor] | None = None) -> int:
+    """Run a node until Ctrl-C / SIGTERM; returns the process exit code.
+
+    rclpy's signal handlers shut the context down asynchronously, so the executor can
+    fail with an ``RCLError`` ("context is not valid") instead of raising
+    ``ExternalShutdownException`` when the signal lands while it builds its wait set;
+    any exception after the context is shut down therefore counts as a clean stop.
+    """
+    rclpy.init(args=args)
+    try:
+        try:
+            node = make_node()
+        except (ParameterException, ValueError, OSError, KeyError) as exc:  # bad parameters or files
+            get_logger(name).fatal(f"cannot start: {type(exc).__name__}: {exc}")
+            return 2
+        try:
+            if executor is None:
+                rclpy.spin(node)
+            else:
+                ex = executor()
+                ex.add_node(node)
+                ex.spin()
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        except Exception:
+            if rclpy.ok():
+                raise
+        finally:
+            node.destroy_node()
+    except KeyboardInterrupt:  # Ctrl-C during start-up
+        pass
+    finally:
+        rclpy.try_shutdown()
+    return 0
