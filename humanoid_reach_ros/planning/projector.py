@@ -1,0 +1,235 @@
+"""Algorithm 1 ``ProjectConfig`` of Kanehiro et al. (Sec. III-B), batched in numpy.
+
+The goal configuration space (eq. 1) is ``q_goal = (p_e, rpy_e, z_t, rpy_t)``: hand
+pose, trunk height and trunk orientation. The whole robot mass is assumed to be
+concentrated at one point ``COG_approx`` fixed to the trunk (``base_link``, the
+waist), so the trunk position that keeps ``COG_approx`` above its place is
+closed-form, and the four 6-DOF limbs then follow from their closed-form IK
+(:mod:`humanoid_reach_ros.robot.limb_ik`)::
+
+    R_e = RPY(rpy_e);  R_t = RPY(rpy_t)                      (RPY = Rz Ry Rx)
+    p_t = R_t v + COG_approx;  p_t[z] = z_t                  (lines 2-4)
+    right arm IK (chest -> hand), else left arm IK             (lines 5-9)
+    right leg IK (trunk -> r_sole stance), left leg IK         (lines 10-15)
+
+Our choices, named:
+
+* ``COG_approx`` and ``v``: the exact COG of the reference posture (half-sitting,
+  standing on the stance) taken as fixed to the trunk: ``v = R_ref^T (p_trunk_ref -
+  COG_ref)`` in the trunk frame, the horizontal ``COG_approx`` = the reference COG's.
+* Fixed joints (as in the paper, Fig. 3): chest (CHEST_JOINT0/1), head and grippers at
+  their reference values; the arms hang from ``CHEST_LINK1``, whose pose is the trunk
+  pose times the constant trunk -> chest transform of the reference posture. The arm
+  not used keeps its reference angles.
+* Among the closed-form branches within joint limits, the one nearest the reference
+  posture is taken (``LimbIK`` default).
+
+No ROS here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from humanoid_reach_ros.planning.wgr import matrix_rpy, rpy_matrix
+from humanoid_reach_ros.robot.limb_ik import LimbIKSet
+from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
+
+ARMS = ("right_arm", "left_arm")
+LEGS = ("right_leg", "left_leg")
+RIGHT, LEFT, NONE = 0, 1, -1
+ARM_CODES = {"right": RIGHT, "left": LEFT}
+
+
+def quat_xyzw_from_rpy(rpy: np.ndarray) -> np.ndarray:
+    """Quaternions (..., 4) (x, y, z, w) of ``Rz(yaw) Ry(pitch) Rx(roll)``."""
+    h = 0.5 * np.asarray(rpy, dtype=float)
+    cr, sr = np.cos(h[..., 0]), np.sin(h[..., 0])
+    cp, sp = np.cos(h[..., 1]), np.sin(h[..., 1])
+    cy, sy = np.cos(h[..., 2]), np.sin(h[..., 2])
+    return np.stack([sr * cp * cy - cr * sp * sy,
+                     cr * sp * cy + sr * cp * sy,
+                     cr * cp * sy - sr * sp * cy,
+                     cr * cp * cy + sr * sp * sy], axis=-1)
+
+
+def quat_xyzw_matrix(quat: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) of unit quaternions (..., 4) (x, y, z, w)."""
+    quat = np.asarray(quat, dtype=float)
+    x, y, z, w = (quat[..., k] for k in range(4))
+    R = np.empty(quat.shape[:-1] + (3, 3))
+    R[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    R[..., 0, 1] = 2 * (x * y - z * w)
+    R[..., 0, 2] = 2 * (x * z + y * w)
+    R[..., 1, 0] = 2 * (x * y + z * w)
+    R[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    R[..., 1, 2] = 2 * (y * z - x * w)
+    R[..., 2, 0] = 2 * (x * z - y * w)
+    R[..., 2, 1] = 2 * (y * z + x * w)
+    R[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return R
+
+
+@dataclass(frozen=True, eq=False)
+class ProjectionResult:
+    """Outcome of :meth:`Projector.project_config` for N samples.
+
+    ``q`` (N, nq): full configurations (valid only where ``ok``; failed rows keep the
+    reference values of the limbs not solved); ``ok`` (N,); ``arm`` (N,) int8:
+    0 right, 1 left, -1 none; ``failures``: IK failures per limb, counted as in
+    Table I (left arm tried only where the right one failed in ``auto`` mode, the
+    legs only where an arm succeeded, the left leg only after the right one);
+    ``trunk_p`` (N, 3), ``trunk_R`` (N, 3, 3): trunk (waist) poses.
+    """
+
+    q: np.ndarray
+    ok: np.ndarray
+    arm: np.ndarray
+    failures: dict
+    trunk_p: np.ndarray
+    trunk_R: np.ndarray
+
+
+class Projector:
+    """Algorithm 1 for a :class:`RobotModel` (see the module docstring).
+
+    ``reference_joints`` (30,): the reference posture (default half-sitting): it fixes
+    ``COG_approx``/``v``, the chest transform and the values of every joint that
+    Algorithm 1 does not set.
+    """
+
+    def __init__(self, robot: RobotModel, ik: LimbIKSet | None = None,
+                 reference_joints: np.ndarray | None = None) -> None:
+        self.robot = robot
+        self.ik = LimbIKSet(robot) if ik is None else ik
+        joints = robot.half_sitting_joints if reference_joints is None else np.asarray(reference_joints, float)
+        self.q_ref = robot.config(joints, robot.base_on_feet(joints))
+        self.cog_ref = robot.com(self.q_ref)
+        trunk = robot.frame_pose(self.q_ref, robot.base_link)
+        chest = robot.frame_pose(self.q_ref, robot.limbs["right_arm"].root)
+        if robot.limbs["left_arm"].root != robot.limbs["right_arm"].root:
+            raise ValueError("Projector: both arms must hang from the same link")
+        for leg in LEGS:
+            if robot.limbs[leg].root != robot.base_link:
+                raise ValueError(f"Projector: {leg} must hang from the trunk {robot.base_link!r}")
+        #: v: from COG_approx to the trunk origin, in the trunk frame
+        self.v = trunk.rotation.T @ (trunk.translation - self.cog_ref)
+        #: horizontal position of COG_approx in the world (fixed)
+        self.cog_approx_xy = self.cog_ref[:2].copy()
+        tc = trunk.inverse() * chest
+        self.chest_R_in_trunk = tc.rotation.copy()
+        self.chest_p_in_trunk = tc.translation.copy()
+        soles = robot.stance_soles
+        self.feet = {leg: (s.translation.copy(), s.rotation.copy()) for leg, s in zip(LEGS, soles)}
+        self.cols = {name: np.array(spec.joint_index) + N_BASE_Q for name, spec in robot.limbs.items()}
+
+    # ------------------------------------------------------------ pieces
+    def trunk_pose(self, z_t: np.ndarray, rpy_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Lines 2-4: ``R_t = RPY(rpy_t)``, ``p_t = R_t v + COG_approx``, ``p_t[z] = z_t``."""
+        rpy_t = np.atleast_2d(np.asarray(rpy_t, float))
+        z_t = np.broadcast_to(np.asarray(z_t, float), (len(rpy_t),))
+        R_t = rpy_matrix(rpy_t)
+        p_t = R_t @ self.v
+        p_t[:, :2] += self.cog_approx_xy
+        p_t[:, 2] = z_t
+        return p_t, R_t
+
+    def chest_pose(self, p_t: np.ndarray, R_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pose of the arms' root link from trunk poses (fixed chest joints)."""
+        return p_t + R_t @ self.chest_p_in_trunk, R_t @ self.chest_R_in_trunk
+
+    def cog_approx(self, q: np.ndarray) -> np.ndarray:
+        """World ``COG_approx`` (..., 3) of configurations (..., nq): ``p_t - R_t v``."""
+        q = np.asarray(q, float)
+        R = quat_xyzw_matrix(q[..., 3:7])
+        return q[..., :3] - R @ self.v
+
+    def _base(self, p_t, R_t, rpy_t) -> np.ndarray:
+        Q = np.repeat(self.q_ref[None], len(p_t), axis=0)
+        Q[:, :3] = p_t
+        Q[:, 3:7] = quat_xyzw_from_rpy(rpy_t)
+        return Q
+
+    def _legs(self, Q, p_t, R_t, idx, failures) -> np.ndarray:
+        """Lines 10-15 on rows ``idx``; returns the rows where both legs succeeded."""
+        for leg in LEGS:
+            if idx.size == 0:
+                break
+            fp, fR = self.feet[leg]
+            res = self.ik.solve(leg, p_t[idx], R_t[idx], fp, fR)
+            failures[leg] += int(np.count_nonzero(~res.ok))
+            good = idx[res.ok]
+            Q[good[:, None], self.cols[leg][None]] = res.q[res.ok]
+            idx = good
+        return idx
+
+    # ------------------------------------------------------------ Algorithm 1
+    def project_config(self, p_e, R_e, z_t, rpy_t, arm: str = "auto") -> ProjectionResult:
+        """Algorithm 1 for N samples: hand poses ``p_e`` (N, 3), ``R_e`` (N, 3, 3)
+        (``RPY(rpy_e)``, see :func:`~humanoid_reach_ros.planning.wgr.rpy_matrix`),
+        trunk heights ``z_t`` (N,) and orientations ``rpy_t`` (N, 3).
+
+        ``arm``: ``"auto"`` (right arm, else left: lines 5-9), ``"right"`` or ``"left"``.
+        """
+        if arm not in ("auto", "right", "left"):
+            raise ValueError(f"arm must be 'auto', 'right' or 'left', got {arm!r}")
+        p_e = np.atleast_2d(np.asarray(p_e, float))
+        R_e = np.asarray(R_e, float).reshape(-1, 3, 3)
+        rpy_t = np.atleast_2d(np.asarray(rpy_t, float))
+        n = len(rpy_t)
+        p_t, R_t = self.trunk_pose(z_t, rpy_t)
+        c_p, c_R = self.chest_pose(p_t, R_t)
+        Q = self._base(p_t, R_t, rpy_t)
+        failures = {"right_arm": 0, "left_arm": 0, "right_leg": 0, "left_leg": 0}
+        arm_used = np.full(n, NONE, np.int8)
+        todo = np.arange(n)
+        order = ARMS if arm == "auto" else (("right_arm",) if arm == "right" else ("left_arm",))
+        for name in order:
+            if todo.size == 0:
+                break
+            res = self.ik.solve(name, c_p[todo], c_R[todo], p_e[todo] if len(p_e) > 1 else p_e,
+                                R_e[todo] if len(R_e) > 1 else R_e)
+            failures[name] += int(np.count_nonzero(~res.ok))
+            good = todo[res.ok]
+            Q[good[:, None], self.cols[name][None]] = res.q[res.ok]
+            arm_used[good] = RIGHT if name == "right_arm" else LEFT
+            todo = todo[~res.ok]
+        idx = self._legs(Q, p_t, R_t, np.flatnonzero(arm_used != NONE), failures)
+        ok = np.zeros(n, bool)
+        ok[idx] = True
+        arm_used[~ok] = NONE
+        return ProjectionResult(Q, ok, arm_used, failures, p_t, R_t)
+
+    def project_plan_config(self, q_plan, arm: str) -> ProjectionResult:
+        """The planner's space (eq. 2): ``q_plan`` (N, 10) = (q_arm (6), z_t, rpy_t (3))
+        -> full configurations. The reaching arm's joints are set directly, the trunk
+        horizontal position by lines 3-4 of Algorithm 1, the legs by closed-form IK;
+        everything else at the reference. ``ok``: legs solved and the arm joints within
+        their limits. ``failures`` counts leg IK failures (and ``"arm_limits"``)."""
+        if arm not in ARM_CODES:
+            raise ValueError(f"arm must be 'right' or 'left', got {arm!r}")
+        q_plan = np.atleast_2d(np.asarray(q_plan, float))
+        if q_plan.shape[1] != 10:
+            raise ValueError(f"q_plan must have 10 columns (q_arm, z_t, rpy_t), got {q_plan.shape}")
+        name = f"{arm}_arm"
+        p_t, R_t = self.trunk_pose(q_plan[:, 6], q_plan[:, 7:10])
+        Q = self._base(p_t, R_t, q_plan[:, 7:10])
+        Q[:, self.cols[name]] = q_plan[:, :6]
+        ji = np.array(self.robot.limbs[name].joint_index)
+        lim = np.all((q_plan[:, :6] >= self.robot.lower[ji]) & (q_plan[:, :6] <= self.robot.upper[ji]), axis=1)
+        failures = {"right_leg": 0, "left_leg": 0, "arm_limits": int(np.count_nonzero(~lim))}
+        idx = self._legs(Q, p_t, R_t, np.flatnonzero(lim), failures)
+        ok = np.zeros(len(q_plan), bool)
+        ok[idx] = True
+        arm_used = np.where(ok, ARM_CODES[arm], NONE).astype(np.int8)
+        return ProjectionResult(Q, ok, arm_used, failures, p_t, R_t)
+
+    def plan_config_of(self, q: np.ndarray, arm: str) -> np.ndarray:
+        """Inverse of :meth:`project_plan_config` on its image: (N, nq) -> (N, 10)."""
+        q = np.atleast_2d(np.asarray(q, float))
+        R = quat_xyzw_matrix(q[:, 3:7])
+        return np.concatenate([q[:, self.cols[f"{arm}_arm"]], q[:, 2:3], matrix_rpy(R)], axis=1)
+
+
+__all__ = ["Projector", "ProjectionResult", "quat_xyzw_from_rpy", "quat_xyzw_matrix", "RIGHT", "LEFT", "NONE"]
