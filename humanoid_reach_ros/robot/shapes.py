@@ -28,6 +28,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import yaml
 
+from humanoid_reach_ros.yaml_checks import number, top_level, vec3
+
 if TYPE_CHECKING:  # pragma: no cover
     from humanoid_reach_ros.robot.model import RobotModel
 
@@ -347,14 +349,10 @@ def collision_model_from_dict(
 ) -> CollisionModel:
     """:func:`load_collision_model` from an already parsed document."""
     where = f"collision model {source}"
-    if not isinstance(doc, dict):
-        raise ValueError(f"{where}: expected a mapping at the top level")
-    unknown = set(doc) - _TOP_KEYS
-    if unknown:
-        raise ValueError(f"{where}: unknown top-level key(s) {sorted(unknown)}; expected {sorted(_TOP_KEYS)}")
+    top_level(doc, _TOP_KEYS, where)
     if padding_m is None:
         padding_m = doc.get("padding_m", 0.0)
-    padding = _number(padding_m, f"{where}: padding_m")
+    padding = number(padding_m, f"{where}: padding_m")
     if padding < 0.0:
         raise ValueError(f"{where}: padding_m must be >= 0, got {padding}")
 
@@ -421,25 +419,13 @@ def _parse_shape(entry: Any, link: str, where: str) -> Shape:
     expected = {"center", "radius"} if kind == "sphere" else {"p0", "p1", "radius"}
     if set(body) != expected:
         raise ValueError(f"{where}: {kind} needs keys {sorted(expected)}, got {sorted(body)}")
-    radius = _number(body["radius"], f"{where}: radius")
+    radius = number(body["radius"], f"{where}: radius")
     if not radius > 0.0:
         raise ValueError(f"{where}: radius must be > 0, got {radius}")
     if kind == "sphere":
-        c = _vec3(body["center"], f"{where}: center")
+        c = vec3(body["center"], f"{where}: center")
         return Shape(name, link, kind, c, c, radius)
-    return Shape(name, link, kind, _vec3(body["p0"], f"{where}: p0"), _vec3(body["p1"], f"{where}: p1"), radius)
-
-
-def _number(x: Any, where: str) -> float:
-    if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
-        raise ValueError(f"{where}: expected a finite number, got {x!r}")
-    return float(x)
-
-
-def _vec3(x: Any, where: str) -> tuple[float, float, float]:
-    if not isinstance(x, (list, tuple)) or len(x) != 3:
-        raise ValueError(f"{where}: expected [x, y, z], got {x!r}")
-    return tuple(_number(v, where) for v in x)  # type: ignore[return-value]
+    return Shape(name, link, kind, vec3(body["p0"], f"{where}: p0"), vec3(body["p1"], f"{where}: p1"), radius)
 
 
 def _ro(a: np.ndarray) -> np.ndarray:

@@ -58,8 +58,8 @@ import numpy as np
 import yaml
 
 from humanoid_reach_ros.paths import config_path
+from humanoid_reach_ros.yaml_checks import Vec3, number, positive, top_level, unit, vec3
 
-Vec3 = tuple[float, float, float]
 
 #: cells evaluated at once when voxelizing (bounds the temporary memory)
 _VOXEL_BLOCK = 1 << 20
@@ -685,11 +685,7 @@ def load_scene(path: str | Path) -> Scene:
 def scene_from_dict(doc: Any, source: str = "<dict>") -> Scene:
     """:func:`load_scene` from an already parsed document."""
     where = f"scene {source}"
-    if not isinstance(doc, dict):
-        raise ValueError(f"{where}: expected a mapping at the top level")
-    unknown = set(doc) - _TOP_KEYS
-    if unknown:
-        raise ValueError(f"{where}: unknown top-level key(s) {sorted(unknown)}; expected {sorted(_TOP_KEYS)}")
+    top_level(doc, _TOP_KEYS, where)
     raw = doc.get("primitives")
     if not isinstance(raw, list) or not raw:
         raise ValueError(f"{where}: 'primitives' must be a non-empty list")
@@ -708,13 +704,13 @@ def scene_from_dict(doc: Any, source: str = "<dict>") -> Scene:
         if not isinstance(vm, dict) or set(vm) - {"resolution_m", "extent"}:
             raise ValueError(f"{where}: voxel_map: expected a mapping with 'resolution_m' and 'extent'")
         if "resolution_m" in vm:
-            kwargs["resolution_m"] = _positive(vm["resolution_m"], f"{where}: voxel_map.resolution_m")
+            kwargs["resolution_m"] = positive(vm["resolution_m"], f"{where}: voxel_map.resolution_m")
         if "extent" in vm:
             ext = vm["extent"]
             if not isinstance(ext, dict) or set(ext) != {"min", "max"}:
                 raise ValueError(f"{where}: voxel_map.extent: expected {{min: [x, y, z], max: [x, y, z]}}")
-            lo = _vec3(ext["min"], f"{where}: voxel_map.extent.min")
-            hi = _vec3(ext["max"], f"{where}: voxel_map.extent.max")
+            lo = vec3(ext["min"], f"{where}: voxel_map.extent.min")
+            hi = vec3(ext["max"], f"{where}: voxel_map.extent.max")
             if not all(a < b for a, b in zip(lo, hi)):
                 raise ValueError(f"{where}: voxel_map.extent: min {lo} must be below max {hi}")
             kwargs["extent"] = (lo, hi)
@@ -755,33 +751,33 @@ def _parse_primitive(entry: Any, where: str) -> Primitive:
             raise ValueError(f"{where}: floor must be true or false")
         common["floor"] = entry["floor"]
     if "color" in entry:
-        color = _vec3(entry["color"], f"{where}: color")
+        color = vec3(entry["color"], f"{where}: color")
         if not all(0.0 <= c <= 1.0 for c in color):
             raise ValueError(f"{where}: color components must be in [0, 1], got {color}")
         common["color"] = color
 
     if kind == "plane":
-        return Plane(normal=_unit(entry["normal"], f"{where}: normal"),
-                     offset=_number(entry.get("offset", 0.0), f"{where}: offset"), **common)
+        return Plane(normal=unit(entry["normal"], f"{where}: normal"),
+                     offset=number(entry.get("offset", 0.0), f"{where}: offset"), **common)
     if kind == "box":
-        size = _vec3(entry["size"], f"{where}: size")
+        size = vec3(entry["size"], f"{where}: size")
         if not all(s > 0.0 for s in size):
             raise ValueError(f"{where}: size must be positive, got {size}")
-        return Box(center=_vec3(entry["center"], f"{where}: center"), size=size,
-                   rpy=_vec3(entry.get("rpy", [0.0, 0.0, 0.0]), f"{where}: rpy"), **common)
+        return Box(center=vec3(entry["center"], f"{where}: center"), size=size,
+                   rpy=vec3(entry.get("rpy", [0.0, 0.0, 0.0]), f"{where}: rpy"), **common)
     if kind == "cylinder":
-        p0, p1 = _vec3(entry["p0"], f"{where}: p0"), _vec3(entry["p1"], f"{where}: p1")
+        p0, p1 = vec3(entry["p0"], f"{where}: p0"), vec3(entry["p1"], f"{where}: p1")
         if math.dist(p0, p1) <= 1e-9:
             raise ValueError(f"{where}: p0 and p1 coincide (zero-length cylinder)")
-        return Cylinder(p0=p0, p1=p1, radius=_positive(entry["radius"], f"{where}: radius"), **common)
+        return Cylinder(p0=p0, p1=p1, radius=positive(entry["radius"], f"{where}: radius"), **common)
     if kind == "sphere":
-        return Sphere(center=_vec3(entry["center"], f"{where}: center"),
-                      radius=_positive(entry["radius"], f"{where}: radius"), **common)
-    major = _positive(entry["major_radius"], f"{where}: major_radius")
-    minor = _positive(entry["minor_radius"], f"{where}: minor_radius")
+        return Sphere(center=vec3(entry["center"], f"{where}: center"),
+                      radius=positive(entry["radius"], f"{where}: radius"), **common)
+    major = positive(entry["major_radius"], f"{where}: major_radius")
+    minor = positive(entry["minor_radius"], f"{where}: minor_radius")
     if minor >= major:
         raise ValueError(f"{where}: minor_radius {minor} must be below major_radius {major}")
-    return Torus(center=_vec3(entry["center"], f"{where}: center"), axis=_unit(entry["axis"], f"{where}: axis"),
+    return Torus(center=vec3(entry["center"], f"{where}: center"), axis=unit(entry["axis"], f"{where}: axis"),
                  major_radius=major, minor_radius=minor, **common)
 
 
@@ -796,41 +792,14 @@ def _parse_target(t: Any, where: str) -> Target:
             raise ValueError(f"{where}: aruco: expected keys {sorted(keys)} (+ optional 'dictionary')")
         if isinstance(a["id"], bool) or not isinstance(a["id"], int) or a["id"] < 0:
             raise ValueError(f"{where}: aruco.id must be a non-negative integer, got {a['id']!r}")
-        aruco = ArucoPlacement(marker_id=a["id"], size_m=_positive(a["size_m"], f"{where}: aruco.size_m"),
-                               position=_vec3(a["position"], f"{where}: aruco.position"),
-                               rpy=_vec3(a["rpy"], f"{where}: aruco.rpy"),
+        aruco = ArucoPlacement(marker_id=a["id"], size_m=positive(a["size_m"], f"{where}: aruco.size_m"),
+                               position=vec3(a["position"], f"{where}: aruco.position"),
+                               rpy=vec3(a["rpy"], f"{where}: aruco.rpy"),
                                dictionary=str(a.get("dictionary", "DICT_4X4_50")))
     if not isinstance(t["name"], str):
         raise ValueError(f"{where}: name must be a string")
-    return Target(name=t["name"], position=_vec3(t["position"], f"{where}: position"),
-                  rpy=_vec3(t.get("rpy", [0.0, 0.0, 0.0]), f"{where}: rpy"), aruco=aruco)
-
-
-def _number(x: Any, where: str) -> float:
-    if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
-        raise ValueError(f"{where}: expected a finite number, got {x!r}")
-    return float(x)
-
-
-def _positive(x: Any, where: str) -> float:
-    v = _number(x, where)
-    if not v > 0.0:
-        raise ValueError(f"{where}: must be > 0, got {v}")
-    return v
-
-
-def _vec3(x: Any, where: str) -> Vec3:
-    if not isinstance(x, (list, tuple)) or len(x) != 3:
-        raise ValueError(f"{where}: expected [x, y, z], got {x!r}")
-    return tuple(_number(v, where) for v in x)  # type: ignore[return-value]
-
-
-def _unit(x: Any, where: str) -> Vec3:
-    v = np.asarray(_vec3(x, where))
-    n = float(np.linalg.norm(v))
-    if n < 1e-9:
-        raise ValueError(f"{where}: must be a non-zero vector, got {tuple(v)}")
-    return tuple(float(c) for c in v / n)  # type: ignore[return-value]
+    return Target(name=t["name"], position=vec3(t["position"], f"{where}: position"),
+                  rpy=vec3(t.get("rpy", [0.0, 0.0, 0.0]), f"{where}: rpy"), aruco=aruco)
 
 
 # ----------------------------------------------------------------- command line
