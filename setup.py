@@ -19,6 +19,7 @@ def tree(src: str) -> list[tuple[str, list[str]]]:
 # One executable per node / tool: `ros2 run humanoid_reach_ros <name>`.
 EXECUTABLES = {
     "joint_driver": "humanoid_reach_ros.nodes.joint_driver:main",
+    "reach_planner": "humanoid_reach_ros.nodes.reach_planner:main",
     "hr_demo": "humanoid_reach_ros.demo:main",
 }
 

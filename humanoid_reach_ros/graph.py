@@ -108,6 +108,8 @@ def _param_text(value: Any) -> str:
         return repr(value)
     if isinstance(value, (list, tuple)):
         return "[" + ",".join(_param_text(v) for v in value) + "]"
+    if isinstance(value, str) and value == "":
+        return "''"  # rcl refuses a bare empty value in -p name:=value
     return str(value)
 
 

@@ -5,7 +5,8 @@ use it without a ROS graph. Conventions: stamps are ``builtin_interfaces/Time``;
 float seconds go through ``time_from_seconds`` / ``seconds_from_time``; poses are
 ``pin.SE3``; arrays are float64 numpy arrays.
 
-Sections: time, joint states, poses, diagnostics. Later issues add more here.
+Sections: time, joint states, poses, diagnostics; then planning: durations, point clouds,
+joint trajectories, PlanReach requests, planning statistics, markers.
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ import numpy as np
 import pinocchio as pin
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Pose, PoseStamped
+from geometry_msgs.msg import Point, Pose, PoseStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
 
@@ -210,3 +211,396 @@ def diagnostic_level(status: DiagnosticStatus) -> int:
 def diagnostic_values(status: DiagnosticStatus) -> dict[str, str]:
     """Key/value pairs of a status as a dict."""
     return {kv.key: kv.value for kv in status.values}
+
+
+# ================================================================ planning (reach_planner)
+# Point clouds, joint trajectories, PlanReach requests, planning statistics and the
+# planning markers. Message types are imported here, not at the top, so the sections
+# above stay usable on their own.
+from builtin_interfaces.msg import Duration  # noqa: E402
+from humanoid_reach_interfaces.msg import PlanningStatistics  # noqa: E402
+from humanoid_reach_interfaces.srv import PlanReach  # noqa: E402
+from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E402
+from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
+
+from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion  # noqa: E402
+
+
+# ---------------------------------------------------------------- durations
+def duration_from_seconds(t: float) -> Duration:
+    """``builtin_interfaces/Duration`` from float seconds (>= 0, rounded to the nanosecond)."""
+    if not math.isfinite(t) or t < 0.0:
+        raise ValueError(f"duration must be finite and >= 0, got {t}")
+    sec, nanosec = divmod(round(t * NS_PER_S), NS_PER_S)
+    return Duration(sec=int(sec), nanosec=int(nanosec))
+
+
+def seconds_from_duration(d: Duration) -> float:
+    return d.sec + d.nanosec * 1e-9
+
+
+# ---------------------------------------------------------------- point clouds
+_POINT_FIELD_DTYPES = {
+    PointField.INT8: "i1", PointField.UINT8: "u1", PointField.INT16: "i2", PointField.UINT16: "u2",
+    PointField.INT32: "i4", PointField.UINT32: "u4", PointField.FLOAT32: "f4", PointField.FLOAT64: "f8",
+}
+
+
+@dataclass(frozen=True)
+class CloudPoints:
+    """The x, y, z of a ``sensor_msgs/PointCloud2``: finite points (N, 3) float64 and how
+    many points were dropped for a NaN/inf coordinate."""
+
+    points: np.ndarray
+    dropped_nonfinite: int
+    frame_id: str
+    stamp_s: float
+
+
+def points_from_cloud(msg: PointCloud2) -> CloudPoints:
+    """Finite x, y, z points of a ``PointCloud2`` (any layout with float x/y/z fields).
+
+    Raises ``ValueError`` for a malformed cloud: a missing or non-float ``x``/``y``/``z``
+    field, a field outside ``point_step``, ``row_step < width * point_step``, or a data
+    size other than ``height * row_step``. Points with a non-finite coordinate are
+    dropped and counted (``dropped_nonfinite``), as in an unorganised cloud.
+    """
+    fields = {f.name: f for f in msg.fields}
+    missing = [n for n in "xyz" if n not in fields]
+    if missing:
+        raise ValueError(f"PointCloud2 has no {', '.join(missing)} field(s) (fields: "
+                         f"{[f.name for f in msg.fields]})")
+    step, width, height = int(msg.point_step), int(msg.width), int(msg.height)
+    if step <= 0 and width * height > 0:
+        raise ValueError(f"PointCloud2 point_step must be positive, got {step}")
+    order = ">" if msg.is_bigendian else "<"
+    formats, offsets = [], []
+    for n in "xyz":
+        f = fields[n]
+        if f.datatype not in (PointField.FLOAT32, PointField.FLOAT64):
+            raise ValueError(f"PointCloud2 field {n!r} must be FLOAT32 or FLOAT64, got datatype {f.datatype}")
+        if f.count not in (0, 1):
+            raise ValueError(f"PointCloud2 field {n!r} has count {f.count}, expected 1")
+        size = 4 if f.datatype == PointField.FLOAT32 else 8
+        if f.offset + size > step:
+            raise ValueError(f"PointCloud2 field {n!r} (offset {f.offset}, {size} bytes) lies outside "
+                             f"point_step {step}")
+        formats.append(order + _POINT_FIELD_DTYPES[f.datatype])
+        offsets.append(int(f.offset))
+    if int(msg.row_step) < width * step:
+        raise ValueError(f"PointCloud2 row_step {msg.row_step} < width {width} * point_step {step}")
+    data = np.frombuffer(bytes(msg.data), dtype=np.uint8) if not isinstance(msg.data, np.ndarray) \
+        else np.asarray(msg.data, dtype=np.uint8)
+    if data.size != height * int(msg.row_step):
+        raise ValueError(f"PointCloud2 data has {data.size} bytes, expected height {height} * row_step "
+                         f"{msg.row_step} = {height * int(msg.row_step)}")
+    stamp_s = seconds_from_time(msg.header.stamp)
+    if width * height == 0:
+        return CloudPoints(np.empty((0, 3)), 0, msg.header.frame_id, stamp_s)
+    rows = data.reshape(height, int(msg.row_step))[:, :width * step]
+    dtype = np.dtype({"names": ["x", "y", "z"], "formats": formats, "offsets": offsets, "itemsize": step})
+    rec = np.ascontiguousarray(rows).view(dtype).reshape(-1)
+    pts = np.stack([rec["x"], rec["y"], rec["z"]], axis=1).astype(np.float64)
+    finite = np.all(np.isfinite(pts), axis=1)
+    return CloudPoints(pts[finite], int((~finite).sum()), msg.header.frame_id, stamp_s)
+
+
+def cloud_from_points(points: np.ndarray, frame_id: str, stamp: Time | None = None) -> PointCloud2:
+    """Unorganised ``PointCloud2`` (height 1) of float32 x, y, z (point_step 12)."""
+    pts = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+    n = len(pts)
+    return PointCloud2(
+        header=header(frame_id, stamp), height=1, width=n,
+        fields=[PointField(name=c, offset=4 * i, datatype=PointField.FLOAT32, count=1) for i, c in enumerate("xyz")],
+        is_bigendian=False, point_step=12, row_step=12 * n, data=pts.astype("<f4").tobytes(), is_dense=True,
+    )
+
+
+# ---------------------------------------------------------------- joint trajectories
+def joint_trajectory(
+    names: Sequence[str],
+    times: np.ndarray,
+    positions: np.ndarray,
+    velocities: np.ndarray | None = None,
+    accelerations: np.ndarray | None = None,
+    frame_id: str = "world",
+    stamp: Time | None = None,
+) -> JointTrajectory:
+    """``trajectory_msgs/JointTrajectory`` of K points over ``names``.
+
+    ``times`` (K,) [s] from the start, strictly increasing and >= 0; ``positions``,
+    ``velocities``, ``accelerations`` (K, n). Raises ``ValueError`` on shapes, non-finite
+    values or non-increasing times (a message we publish must be one we would accept).
+    """
+    names = [str(n) for n in names]
+    t = np.asarray(times, dtype=float).reshape(-1)
+    k, n = len(t), len(names)
+    if len(set(names)) != n:
+        raise ValueError("JointTrajectory joint names must be unique")
+    if not np.all(np.isfinite(t)) or (k and t[0] < 0.0) or np.any(np.diff(t) <= 0.0):
+        raise ValueError("JointTrajectory times must be finite, >= 0 and strictly increasing")
+    arrays = {}
+    for field_name, a in (("positions", positions), ("velocities", velocities), ("accelerations", accelerations)):
+        if a is None:
+            continue
+        a = np.asarray(a, dtype=float)
+        if a.shape != (k, n):
+            raise ValueError(f"JointTrajectory {field_name} has shape {a.shape}, expected ({k}, {n})")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"JointTrajectory {field_name} has non-finite values")
+        arrays[field_name] = a
+    if "positions" not in arrays:
+        raise ValueError("JointTrajectory needs positions")
+    points = []
+    for i in range(k):
+        pt = JointTrajectoryPoint(time_from_start=duration_from_seconds(float(t[i])))
+        for field_name, a in arrays.items():
+            setattr(pt, field_name, double_array(a[i]))
+        points.append(pt)
+    return JointTrajectory(header=header(frame_id, stamp), joint_names=names, points=points)
+
+
+@dataclass(frozen=True)
+class TrajectoryArrays:
+    """The arrays of a ``JointTrajectory``: names, times (K,), positions/velocities/
+    accelerations (K, n) (``None`` when a point lacks them)."""
+
+    names: tuple[str, ...]
+    times: np.ndarray
+    positions: np.ndarray
+    velocities: np.ndarray | None
+    accelerations: np.ndarray | None
+
+
+def parse_joint_trajectory(msg: JointTrajectory) -> TrajectoryArrays:
+    """numpy arrays of a ``JointTrajectory``; ``ValueError`` when point sizes disagree."""
+    names = tuple(msg.joint_names)
+    n = len(names)
+    times = np.array([seconds_from_duration(p.time_from_start) for p in msg.points], dtype=float)
+
+    def stack(field_name: str, required: bool) -> np.ndarray | None:
+        rows = [np.asarray(getattr(p, field_name), dtype=float) for p in msg.points]
+        if not required and all(r.size == 0 for r in rows):
+            return None
+        if any(r.size != n for r in rows):
+            raise ValueError(f"JointTrajectory {field_name} sizes disagree with {n} joint names")
+        return np.array(rows).reshape(len(rows), n)
+
+    return TrajectoryArrays(names, times, stack("positions", True), stack("velocities", False),
+                            stack("accelerations", False))
+
+
+# ---------------------------------------------------------------- PlanReach requests
+REQUEST_FRAMES = ("", "world", "base_link")
+ARM_NAMES = {PlanReach.Request.ARM_AUTO: "auto", PlanReach.Request.ARM_RIGHT: "right",
+             PlanReach.Request.ARM_LEFT: "left"}
+ARM_CODES = {"right": PlanReach.Request.ARM_RIGHT, "left": PlanReach.Request.ARM_LEFT}
+PLANNERS = ("rrt_connect", "prm", "prm_modified")
+
+
+class RequestError(ValueError):
+    """A PlanReach request that cannot be planned; ``code`` is a ``PlanReach.Response`` error code."""
+
+    def __init__(self, code: int, message: str) -> None:
+        super().__init__(message)
+        self.code = int(code)
+
+
+@dataclass(frozen=True)
+class ReachRequest:
+    """A validated PlanReach request in numpy terms (``None`` = use the node's default).
+
+    ``region`` is in the world frame; when ``use_marker_target`` it still holds the
+    request's own target, to be replaced by :func:`region_with_target`."""
+
+    region: WorkspaceGoalRegion
+    arm: str
+    goal_count: int | None
+    planner: str | None
+    time_budget_s: float | None
+    seed: int | None
+    use_marker_target: bool
+    execute: bool
+
+
+def _pose_arrays(p: Pose) -> np.ndarray:
+    return np.array([p.position.x, p.position.y, p.position.z,
+                     p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w], dtype=float)
+
+
+def target_in_world(target: PoseStamped, waist: pin.SE3 | None, what: str = "region.target") -> pin.SE3:
+    """World pose of a target ``PoseStamped`` in ``world`` ("" = world) or ``base_link``
+    (``waist`` = the current waist pose in world). ``RequestError`` with UNKNOWN_FRAME for
+    any other frame, INVALID_REQUEST for a non-finite pose or non-unit quaternion,
+    NO_JOINT_STATES when a base_link target comes without a waist pose."""
+    E = PlanReach.Response
+    frame = target.header.frame_id
+    if frame not in REQUEST_FRAMES:
+        raise RequestError(E.UNKNOWN_FRAME, f"{what} frame_id {frame!r} is unknown; use 'world' (or '') or "
+                                            "'base_link'")
+    try:
+        pose = se3_from_pose(target)
+    except ValueError as exc:
+        raise RequestError(E.INVALID_REQUEST, f"{what}: {exc}") from None
+    if frame == "base_link":
+        if waist is None:
+            raise RequestError(E.NO_JOINT_STATES, f"{what} is in base_link but there is no recent /joint_states "
+                                                  "to place the waist")
+        pose = waist * pose
+    return pose
+
+
+def reach_request(req: PlanReach.Request, waist: pin.SE3 | None = None) -> ReachRequest:
+    """Validate and convert a ``PlanReach`` request (``RequestError`` with the response code).
+
+    Checks, in order: NaN/inf anywhere -> INVALID_REQUEST; arm not 0/1/2, unknown planner,
+    negative time budget -> INVALID_REQUEST; target frame not world/""/base_link ->
+    UNKNOWN_FRAME (skipped with ``use_marker_target``: the marker's pose replaces it);
+    lower > upper or rotation bounds outside [-pi, pi] -> INVALID_BOUNDS.
+    ``waist`` is the current waist pose in world, needed for a ``base_link`` target.
+    """
+    E = PlanReach.Response
+    lower = np.asarray(req.region.lower, dtype=float)
+    upper = np.asarray(req.region.upper, dtype=float)
+    values = {"region.target.pose": _pose_arrays(req.region.target.pose), "region.lower": lower,
+              "region.upper": upper, "time_budget_s": np.array([req.time_budget_s])}
+    bad = [k for k, v in values.items() if not np.all(np.isfinite(v))]
+    if bad:
+        raise RequestError(E.INVALID_REQUEST, f"non-finite values (NaN/inf) in {', '.join(bad)}")
+    if req.arm not in ARM_NAMES:
+        raise RequestError(E.INVALID_REQUEST, f"arm {req.arm} is unknown; use 0 (auto), 1 (right) or 2 (left)")
+    planner = req.planner.strip()
+    if planner and planner not in PLANNERS:
+        raise RequestError(E.INVALID_REQUEST, f"planner {req.planner!r} is unknown; use one of "
+                                              f"{', '.join(PLANNERS)} (empty = node default)")
+    if req.time_budget_s < 0.0:
+        raise RequestError(E.INVALID_REQUEST, f"time_budget_s must be >= 0 (0 = node default), "
+                                              f"got {req.time_budget_s}")
+    if req.use_marker_target:
+        target = pin.SE3.Identity()
+    else:
+        target = target_in_world(req.region.target, waist)
+    try:
+        region = WorkspaceGoalRegion.from_pose(target, lower, upper)
+    except ValueError as exc:
+        raise RequestError(E.INVALID_BOUNDS, str(exc)) from None
+    return ReachRequest(
+        region=region, arm=ARM_NAMES[req.arm], goal_count=int(req.goal_count) or None,
+        planner=planner or None, time_budget_s=float(req.time_budget_s) or None,
+        seed=int(req.seed) if req.seed >= 0 else None,
+        use_marker_target=bool(req.use_marker_target), execute=bool(req.execute),
+    )
+
+
+def plan_reach_request(region: WorkspaceGoalRegion, frame_id: str = "world", arm: int = 0, goal_count: int = 0,
+                       planner: str = "", time_budget_s: float = 0.0, use_marker_target: bool = False,
+                       execute: bool = False, seed: int = -1) -> PlanReach.Request:
+    """A ``PlanReach`` request for a region whose target is expressed in ``frame_id``
+    (the client side of :func:`reach_request`; 0 / "" / -1 = the node's defaults)."""
+    req = PlanReach.Request(arm=int(arm), goal_count=int(goal_count), planner=str(planner),
+                            time_budget_s=float(time_budget_s), use_marker_target=bool(use_marker_target),
+                            execute=bool(execute), seed=int(seed))
+    req.region.target = pose_stamped(pin.SE3(np.asarray(region.target_R), np.asarray(region.target_p)), frame_id)
+    req.region.lower = np.asarray(region.lower, dtype=float)
+    req.region.upper = np.asarray(region.upper, dtype=float)
+    return req
+
+
+def region_with_target(region: WorkspaceGoalRegion, target: pin.SE3) -> WorkspaceGoalRegion:
+    """The same bounds around another target pose (world)."""
+    return WorkspaceGoalRegion.from_pose(target, region.lower, region.upper)
+
+
+# ---------------------------------------------------------------- planning statistics
+_STAT_TYPES = PlanningStatistics.get_fields_and_field_types()
+
+
+def planning_statistics(stats: Mapping[str, Any]) -> PlanningStatistics:
+    """``PlanningStatistics`` from a dict keyed by its field names; missing keys stay 0.
+
+    Raises ``ValueError`` for an unknown key or a negative / non-finite value."""
+    unknown = sorted(set(stats) - set(_STAT_TYPES))
+    if unknown:
+        raise ValueError(f"unknown PlanningStatistics fields: {', '.join(unknown)}")
+    msg = PlanningStatistics()
+    for key, value in stats.items():
+        if value is None:
+            continue
+        v = float(value)
+        if not math.isfinite(v) or v < 0.0:
+            raise ValueError(f"PlanningStatistics.{key} must be finite and >= 0, got {value}")
+        setattr(msg, key, v if _STAT_TYPES[key] == "double" else int(round(v)))
+    return msg
+
+
+def statistics_dict(msg: PlanningStatistics) -> dict[str, float | int]:
+    """The fields of a ``PlanningStatistics`` as a dict (the inverse of :func:`planning_statistics`)."""
+    return {k: getattr(msg, k) for k in _STAT_TYPES}
+
+
+# ---------------------------------------------------------------- markers
+RGBA = tuple[float, float, float, float]
+
+
+def _marker(kind: int, ns: str, marker_id: int, frame_id: str, stamp: Time | None, color: RGBA,
+            scale: Sequence[float], pose: pin.SE3 | None = None) -> Marker:
+    m = Marker(header=header(frame_id, stamp), ns=ns, id=int(marker_id), type=kind, action=Marker.ADD)
+    m.pose = pose_from_se3(pose if pose is not None else pin.SE3.Identity())
+    m.scale.x, m.scale.y, m.scale.z = (float(s) for s in scale)
+    m.color.r, m.color.g, m.color.b, m.color.a = (float(c) for c in color)
+    return m
+
+
+def line_strip_marker(points: np.ndarray, ns: str, frame_id: str, stamp: Time | None = None,
+                      color: RGBA = (0.1, 0.8, 0.1, 1.0), width_m: float = 0.01, marker_id: int = 0) -> Marker:
+    """LINE_STRIP through points (N, 3) (e.g. the hand path)."""
+    m = _marker(Marker.LINE_STRIP, ns, marker_id, frame_id, stamp, color, (width_m, 0.0, 0.0))
+    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    if not np.all(np.isfinite(pts)):
+        raise ValueError("line strip points must be finite")
+    m.points = [Point(x=float(x), y=float(y), z=float(z)) for x, y, z in pts]
+    return m
+
+
+def pose_arrow_markers(poses: Iterable[pin.SE3], ns: str, frame_id: str, stamp: Time | None = None,
+                       color: RGBA = (0.9, 0.6, 0.1, 0.9), length_m: float = 0.08, axis: int = 2) -> list[Marker]:
+    """One ARROW per pose along the pose's ``axis`` (2 = z, the hand's approach axis)."""
+    out = []
+    for i, pose in enumerate(poses):
+        # an ARROW marker points along its pose's x axis: rotate x onto the chosen axis
+        R = np.asarray(pose.rotation)
+        if axis == 0:
+            Rm = R
+        elif axis == 1:
+            Rm = R @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+        else:
+            Rm = R @ np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+        out.append(_marker(Marker.ARROW, ns, i, frame_id, stamp, color, (length_m, 0.012, 0.012),
+                           pin.SE3(Rm, np.asarray(pose.translation))))
+    return out
+
+
+def region_markers(region: WorkspaceGoalRegion, ns: str, frame_id: str, stamp: Time | None = None,
+                   color: RGBA = (0.2, 0.4, 1.0, 0.4), min_size_m: float = 0.03) -> list[Marker]:
+    """The WGR: a translucent CUBE over its translation bounds (at least ``min_size_m``)
+    in the target frame, and an ARROW along the target's z axis."""
+    lo, hi = np.asarray(region.lower), np.asarray(region.upper)
+    centre_local = 0.5 * (lo[:3] + hi[:3])
+    target = pin.SE3(np.asarray(region.target_R), np.asarray(region.target_p))
+    box_pose = target * pin.SE3(np.eye(3), centre_local)
+    size = np.maximum(hi[:3] - lo[:3], min_size_m)
+    box = _marker(Marker.CUBE, ns, 0, frame_id, stamp, color, size, box_pose)
+    arrow = pose_arrow_markers([target], ns, frame_id, stamp, (color[0], color[1], color[2], 1.0), 0.1)[0]
+    arrow.id = 1
+    return [box, arrow]
+
+
+def marker_array(markers: Iterable[Marker], clear: bool = True, frame_id: str = "",
+                 stamp: Time | None = None) -> MarkerArray:
+    """``MarkerArray``; with ``clear`` a DELETEALL marker first removes the previous plan's markers."""
+    out = []
+    if clear:
+        out.append(Marker(header=header(frame_id, stamp), action=Marker.DELETEALL))
+    out.extend(markers)
+    return MarkerArray(markers=out)
