@@ -210,6 +210,11 @@ def test_tiny_time_budget(planner, region):
     assert o.error in (PlanError.TIMED_OUT, PlanError.NO_PATH) and not o.success, o.message
 
 
-def test_prm_planner(planner, region):
-    o = planner.plan(planner.robot.half_sitting_joints, PlanRequest(region, arm="right", planner="prm", seed=2))
+@pytest.mark.parametrize("name", ["prm", "modified_prm"])
+def test_prm_planners(planner, region, name):
+    """Both roadmap planners, by the names the /plan_reach service accepts."""
+    from humanoid_reach_ros.io.msgs import PLANNERS
+
+    assert name in PLANNERS
+    o = planner.plan(planner.robot.half_sitting_joints, PlanRequest(region, arm="right", planner=name, seed=2))
     _check_outcome(planner, o, region)

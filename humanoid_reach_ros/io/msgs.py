@@ -224,6 +224,7 @@ from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E402
 from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
+from humanoid_reach_ros.planning.path import PLANNER_NAMES  # noqa: E402
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion  # noqa: E402
 
 
@@ -396,7 +397,7 @@ REQUEST_FRAMES = ("", "world", "base_link")
 ARM_NAMES = {PlanReach.Request.ARM_AUTO: "auto", PlanReach.Request.ARM_RIGHT: "right",
              PlanReach.Request.ARM_LEFT: "left"}
 ARM_CODES = {"right": PlanReach.Request.ARM_RIGHT, "left": PlanReach.Request.ARM_LEFT}
-PLANNERS = ("rrt_connect", "prm", "prm_modified")
+PLANNERS = PLANNER_NAMES  # the planners ReachPlanner knows, one list for node and planner
 
 
 class RequestError(ValueError):
