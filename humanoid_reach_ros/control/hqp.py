@@ -1,0 +1,398 @@
+"""Lexicographic (hierarchical) QP: prioritized IK with equalities and inequalities.
+
+Kanoun, Lamiraux and Wieber (2011), the solver of Sec. IV of Kanehiro et al.:
+levels ``k = 1..p``, each with equality rows ``A_k x = b_k`` and inequality rows
+``C_k x <= d_k``. Level ``k`` solves
+
+    min_{x, w}  ||A_k x - b_k||^2 + ||w||^2 + eps ||x||^2
+    s.t.        C_k x - d_k <= w                                  (own inequalities)
+                A_j x  = b_j + w_j*          for all j < k        (higher equalities)
+                C_j x <= d_j + max(w_j*, 0)  for all j < k        (higher inequalities)
+
+where ``w_j*`` are the optimal slacks of the higher levels, frozen once level ``j``
+is solved: a lower level never degrades a higher one, and an infeasible level is
+never an error, it is solved in the least-squares sense (equalities) or with the
+least violation (inequalities) and the lower levels use the remaining freedom.
+``eps`` (``damping``) makes every level strictly convex; a final level
+``min ||x||^2`` under all frozen rows picks the minimal-norm solution.
+
+Implementation: one OSQP instance per level, kept across calls, with a *fixed dense
+sparsity pattern*: the x-columns of every constraint row are stored densely, and each
+level reserves capacities for its equality and inequality rows; unused rows are
+inactive (``0 x = 0`` / ``0 x <= +inf``). Changing row counts (collision dampers
+that come and go) then only needs ``OSQP.update`` (new values, same pattern); a
+re-``setup`` happens only when a capacity grows. Each solver warm-starts from its
+own previous primal/dual solution (previous control step; the default) or, with
+``level_warm_start=True``, from the previous level's ``x`` (feasible for the frozen
+rows); the first solve of each level always starts from the previous level's ``x``.
+
+Frozen right-hand sides are taken at the latest solution (``A_j x_k`` and
+``max(d_j + w_j*, C_j x_k)``) so the frozen set is always exactly feasible even
+though OSQP solves to a tolerance (the drift is of the order of that tolerance).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+import osqp
+import scipy.sparse as sp
+
+_INF = 1e30
+
+
+@dataclass(frozen=True)
+class Level:
+    """One priority level: equality rows ``A x = b`` and inequality rows ``C x <= d``.
+
+    Either part may be empty (``None`` or zero rows). ``n`` is inferred from the rows.
+    """
+
+    A: np.ndarray | None = None
+    b: np.ndarray | None = None
+    C: np.ndarray | None = None
+    d: np.ndarray | None = None
+    name: str = ""
+
+    def parts(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        A = np.zeros((0, n)) if self.A is None else np.atleast_2d(np.asarray(self.A, float))
+        b = np.zeros(len(A)) if self.b is None else np.asarray(self.b, float).reshape(-1)
+        C = np.zeros((0, n)) if self.C is None else np.atleast_2d(np.asarray(self.C, float))
+        d = np.zeros(len(C)) if self.d is None else np.asarray(self.d, float).reshape(-1)
+        if A.shape[0] == 0:
+            A = A.reshape(0, n)
+        if C.shape[0] == 0:
+            C = C.reshape(0, n)
+        if A.shape != (len(b), n) or C.shape != (len(d), n):
+            raise ValueError(f"level {self.name!r}: inconsistent shapes A{A.shape} b{b.shape} "
+                             f"C{C.shape} d{d.shape} for n={n}")
+        return A, b, C, d
+
+    @staticmethod
+    def stack(*levels: "Level", name: str = "") -> "Level":
+        """One level holding all rows of ``levels`` (same priority)."""
+        def cat(mats, vecs):
+            mats = [np.atleast_2d(m) for m, v in zip(mats, vecs) if m is not None and np.size(v)]
+            vecs = [np.ravel(v) for v in vecs if v is not None and np.size(v)]
+            return (np.vstack(mats), np.concatenate(vecs)) if mats else (None, None)
+        A, b = cat([lv.A for lv in levels], [lv.b for lv in levels])
+        C, d = cat([lv.C for lv in levels], [lv.d for lv in levels])
+        return Level(A, b, C, d, name)
+
+
+@dataclass(frozen=True)
+class LevelReport:
+    """Outcome of one level: OSQP status, slack norms, iterations, solve time."""
+
+    status: str
+    eq_slack: np.ndarray        # A_k x - b_k
+    ineq_slack: np.ndarray      # max(C_k x - d_k, 0)
+    iterations: int
+    time_s: float
+
+    @property
+    def slack_norm(self) -> float:
+        return float(np.sqrt(self.eq_slack @ self.eq_slack + self.ineq_slack @ self.ineq_slack))
+
+
+@dataclass(frozen=True)
+class HQPResult:
+    """Solution ``x`` and per-level reports (the final minimal-norm level excluded)."""
+
+    x: np.ndarray
+    levels: tuple[LevelReport, ...]
+    n_active_inequalities: int   # inequality rows at their bound (|C x - d| <= tol or violated)
+    time_s: float
+    setups: int                  # number of OSQP re-setups done in this call
+
+    @property
+    def slacks(self) -> tuple[float, ...]:
+        return tuple(r.slack_norm for r in self.levels)
+
+    @property
+    def ok(self) -> bool:
+        return all(r.status in ("solved", "solved inaccurate") for r in self.levels)
+
+
+@dataclass
+class _LevelSolver:
+    """The OSQP instance of one level and its fixed pattern."""
+
+    n: int
+    n_fixed: int          # frozen rows from higher levels (capacity)
+    n_ineq: int           # own inequality capacity (slack variables)
+    reg: float
+    settings: dict
+    level_warm: bool = False
+    solved_once: bool = False
+    solver: osqp.OSQP = field(init=False)
+    _p_rows: np.ndarray = field(init=False, repr=False)
+    _p_cols: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        n, mi = self.n, self.n_ineq
+        cols = np.concatenate([np.full(j + 1, j) for j in range(n)]) if n else np.zeros(0, int)
+        rows = np.concatenate([np.arange(j + 1) for j in range(n)]) if n else np.zeros(0, int)
+        self._p_rows, self._p_cols = rows, cols
+        N = n + mi
+        # P: dense upper triangle of the x block, identity on the slacks
+        p_indptr = np.concatenate([[0], np.cumsum(np.arange(1, n + 1)), (n * (n + 1)) // 2 + np.arange(1, mi + 1)])
+        p_indices = np.concatenate([rows, n + np.arange(mi)])
+        H = np.eye(n)
+        self._P = sp.csc_matrix((self._p_data(H), p_indices, p_indptr), shape=(N, N))
+        # A: dense x columns over all rows, -I on the slack columns
+        M = self.n_rows
+        a_indptr = np.concatenate([np.arange(n + 1) * M, n * M + np.arange(1, mi + 1)])
+        a_indices = np.concatenate([np.tile(np.arange(M), n), self.n_fixed + np.arange(mi)])
+        a_data = np.concatenate([np.zeros(M * n), -np.ones(mi)])
+        self._A = sp.csc_matrix((a_data, a_indices, a_indptr), shape=(M, N))
+        self._neg = -np.ones(mi)
+        self.solver = osqp.OSQP()
+        self.solver.setup(self._P, np.zeros(N), self._A, np.full(M, -_INF), np.full(M, _INF), **self.settings)
+
+    @property
+    def n_rows(self) -> int:
+        return max(self.n_fixed + self.n_ineq, 1)
+
+    def _p_data(self, H: np.ndarray) -> np.ndarray:
+        return np.concatenate([H[self._p_rows, self._p_cols], np.ones(self.n_ineq)])
+
+    def solve(self, H, g, F, lF, uF, C, d, x0, warm_level: bool):
+        """min 1/2 x'Hx + g'x + 1/2|w|^2 s.t. lF <= F x <= uF, C x - w <= d (all padded)."""
+        n, mi = self.n, self.n_ineq
+        M = self.n_rows
+        Ad = np.zeros((M, n))
+        Ad[: self.n_fixed] = F
+        Ad[self.n_fixed: self.n_fixed + mi] = C
+        l = np.full(M, -_INF)
+        u = np.full(M, _INF)
+        l[: self.n_fixed] = lF
+        u[: self.n_fixed] = uF
+        u[self.n_fixed: self.n_fixed + mi] = d
+        q = np.concatenate([g, np.zeros(mi)])
+        self.solver.update(q=q, l=l, u=u, Px=self._p_data(H), Ax=np.concatenate([Ad.ravel(order="F"), self._neg]))
+        if warm_level and x0 is not None and (self.level_warm or not self.solved_once):
+            w0 = np.maximum(C @ x0 - d, 0.0)
+            self.solver.warm_start(x=np.concatenate([x0, w0]))
+        res = self.solver.solve(raise_error=False)
+        self.solved_once = True
+        return res
+
+
+class HierarchicalQP:
+    """Lexicographic QP solver with persistent per-level OSQP instances.
+
+    ``solve(levels)`` takes the levels in priority order (first = highest). The
+    number of levels and ``n`` should stay the same between calls (changing them
+    re-creates the solvers); row counts may change freely.
+    """
+
+    def __init__(self, damping: float = 1e-8, min_norm: bool = True, eps: float = 1e-6,
+                 polish: bool = True, warm_start: bool = True, max_iter: int = 4000,
+                 active_tol: float = 1e-6, growth: float = 1.5, level_warm_start: bool = False, rank_tol: float = 1e-9,
+                 **osqp_settings) -> None:
+        self.damping = float(damping)
+        self.min_norm = bool(min_norm)
+        self.warm = bool(warm_start)
+        self.level_warm = bool(level_warm_start)
+        self.active_tol = float(active_tol)
+        self.growth = float(growth)
+        self.rank_tol = float(rank_tol)
+        self.settings = dict(eps_abs=eps, eps_rel=eps, polishing=polish, warm_starting=warm_start,
+                             max_iter=max_iter, verbose=False, polish_refine_iter=5,
+                             # every level is feasible (slacks, relaxed frozen bounds) and bounded
+                             # (P > 0) by construction: switch off the certificates, which the
+                             # tiny damping otherwise triggers falsely
+                             eps_prim_inf=1e-15, eps_dual_inf=1e-15)
+        self.settings.update(osqp_settings)
+        self._n: int | None = None
+        self._cap: list[int] = []                  # inequality row capacity per level
+        self._solvers: list[_LevelSolver] = []
+
+    # ------------------------------------------------------------ structure
+    def _ensure(self, n: int, sizes: Sequence[int]) -> int:
+        """(Re)build solvers whose pattern cannot hold the inequality row counts ``sizes``;
+        returns the number of OSQP setups done."""
+        if self._n != n or len(self._cap) != len(sizes):
+            self._n, self._solvers = n, []
+            first_bad = 0
+            new_cap = [int(mi) for mi in sizes]
+        else:
+            first_bad = None
+            new_cap = list(self._cap)
+            for k, (mi, ci) in enumerate(zip(sizes, self._cap)):
+                if mi > ci:
+                    new_cap[k] = max(int(mi), int(np.ceil(ci * self.growth)))
+                    first_bad = k if first_bad is None else first_bad
+            if first_bad is None:
+                return 0
+        self._cap = new_cap
+        self._solvers = self._solvers[:first_bad]
+        fixed = sum(new_cap[:first_bad])
+        count = 0
+        for k in range(first_bad, len(new_cap)):
+            self._solvers.append(_LevelSolver(n, fixed, new_cap[k], self.damping, self.settings, self.level_warm))
+            fixed += new_cap[k]
+            count += 1
+        self._solvers.append(_LevelSolver(n, fixed, 0, self.damping, self.settings, self.level_warm))
+        return count + 1
+
+    # ------------------------------------------------------------ solve
+    def solve(self, levels: Sequence[Level], n: int | None = None) -> HQPResult:
+        """Solve the hierarchy; ``levels[0]`` has the highest priority.
+
+        Frozen equalities are eliminated exactly: after level ``k`` the solution is
+        ``x = x_k + N_k y`` with ``N_k`` the orthogonal projector onto the null space
+        of all equality rows so far (``N_k = N_{k-1} - (A_k N_{k-1})^+ A_k N_{k-1}``),
+        so OSQP only ever sees inequality rows (frozen ones with relaxed bounds and the
+        level's own ones with slacks) and the higher equalities cannot drift.
+        """
+        t0 = time.perf_counter()
+        if n is None:
+            n = next((np.shape(m)[1] for lv in levels for m in (lv.A, lv.C) if m is not None and np.ndim(m) == 2), None)
+            if n is None:
+                raise ValueError("cannot infer n from empty levels; pass n")
+        parts = [lv.parts(n) for lv in levels]
+        setups = self._ensure(n, [len(d) for _, _, _, d in parts])
+
+        n_fixed = sum(self._cap)
+        F = np.zeros((n_fixed, n))            # frozen inequality rows (padded)
+        uF = np.full(n_fixed, _INF)
+        row = 0
+        x = np.zeros(n)
+        N = np.eye(n)
+        reports = []
+        eye = np.eye(n)
+        for k, ((A, b, C, d), ci) in enumerate(zip(parts, self._cap)):
+            s = self._solvers[k]
+            AN = A @ N
+            H = AN.T @ AN + s.reg * eye
+            g = AN.T @ (A @ x - b)
+            CN = np.zeros((ci, n))
+            dp = np.full(ci, _INF)
+            CN[: len(C)] = C @ N
+            dp[: len(d)] = d - C @ x
+            ts = time.perf_counter()
+            res = s.solve(H, g, F[:row] @ N, np.full(row, -_INF), uF[:row] - F[:row] @ x, CN, dp,
+                          np.zeros(n), warm_level=self.warm)
+            dt = time.perf_counter() - ts
+            if _usable(res):
+                x = x + N @ res.x[:n]
+            eq_s = A @ x - b
+            viol = C @ x - d
+            in_s = np.maximum(viol, 0.0)
+            reports.append(LevelReport(res.info.status, eq_s, in_s, int(res.info.iter), dt))
+            # freeze: inequalities at their relaxed bound (never tighter than x), equalities in N
+            F[row: row + len(d)] = C
+            uF[row: row + len(d)] = d + in_s
+            row += ci
+            if len(A):
+                N = _project_out(N, AN, self.rank_tol)
+        if self.min_norm and row + 1 <= len(F) + 1:
+            s = self._solvers[len(levels)]
+            # min |x + N y|^2 + damping |y|^2 under the frozen inequalities
+            res = s.solve(N.T @ N + s.reg * eye, N.T @ x, F[:row] @ N, np.full(row, -_INF),
+                          uF[:row] - F[:row] @ x, np.zeros((0, n)), np.zeros(0), np.zeros(n),
+                          warm_level=self.warm)
+            if _usable(res):
+                x_new = x + N @ res.x[:n]
+                if row == 0 or np.all(F[:row] @ x_new <= uF[:row] + 1e-7):
+                    x = x_new
+        n_active = sum(int(np.count_nonzero(C @ x - d >= -self.active_tol)) for _, _, C, d in parts)
+        return HQPResult(x, tuple(reports), n_active, time.perf_counter() - t0, setups)
+
+
+_USABLE = ("solved", "solved inaccurate", "maximum iterations reached", "run time limit reached")
+
+
+def _usable(res) -> bool:
+    """An OSQP iterate worth taking (not an infeasibility certificate)."""
+    return res.info.status in _USABLE and res.x is not None and bool(np.all(np.isfinite(res.x)))
+
+
+def _project_out(N: np.ndarray, AN: np.ndarray, rank_tol: float) -> np.ndarray:
+    """``N - (A N)^+ (A N)`` with a rank-revealing SVD (``N`` an orthogonal projector)."""
+    _, S, Vt = np.linalg.svd(AN, full_matrices=False)
+    if len(S) == 0:
+        return N
+    r = int(np.sum(S > rank_tol * max(S[0], 1.0)))
+    V = Vt[:r]
+    return N - V.T @ V
+
+
+# ---------------------------------------------------------------- dense reference
+def solve_dense_reference(levels: Sequence[Level], n: int, damping: float = 1e-10,
+                          tol: float = 1e-9) -> tuple[np.ndarray, list[float]]:
+    """Exact lexicographic solve by active-set enumeration (small problems only; tests).
+
+    For each level and each candidate set of active inequality rows (own rows counted
+    in the least squares, frozen rows held at their bound) the equality-constrained
+    least squares is solved by null-space projection; the best feasible candidate
+    under the true (strictly convex, ``damping``-regularised) objective is exact.
+    Returns ``(x, slack norm per level)``.
+    """
+    import itertools
+
+    parts = [lv.parts(n) for lv in levels]
+    FE = np.zeros((0, n)); fe = np.zeros(0)      # frozen equalities
+    FI = np.zeros((0, n)); fi = np.zeros(0)      # frozen inequalities
+    x = np.zeros(n)
+    norms = []
+
+    def objective(A, b, C, d, y):
+        r = A @ y - b
+        w = np.maximum(C @ y - d, 0.0)
+        return r @ r + w @ w + damping * y @ y
+
+    for A, b, C, d in parts:
+        best, best_val = None, np.inf
+        mi, mf = len(d), len(fi)
+        for act_own in itertools.product((False, True), repeat=mi):
+            M = np.vstack([A, C[list(act_own)]]) if mi else A
+            r = np.concatenate([b, d[list(act_own)]]) if mi else b
+            for act_fix in itertools.product((False, True), repeat=mf):
+                E = np.vstack([FE, FI[list(act_fix)]])
+                e = np.concatenate([fe, fi[list(act_fix)]])
+                y = _eq_lsq(M, r, E, e, damping, tol)
+                if y is None:
+                    continue
+                if len(FI) and np.any(FI @ y > fi + 1e-9):
+                    continue
+                if len(FE) and np.any(np.abs(FE @ y - fe) > 1e-8):
+                    continue
+                val = objective(A, b, C, d, y)
+                if val < best_val - 1e-15:
+                    best, best_val = y, val
+        x = best
+        eq_s = A @ x - b
+        in_s = np.maximum(C @ x - d, 0.0)
+        norms.append(float(np.sqrt(eq_s @ eq_s + in_s @ in_s)))
+        FE = np.vstack([FE, A]); fe = np.concatenate([fe, A @ x])
+        FI = np.vstack([FI, C]); fi = np.concatenate([fi, d + in_s])
+    return x, norms
+
+
+def _eq_lsq(M, r, E, e, damping, tol):
+    """argmin |M y - r|^2 + damping |y|^2 s.t. E y = e (None if E y = e inconsistent)."""
+    n = M.shape[1]
+    if len(E):
+        U, S, Vt = np.linalg.svd(E)
+        rank = int(np.sum(S > 1e-10 * max(1.0, S[0])))
+        y0 = Vt[:rank].T @ ((U[:, :rank].T @ e) / S[:rank])
+        if np.linalg.norm(E @ y0 - e) > tol * max(1.0, np.linalg.norm(e)) * 10:
+            return None
+        Z = Vt[rank:].T
+    else:
+        y0 = np.zeros(n)
+        Z = np.eye(n)
+    if Z.shape[1] == 0:
+        return y0
+    K = np.vstack([M @ Z, np.sqrt(damping) * Z])
+    t = np.concatenate([r - M @ y0, -np.sqrt(damping) * y0])
+    z, *_ = np.linalg.lstsq(K, t, rcond=None)
+    return y0 + Z @ z
+
+
+__all__ = ["Level", "LevelReport", "HQPResult", "HierarchicalQP", "solve_dense_reference"]
