@@ -86,4 +86,13 @@ if [ "$force" = "--force" ] || [ ! -d install ] || [ "$(cat "$STAMPS/colcon" 2>/
   fi
   echo "$src_hash" > "$STAMPS/colcon"
 fi
+# --- 5. numba kernels into their on-disk cache ------------------------------
+# (a cold cache would otherwise compile for seconds inside the first planning request)
+py_hash=$(find humanoid_reach_ros -name '*.py' | sort | xargs cat | sha256sum | cut -c1-16)
+if [ "$force" = "--force" ] || [ "$(cat "$STAMPS/numba" 2>/dev/null)" != "$py_hash" ]; then
+  log "compiling numba kernels (about 15 s the first time)"
+  ( set +u; . tools/env.sh && python -m humanoid_reach_ros.warmup ) > build/warmup.log 2>&1 \
+    || { tail -20 build/warmup.log >&2; die "numba warm-up failed (full log: build/warmup.log)"; }
+  echo "$py_hash" > "$STAMPS/numba"
+fi
 log "ready (. tools/env.sh to use it in a shell)"
