@@ -30,7 +30,10 @@ DRIVER_PARAMS = "config/joint_driver.yaml"
 READY = r"reach planner ready"
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 FAST_DIAG = {"diagnostics_period_s": 0.2}
-SUCCESS_BUDGET_S = 5.0  # generous: a loaded test machine must not turn a reachable valve into TIMED_OUT
+# Generous: these tests assert correctness, not speed (bench/planning.py measures that). Inside the
+# node, requests after the first run several times slower than in-process (open in issue #3), and a
+# loaded 2-core CI machine must not turn a reachable valve into TIMED_OUT.
+SUCCESS_BUDGET_S = 20.0
 
 
 @pytest.fixture(scope="module")
