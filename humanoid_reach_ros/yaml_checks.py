@@ -52,3 +52,14 @@ def unit(x: Any, where: str) -> Vec3:
     if n < 1e-9:
         raise ValueError(f"{where}: must be a non-zero vector, got {tuple(v)}")
     return tuple(float(c) for c in v / n)  # type: ignore[return-value]
+
+
+def named_entry(entry: Any, where: str, expected: str) -> tuple[str, str]:
+    """A mapping with a non-empty ``name``; returns the name and ``where`` extended by it.
+    ``expected`` says what else the mapping must hold (for the error text)."""
+    if not isinstance(entry, dict):
+        raise ValueError(f"{where}: expected a mapping with 'name' and {expected}")
+    name = entry.get("name")
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"{where}: missing or empty 'name'")
+    return name, f"{where} ({name!r})"

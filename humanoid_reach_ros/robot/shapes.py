@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import yaml
 
-from humanoid_reach_ros.yaml_checks import number, top_level, vec3
+from humanoid_reach_ros.yaml_checks import named_entry, number, top_level, vec3
 
 if TYPE_CHECKING:  # pragma: no cover
     from humanoid_reach_ros.robot.model import RobotModel
@@ -400,12 +400,7 @@ def collision_model_from_dict(
 
 
 def _parse_shape(entry: Any, link: str, where: str) -> Shape:
-    if not isinstance(entry, dict):
-        raise ValueError(f"{where}: expected a mapping with 'name' and one of {SHAPE_KINDS}")
-    name = entry.get("name")
-    if not isinstance(name, str) or not name:
-        raise ValueError(f"{where}: missing or empty 'name'")
-    where = f"{where} ({name!r})"
+    name, where = named_entry(entry, where, f"one of {SHAPE_KINDS}")
     kinds = [k for k in SHAPE_KINDS if k in entry]
     extra = set(entry) - {"name", *SHAPE_KINDS}
     if extra:

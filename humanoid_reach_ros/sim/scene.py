@@ -58,7 +58,7 @@ import numpy as np
 import yaml
 
 from humanoid_reach_ros.paths import config_path
-from humanoid_reach_ros.yaml_checks import Vec3, number, positive, top_level, unit, vec3
+from humanoid_reach_ros.yaml_checks import Vec3, named_entry, number, positive, top_level, unit, vec3
 
 
 #: cells evaluated at once when voxelizing (bounds the temporary memory)
@@ -725,12 +725,7 @@ def scene_from_dict(doc: Any, source: str = "<dict>") -> Scene:
 
 
 def _parse_primitive(entry: Any, where: str) -> Primitive:
-    if not isinstance(entry, dict):
-        raise ValueError(f"{where}: expected a mapping with 'name' and 'type'")
-    name = entry.get("name")
-    if not isinstance(name, str) or not name:
-        raise ValueError(f"{where}: missing or empty 'name'")
-    where = f"{where} ({name!r})"
+    name, where = named_entry(entry, where, "'type'")
     kind = entry.get("type")
     if kind not in _TYPE_KEYS:
         raise ValueError(f"{where}: unknown type {kind!r}; expected one of {sorted(_TYPE_KEYS)}")
