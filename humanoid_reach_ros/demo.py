@@ -49,6 +49,19 @@ def reach_target(robot: RobotModel, ik: LimbIKSet, arm: str, target_p: np.ndarra
     return joints
 
 
+def joint_arrays(robot: RobotModel, msg) -> tuple[np.ndarray, np.ndarray]:
+    """Positions and velocities of a sensor_msgs/JointState as 30-vectors in model order."""
+    from humanoid_reach_ros.io import msgs
+
+    js = msgs.parse_joint_state(msg)
+    idx = [robot.joint_index[n] for n in js.names]
+    pos, vel = np.zeros(robot.n_joints), np.zeros(robot.n_joints)
+    pos[idx] = js.positions
+    if js.velocities is not None:
+        vel[idx] = js.velocities
+    return pos, vel
+
+
 def clamped_cubic(s: np.ndarray) -> np.ndarray:
     """Clamped cubic time scaling 3 s^2 - 2 s^3 (zero velocity at both ends)."""
     return 3 * s**2 - 2 * s**3
@@ -96,8 +109,7 @@ def run(args: argparse.Namespace) -> dict:
         print(f"[demo] /joint_states at {rate_hz:.1f} Hz")
 
         names = list(robot.joint_names)
-        parsed = msgs.parse_joint_state(states[-1][1])
-        start = robot.joints_from_dict(dict(zip(parsed.names, parsed.positions)))
+        start, _ = joint_arrays(robot, states[-1][1])
         q_start = robot.config(start, robot.base_on_feet(start))
         target_p = np.asarray(args.target, dtype=float)
         goal = reach_target(robot, ik, args.arm, target_p, q_start)
@@ -116,10 +128,9 @@ def run(args: argparse.Namespace) -> dict:
                 cmd = start + s * (goal - start)
                 pub.publish(msgs.joint_state(names, cmd, stamp=node.get_clock().now().to_msg()))
                 next_cmd += 1.0 / COMMAND_RATE_HZ
-                m = msgs.parse_joint_state(states[-1][1])
                 log_t.append(t)
                 log_cmd.append(cmd)
-                log_meas.append(robot.joints_from_dict(dict(zip(m.names, m.positions))))
+                log_meas.append(joint_arrays(robot, states[-1][1])[0])
             if t > args.duration + settle:
                 break
             ex.spin_once(0.002)
@@ -129,12 +140,7 @@ def run(args: argparse.Namespace) -> dict:
         hand = robot.frame_pose(q_final, robot.limbs[f"{args.arm}_arm"].tip).translation
         meas = np.array(log_meas)
         dt = np.diff(np.array([s[0] for s in states]))
-        vel = np.array([msgs.parse_joint_state(s[1]).velocities for s in states])
-        vel_names = msgs.parse_joint_state(states[-1][1]).names
-        vlim = np.array([robot.velocity_limit[robot.joint_index[n]] for n in vel_names])
-        lo = robot.lower[[robot.joint_index[n] for n in vel_names]]
-        hi = robot.upper[[robot.joint_index[n] for n in vel_names]]
-        pos = np.array([msgs.parse_joint_state(s[1]).positions for s in states])
+        pos, vel = map(np.array, zip(*(joint_arrays(robot, s[1]) for s in states)))
         soles = robot.stance_soles
         feet_err = max(np.linalg.norm(robot.frame_pose(q_final, f).translation - s.translation)
                        for f, s in zip(("r_sole", "l_sole"), soles))
@@ -144,8 +150,8 @@ def run(args: argparse.Namespace) -> dict:
             "arm": args.arm,
             "target_m": target_p.tolist(),
             "final_hand_error_m": float(np.linalg.norm(hand - target_p)),
-            "max_speed_over_limit": float(np.max(np.abs(vel) / vlim)),
-            "limit_violations": int(np.sum((pos < lo - 1e-9) | (pos > hi + 1e-9))),
+            "max_speed_over_limit": float(np.max(np.abs(vel) / robot.velocity_limit)),
+            "limit_violations": int(np.sum((pos < robot.lower - 1e-9) | (pos > robot.upper + 1e-9))),
             "feet_drift_m": float(feet_err),
             "waist_from_base_pose_m": msgs.se3_from_pose(poses[-1].pose).translation.round(4).tolist(),
             "duration_s": args.duration,
@@ -194,7 +200,10 @@ def main(argv: list[str] | None = None) -> int:
         args.target = [0.45, -0.22 if args.arm == "right" else 0.22, 0.95]
     if not np.all(np.isfinite(args.target)) or not (0.2 <= args.duration <= 60.0):
         ap.error("--target must be finite and --duration within [0.2, 60] s")
-    signal.signal(signal.SIGTERM, lambda *_: (_ for _ in ()).throw(KeyboardInterrupt()))
+    def on_sigterm(*_) -> None:
+        raise KeyboardInterrupt  # stop like Ctrl-C: every child process is shut down
+
+    signal.signal(signal.SIGTERM, on_sigterm)
     try:
         report = run(args)
     except KeyboardInterrupt:
