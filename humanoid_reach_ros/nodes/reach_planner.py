@@ -328,14 +328,17 @@ class ReachPlannerNode(Node):
         except msgs.RequestError as exc:
             return PlanResult(exc.code, str(exc), joints=joints, waist=waist)
         result = PlanResult(region=rr.region, joints=joints, waist=waist, execute=rr.execute)
-        if joints is None:
-            result.code, result.message = E.NO_JOINT_STATES, joints_reason
-            return result
+        # Inputs in the order an operator fixes them: the target they asked for, then the robot state.
+        target = None
         if rr.use_marker_target:
             target, reason = self.current_target()
             if target is None:
                 result.code, result.message = E.NO_TARGET, reason
                 return result
+        if joints is None:
+            result.code, result.message = E.NO_JOINT_STATES, joints_reason
+            return result
+        if target is not None:
             try:
                 result.region = msgs.region_with_target(rr.region, msgs.target_in_world(target, waist, "/target_pose"))
             except msgs.RequestError as exc:
