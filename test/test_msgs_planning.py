@@ -168,6 +168,8 @@ def _quat(req):
     (_inf_lower, E.INVALID_REQUEST),
     (lambda r: setattr(r, "time_budget_s", math.nan), E.INVALID_REQUEST),
     (lambda r: setattr(r, "time_budget_s", -1.0), E.INVALID_REQUEST),
+    (lambda r: setattr(r, "time_budget_s", msgs.MAX_TIME_BUDGET_S + 1.0), E.INVALID_REQUEST),
+    (lambda r: setattr(r, "goal_count", msgs.MAX_GOAL_COUNT + 1), E.INVALID_REQUEST),
     (lambda r: setattr(r, "arm", 7), E.INVALID_REQUEST),
     (lambda r: setattr(r, "planner", "foo"), E.INVALID_REQUEST),
     (_quat, E.INVALID_REQUEST),

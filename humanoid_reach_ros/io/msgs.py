@@ -452,11 +452,16 @@ def target_in_world(target: PoseStamped, waist: pin.SE3 | None, what: str = "reg
     return pose
 
 
+# Caps of one request: an operator asking for more is a typo, and the node must stay responsive.
+MAX_GOAL_COUNT = 1000
+MAX_TIME_BUDGET_S = 60.0
+
+
 def reach_request(req: PlanReach.Request, waist: pin.SE3 | None = None) -> ReachRequest:
     """Validate and convert a ``PlanReach`` request (``RequestError`` with the response code).
 
     Checks, in order: NaN/inf anywhere -> INVALID_REQUEST; arm not 0/1/2, unknown planner,
-    negative time budget -> INVALID_REQUEST; target frame not world/""/base_link ->
+    time budget outside [0, MAX_TIME_BUDGET_S], goal_count above MAX_GOAL_COUNT -> INVALID_REQUEST; target frame not world/""/base_link ->
     UNKNOWN_FRAME (skipped with ``use_marker_target``: the marker's pose replaces it);
     lower > upper or rotation bounds outside [-pi, pi] -> INVALID_BOUNDS.
     ``waist`` is the current waist pose in world, needed for a ``base_link`` target.
@@ -475,9 +480,12 @@ def reach_request(req: PlanReach.Request, waist: pin.SE3 | None = None) -> Reach
     if planner and planner not in PLANNERS:
         raise RequestError(E.INVALID_REQUEST, f"planner {req.planner!r} is unknown; use one of "
                                               f"{', '.join(PLANNERS)} (empty = node default)")
-    if req.time_budget_s < 0.0:
-        raise RequestError(E.INVALID_REQUEST, f"time_budget_s must be >= 0 (0 = node default), "
-                                              f"got {req.time_budget_s}")
+    if not 0.0 <= req.time_budget_s <= MAX_TIME_BUDGET_S:
+        raise RequestError(E.INVALID_REQUEST, f"time_budget_s must be in [0, {MAX_TIME_BUDGET_S:g}] s "
+                                              f"(0 = node default), got {req.time_budget_s}")
+    if req.goal_count > MAX_GOAL_COUNT:
+        raise RequestError(E.INVALID_REQUEST, f"goal_count must be at most {MAX_GOAL_COUNT} (0 = node default), "
+                                              f"got {req.goal_count}")
     if req.use_marker_target:
         target = pin.SE3.Identity()
     else:
