@@ -1,0 +1,173 @@
+"""``hr_play``: republish a rosbag2-style MCAP file with its recorded timing.
+
+Usage::
+
+    python -m humanoid_reach_ros.nodes.bag_play run.mcap --rate 2 --topics /joint_states --loop
+    python -m humanoid_reach_ros.nodes.bag_play run.mcap --info
+
+* One publisher per topic with the recorded type (the message class is imported from the
+  type name: ``pkg/msg/Type`` -> ``pkg.msg.Type``); messages go out as their recorded
+  serialized CDR bytes (``Publisher.publish(bytes)``), never decoded, unless
+  ``--stamps-now``.
+* QoS: what the bag's ``offered_qos_profiles`` say (``io.mcap_bag.replay_qos``): latched
+  topics (``/robot_description``, ``/voxel_map``) are republished transient local, so a
+  node that starts later still gets their last message; the rest reliable (or best effort
+  if recorded so) volatile.
+* Timing: message ``i`` is due ``(log_time_i - log_time_first) / rate`` s after playback
+  starts (``playback_schedule``); ``--start-offset`` skips the bag's first seconds;
+  ``--loop`` starts over (each pass keeps the recorded gaps); ``--topics`` plays a subset.
+* ``--stamps-now``: messages with a top-level ``std_msgs/Header header`` are decoded and
+  their ``header.stamp`` set to the replay time, so that nodes that reject stale input
+  (``joint_states_timeout_s`` of reach_planner, the executor's staleness check) accept
+  replayed ``/joint_states``. Without it stamps stay as recorded (the default of
+  ``ros2 bag play``). There is no ``/clock`` (simulated time is not used by this package).
+* ``--wait-subscribers S``: before playing, wait up to S s until every played topic has a
+  subscriber (so that the first messages are not lost to discovery).
+
+Exit codes: 0 played, 1 stopped by a bag error while playing, 2 bad arguments, missing or
+corrupt bag, unknown topic filter or message type.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from typing import Any
+
+import rclpy
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message, serialize_message
+from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
+
+from humanoid_reach_ros.io.mcap_bag import BagError, BagReader, QosInfo, describe, message_class, playback_schedule
+from humanoid_reach_ros.nodes.bag_record import StopSignals
+
+NODE_NAME = "bag_play"
+
+
+def publisher_qos(q: QosInfo) -> QoSProfile:
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(1, q.depth) if q.transient_local else max(10, q.depth),
+                      reliability=ReliabilityPolicy.RELIABLE if q.reliable else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if q.transient_local else DurabilityPolicy.VOLATILE)
+
+
+def has_header(cls: type) -> bool:
+    return cls.get_fields_and_field_types().get("header") == "std_msgs/Header"
+
+
+class BagPlayerNode(Node):
+    """Publishers for the played topics; ``play`` runs one pass over the bag."""
+
+    def __init__(self, reader: BagReader, topics: list[str], stamps_now: bool = False, **kw: Any) -> None:
+        super().__init__(NODE_NAME, **kw)
+        self.reader = reader
+        self.topics = topics
+        self.stamps_now = stamps_now
+        self.classes = {t: message_class(reader.topics[t].type) for t in topics}  # BagError if unknown
+        self.publishers_ = {t: self.create_publisher(self.classes[t], t, publisher_qos(reader.topics[t].qos))
+                            for t in topics}
+        self.restamp = {t for t in topics if stamps_now and has_header(self.classes[t])}
+        self.published = 0
+
+    def wait_for_subscribers(self, timeout_s: float, stop: StopSignals) -> list[str]:
+        """Topics still without a subscriber after ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        while stop.signal is None:
+            lonely = [t for t, p in self.publishers_.items() if p.get_subscription_count() == 0]
+            if not lonely or time.monotonic() > deadline:
+                return lonely
+            time.sleep(0.02)
+        return []
+
+    def publish(self, topic: str, data: bytes) -> None:
+        if topic in self.restamp:
+            msg = deserialize_message(data, self.classes[topic])
+            msg.header.stamp = self.get_clock().now().to_msg()
+            data = serialize_message(msg)
+        self.publishers_[topic].publish(data)
+        self.published += 1
+
+    def play(self, rate: float, start_offset_s: float, stop: StopSignals) -> bool:
+        """One pass; False if stopped by a signal."""
+        messages = list(self.reader.messages(self.topics, start_offset_s))
+        due = playback_schedule([m.log_time_ns for m in messages], rate)
+        t0 = time.monotonic()
+        for m, t in zip(messages, due):
+            while stop.signal is None and (wait := t0 + t - time.monotonic()) > 0:
+                time.sleep(min(wait, 0.05))
+            if stop.signal is not None:
+                return False
+            self.publish(m.topic, m.data)
+        return True
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="hr_play", description="Republish a rosbag2-compatible MCAP file with "
+                                "the recorded timing.")
+    p.add_argument("bag", help=".mcap file (or a rosbag2 directory holding one)")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="play only these topics (default: all)")
+    p.add_argument("-r", "--rate", type=float, default=1.0, help="rate factor (2 = twice as fast)")
+    p.add_argument("-l", "--loop", action="store_true", help="play again and again until Ctrl-C")
+    p.add_argument("--start-offset", type=float, default=0.0, help="skip the first S seconds of the bag")
+    p.add_argument("--stamps-now", action="store_true", help="set header.stamp of stamped messages to the "
+                   "replay time (for nodes that reject stale input)")
+    p.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
+                   help="wait up to S s for a subscriber on every played topic before starting")
+    p.add_argument("--info", action="store_true", help="print what the bag holds and exit")
+    a = p.parse_args(argv)
+    if not (a.rate > 0 and a.rate < float("inf")):
+        p.error(f"--rate must be a finite number > 0, got {a.rate}")
+    if a.start_offset < 0 or a.wait_subscribers < 0:
+        p.error("--start-offset and --wait-subscribers must be >= 0")
+    return a
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv if argv is None else argv
+    args = parse_args(remove_ros_args(argv)[1:])
+    try:
+        reader = BagReader(args.bag)
+        if args.info:
+            print(describe(reader))
+            return 0
+        topics = reader.select(args.topics)
+        for t in topics:
+            message_class(reader.topics[t].type)
+    except BagError as exc:
+        print(f"hr_play: {exc}", file=sys.stderr)
+        return 2
+    stop = StopSignals()
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    node = None
+    code = 0
+    try:
+        node = BagPlayerNode(reader, topics, args.stamps_now)
+        if args.wait_subscribers > 0:
+            lonely = node.wait_for_subscribers(args.wait_subscribers, stop)
+            if lonely:
+                node.get_logger().warning(f"no subscriber after {args.wait_subscribers:g} s on {', '.join(lonely)}; "
+                                          "playing anyway")
+        node.get_logger().info(f"playing {reader.path} ({', '.join(topics)}) at rate {args.rate:g}"
+                               f"{', looping' if args.loop else ''}")
+        while node.play(args.rate, args.start_offset, stop) and args.loop:
+            pass
+        if any(reader.topics[t].qos.transient_local for t in topics) and stop.signal is None:
+            time.sleep(0.2)  # let late-joining readers of latched topics fetch before the publisher goes
+    except BagError as exc:
+        print(f"hr_play: {exc}", file=sys.stderr)
+        code = 1
+    finally:
+        published = node.published if node is not None else 0
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+        reader.close()
+        stop.restore()
+    print(f"hr_play: published {published} messages")
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())
