@@ -638,6 +638,21 @@ class Scene:
         best, which = _raycast(o, d, kinds, params, enabled, max_range)
         return (best, which) if return_index else best
 
+    def raycast_subset(self, origin: np.ndarray, unit_directions: np.ndarray, enabled: np.ndarray,
+                       max_range: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`raycast` (distances and primitive indices) of rays from one ``origin`` (3,)
+        along unit directions (N, 3) against only the primitives flagged in ``enabled``
+        (len(primitives),) -- for callers that cull primitives per group of rays (a camera
+        tile; :func:`humanoid_reach_ros.sim.camera.cast`). Directions are not re-normalised."""
+        o = np.asarray(origin, dtype=float).reshape(3)
+        en = np.asarray(enabled, dtype=np.bool_).reshape(-1)
+        if en.shape != (len(self.primitives),):
+            raise ValueError(f"enabled must have one flag per primitive ({len(self.primitives)}), got {en.shape}")
+        if not np.all(np.isfinite(o)):
+            raise ValueError("ray origin must be finite")
+        kinds, params = self._ray_table
+        return _raycast(o, unit_directions, kinds, params, en, max_range)
+
 
 def _grid_blocks(a: np.ndarray, b: np.ndarray) -> Iterator[np.ndarray]:
     """Integer cells (K, 3) of the box ``a..b`` (inclusive), in blocks of at most

@@ -1,0 +1,292 @@
+"""``marker_localizer``: the target object's pose from an ArUco marker, R_T_O = R_T_C C_T_M M_T_O.
+
+A thin node around ``humanoid_reach_ros.perception.markers`` (dissertation 004, eq. 1):
+
+* subscribes ``/head_camera/image_raw`` (sensor_msgs/Image: mono8, rgb8, bgr8, rgba8, bgra8),
+  ``/head_camera/camera_info`` (K and the distortion coefficients; the latest one is used)
+  and ``/joint_states`` (buffered for ``joint_buffer_s``), all sensor-data QoS;
+* per image: ArUco detection, edge-line corners, IPPE-square PnP (``C_T_M``), rejection of
+  detections whose RMS reprojection error exceeds ``max_reprojection_error_px`` or whose id
+  is unknown,
+  ``R_T_C`` by forward kinematics at the image stamp (joint angles interpolated between the
+  buffered states that bracket it), and ``M_T_O`` per id from the parameters
+  ``marker_ids`` / ``marker_sizes_m`` / ``marker_object_poses``;
+* publishes ``/target_pose`` (geometry_msgs/PoseStamped in ``world_frame_id``: the OBJECT
+  pose R_T_O of ``target_marker_id``, e.g. the valve centre) and ``/markers``
+  (geometry_msgs/PoseArray of every accepted marker's pose R_T_C C_T_M), both stamped with
+  the image stamp, and ``/diagnostics`` (inputs, detections, rejections, rate).
+
+Bad input -- unsupported encodings, data sizes that disagree with width/height/step,
+images without (or with stale, or differently sized) camera_info, camera_info with a zero
+or non-finite focal length, images whose stamp the joint-state buffer does not cover,
+malformed joint states -- is skipped with a throttled warning and counted in the
+diagnostics; the node keeps running.
+
+Run: ``python -m humanoid_reach_ros.nodes.marker_localizer --ros-args --params-file
+config/marker_localizer.yaml`` (``ros2 run humanoid_reach_ros marker_localizer`` on an install).
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections import Counter
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import pinocchio as pin
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseArray, PoseStamped
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image, JointState
+
+from humanoid_reach_ros.io import msgs
+from humanoid_reach_ros.nodes.common import ParamSpec, declare_parameters, run_node
+from humanoid_reach_ros.perception.markers import (JointStateBuffer, MarkerDetector, camera_pose, joint_vector,
+                                                   marker_table, object_pose)
+from humanoid_reach_ros.robot.model import RobotModel
+
+NODE_NAME = "marker_localizer"
+
+# Defaults match config/marker_localizer.yaml (checked by test_marker_localizer_node).
+PARAMETERS: dict[str, ParamSpec] = {
+    "dictionary": ParamSpec("DICT_4X4_50", "OpenCV ArUco dictionary of the printed markers"),
+    "marker_ids": ParamSpec([7], "known marker ids"),
+    "marker_sizes_m": ParamSpec([0.1], "printed black-square edge length per id [m]"),
+    "marker_object_poses": ParamSpec([0.0, 0.0, 0.04, -0.5, 0.5, 0.5, 0.5],
+                                     "M_T_O per id: x y z [m] qx qy qz qw of the object in the marker frame"),
+    "target_marker_id": ParamSpec(7, "marker whose object pose is published on /target_pose"),
+    "robot_config": ParamSpec("robots/hrp2.yaml", "robot semantic YAML, relative to config/ or absolute"),
+    "camera_frame_id": ParamSpec("head_camera_optical_frame", "URDF frame of the camera (R_T_C by FK)"),
+    "world_frame_id": ParamSpec("world", "frame of /target_pose and /markers"),
+    "max_reprojection_error_px": ParamSpec(1.0, "reject detections with a larger RMS reprojection error [px]",
+                                           (1e-3, 100.0)),
+    "corner_refine_window_px": ParamSpec(5, "sub-pixel corner refinement half window [px]"),
+    "edge_refinement": ParamSpec(True, "re-estimate corners from lines fitted to the marker's edges "
+                                 "(undistorted cameras)"),
+    "joint_buffer_s": ParamSpec(2.0, "/joint_states history kept for stamp lookups [s]", (0.01, 60.0)),
+    "max_stamp_gap_s": ParamSpec(0.05, "image stamp this far outside / between buffered joint states -> skip [s]",
+                                 (0.0, 10.0)),
+    "camera_info_timeout_s": ParamSpec(2.0, "images stamped this far from the last valid camera_info [s] "
+                                       "are skipped (stale intrinsics)",
+                                       (0.001, 3600.0)),
+    "diagnostics_period_s": ParamSpec(1.0, "period of /diagnostics [s]", (0.05, 60.0)),
+    "warn_throttle_s": ParamSpec(1.0, "minimum interval between repeated warnings [s]", (0.0, 3600.0)),
+}
+
+#: channels and the conversion to mono8 of the accepted encodings
+ENCODINGS: dict[str, tuple[int, int | None]] = {
+    "mono8": (1, None), "8UC1": (1, None), "rgb8": (3, cv2.COLOR_RGB2GRAY), "bgr8": (3, cv2.COLOR_BGR2GRAY),
+    "rgba8": (4, cv2.COLOR_RGBA2GRAY), "bgra8": (4, cv2.COLOR_BGRA2GRAY),
+}
+
+
+# ---------------------------------------------------------------- message parsers
+def gray_from_image(msg: Image) -> np.ndarray:
+    """mono8 (H, W) array of an 8-bit ``sensor_msgs/Image``; ``ValueError`` for an unsupported
+    encoding or a data size that disagrees with width, height and step."""
+    enc = msg.encoding
+    if enc not in ENCODINGS:
+        raise ValueError(f"unsupported image encoding {enc!r}; accepted: {', '.join(ENCODINGS)}")
+    ch, code = ENCODINGS[enc]
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    if h <= 0 or w <= 0:
+        raise ValueError(f"empty image ({w} x {h})")
+    if step < w * ch:
+        raise ValueError(f"image step {step} < width {w} * {ch} channel(s)")
+    data = np.frombuffer(bytes(msg.data), dtype=np.uint8) if not isinstance(msg.data, np.ndarray) \
+        else np.asarray(msg.data, dtype=np.uint8)
+    if data.size != h * step:
+        raise ValueError(f"image data has {data.size} bytes, expected height {h} * step {step} = {h * step}")
+    img = data.reshape(h, step)[:, :w * ch].reshape(h, w, ch)
+    return np.ascontiguousarray(img[:, :, 0]) if code is None else cv2.cvtColor(np.ascontiguousarray(img), code)
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """What a ``CameraInfo`` contributes: image size, K (3x3), distortion coefficients."""
+
+    width: int
+    height: int
+    K: np.ndarray
+    D: np.ndarray
+
+
+def intrinsics_from_camera_info(msg: CameraInfo) -> Intrinsics:
+    """``ValueError`` for a zero image size, non-finite values or a non-positive focal length."""
+    K = np.asarray(msg.k, dtype=float).reshape(3, 3)
+    D = np.asarray(msg.d, dtype=float).ravel()
+    if msg.width <= 0 or msg.height <= 0:
+        raise ValueError(f"camera_info image size {msg.width} x {msg.height} is empty")
+    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D))):
+        raise ValueError("camera_info K or D has non-finite values")
+    if not (K[0, 0] > 0.0 and K[1, 1] > 0.0):
+        raise ValueError(f"camera_info focal lengths must be > 0 (fx {K[0, 0]}, fy {K[1, 1]})")
+    if D.size not in (0, 4, 5, 8, 12, 14):
+        raise ValueError(f"camera_info has {D.size} distortion coefficients (OpenCV takes 4, 5, 8, 12 or 14)")
+    return Intrinsics(int(msg.width), int(msg.height), K, D)
+
+
+class MarkerLocalizer(Node):
+    """Thin node around ``MarkerDetector``: input checks, eq. 1, publishing and diagnostics."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        p = declare_parameters(self, PARAMETERS)
+        self._p = p
+        self.table = marker_table(p["dictionary"], p["marker_ids"], p["marker_sizes_m"], p["marker_object_poses"],
+                                  "parameters")
+        if p["target_marker_id"] not in self.table.markers:
+            raise ValueError(f"target_marker_id {p['target_marker_id']} is not among marker_ids {p['marker_ids']}")
+        if not 1 <= p["corner_refine_window_px"] <= 50:
+            raise ValueError("corner_refine_window_px must be in 1..50")
+        self.detector = MarkerDetector(self.table, p["max_reprojection_error_px"], p["corner_refine_window_px"],
+                                       p["edge_refinement"])
+        self.model = RobotModel(p["robot_config"])
+        self.model.frame_id(p["camera_frame_id"])  # KeyError for a frame the URDF lacks
+        self.hardware_id = str(self.model.semantic.get("robot_name", "robot")) + " head camera"
+        self.joints = JointStateBuffer(p["joint_buffer_s"])
+        self.intrinsics: Intrinsics | None = None
+        self._info_stamp_s = -math.inf
+        self.counts: Counter[str] = Counter()   # images, localized, no_marker, skipped, rejected, ...
+        self.last_skip_reason = ""
+        self.last_rejection = ""
+        self.last_error_px = math.nan
+        self.last_target: np.ndarray | None = None
+        self._skipped_reported = 0
+        self._window = {"start": time.monotonic(), "images": 0, "localized": 0, "max_process_s": 0.0}
+
+        sensor = qos_profile_sensor_data
+        joint_qos = QoSProfile(depth=50, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self.target_pub = self.create_publisher(PoseStamped, "target_pose", sensor)
+        self.markers_pub = self.create_publisher(PoseArray, "markers", sensor)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_subscription(JointState, "joint_states", self._on_joint_states, joint_qos)
+        self.create_subscription(CameraInfo, "head_camera/camera_info", self._on_camera_info, sensor)
+        self.create_subscription(Image, "head_camera/image_raw", self._on_image, sensor)
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(p["diagnostics_period_s"], self._publish_diagnostics, clock=steady)
+        self.get_logger().info(
+            f"marker localizer ready: {self.table.dictionary} ids {sorted(self.table.markers)}, target id "
+            f"{p['target_marker_id']}, camera frame {p['camera_frame_id']}; publishing target_pose, markers")
+
+    # ------------------------------------------------------------ helpers
+    def _skip(self, what: str, reason: str) -> None:
+        self.counts[what] += 1
+        self.last_skip_reason = f"{what}: {reason}"
+        self.get_logger().warning(f"skipping {what} ({self.counts[what]} so far): {reason}",
+                                  throttle_duration_sec=self._p["warn_throttle_s"])
+
+    # ------------------------------------------------------------ callbacks
+    def _on_joint_states(self, msg: JointState) -> None:
+        joints, reason = joint_vector(self.model.joint_index, msg.name, msg.position)
+        if joints is None:
+            self._skip("joint_states", reason)
+            return
+        self.joints.push(msgs.seconds_from_time(msg.header.stamp), joints)
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        try:
+            self.intrinsics = intrinsics_from_camera_info(msg)
+            self._info_stamp_s = msgs.seconds_from_time(msg.header.stamp)
+        except ValueError as exc:
+            self._skip("camera_info", str(exc))
+
+    def _on_image(self, msg: Image) -> None:
+        t0 = time.perf_counter()
+        self.counts["images"] += 1
+        self._window["images"] += 1
+        p = self._p
+        cam = self.intrinsics
+        if cam is None:
+            self._skip("image", "no valid camera_info received yet")
+            return
+        stamp_s = msgs.seconds_from_time(msg.header.stamp)
+        if abs(stamp_s - self._info_stamp_s) > p["camera_info_timeout_s"]:
+            self._skip("image", f"the last valid camera_info is {abs(stamp_s - self._info_stamp_s):.1f} s away "
+                                f"from the image stamp (> {p['camera_info_timeout_s']:g} s)")
+            return
+        try:
+            gray = gray_from_image(msg)
+        except ValueError as exc:
+            self._skip("image", str(exc))
+            return
+        if gray.shape != (cam.height, cam.width):
+            self._skip("image", f"image is {gray.shape[1]} x {gray.shape[0]} but camera_info says "
+                                f"{cam.width} x {cam.height}")
+            return
+        joints, reason = self.joints.at(stamp_s, p["max_stamp_gap_s"])
+        if joints is None:
+            self._skip("image", f"no camera pose at the image stamp: {reason}")
+            return
+        result = self.detector.detect(gray, cam.K, cam.D)
+        for mid, why in result.rejected:
+            self.counts["rejected"] += 1
+            self.last_rejection = f"id {mid}: {why}"
+            self.get_logger().warning(f"rejected marker {self.last_rejection}",
+                                      throttle_duration_sec=p["warn_throttle_s"])
+        if not result.detections:
+            self.counts["no_marker"] += 1
+            return
+        R_T_C = camera_pose(self.model, joints, p["camera_frame_id"])
+        world, stamp = p["world_frame_id"], msg.header.stamp
+        poses = PoseArray(header=msgs.header(world, stamp))
+        for det in result.detections:
+            R_T_M = R_T_C @ det.C_T_M
+            poses.poses.append(msgs.pose_from_se3(pin.SE3(R_T_M[:3, :3], R_T_M[:3, 3])))
+            self.last_error_px = det.reprojection_error_px
+            if det.marker_id == p["target_marker_id"]:
+                R_T_O = object_pose(R_T_C, det.C_T_M, self.table.markers[det.marker_id].M_T_O)
+                self.target_pub.publish(msgs.pose_stamped(pin.SE3(R_T_O[:3, :3], R_T_O[:3, 3]), world, stamp))
+                self.last_target = R_T_O[:3, 3].copy()
+                self.counts["localized"] += 1
+                self._window["localized"] += 1
+        self.markers_pub.publish(poses)
+        self._window["max_process_s"] = max(self._window["max_process_s"], time.perf_counter() - t0)
+
+    # ------------------------------------------------------------ diagnostics
+    def _publish_diagnostics(self) -> None:
+        now = time.monotonic()
+        w, self._window = self._window, {"start": now, "images": 0, "localized": 0, "max_process_s": 0.0}
+        dt = max(now - w["start"], 1e-9)
+        c = self.counts
+        skipped = c["image"] + c["camera_info"] + c["joint_states"]
+        values = {"images_total": c["images"], "localized_total": c["localized"], "no_marker_total": c["no_marker"],
+                  "rejected_total": c["rejected"], "skipped_images_total": c["image"],
+                  "bad_camera_info_total": c["camera_info"], "bad_joint_states_total": c["joint_states"],
+                  "image_rate_hz": w["images"] / dt, "localization_rate_hz": w["localized"] / dt,
+                  "max_process_ms": 1e3 * w["max_process_s"], "last_reprojection_error_px": self.last_error_px,
+                  "last_skip_reason": self.last_skip_reason, "last_rejection": self.last_rejection,
+                  "joint_states_buffered": len(self.joints)}
+        if self.last_target is not None:
+            values.update({"target_x_m": self.last_target[0], "target_y_m": self.last_target[1],
+                           "target_z_m": self.last_target[2]})
+        level, message = msgs.LEVEL_OK, f"localizing at {w['localized'] / dt:.1f} Hz"
+        if self._window_skips(skipped):
+            level, message = msgs.LEVEL_WARN, f"skipping input: {self.last_skip_reason}"
+        elif w["images"] == 0:
+            level, message = msgs.LEVEL_WARN, "no images received"
+        elif w["localized"] == 0:
+            level, message = msgs.LEVEL_WARN, (f"target marker {self._p['target_marker_id']} not seen"
+                                               + (f" (last rejection: {self.last_rejection})"
+                                                  if self.last_rejection else ""))
+        status = msgs.diagnostic_status(f"{self.get_name()}: localization", level, message, values, self.hardware_id)
+        self.diagnostics_pub.publish(msgs.diagnostic_array([status], self.get_clock().now().to_msg()))
+
+    def _window_skips(self, skipped_total: int) -> bool:
+        """Whether input was skipped since the previous diagnostics message."""
+        new = skipped_total != self._skipped_reported
+        self._skipped_reported = skipped_total
+        return new
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the node until Ctrl-C / SIGTERM (exit 0); a configuration error exits 2."""
+    return run_node(MarkerLocalizer, NODE_NAME, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,204 @@
+"""marker_localizer: message parsers, and node-level tests with real processes --
+joint_driver + scene_sim + marker_localizer puts the valve centre within 1 cm of the scene
+file's valve pose; bad images / camera_info from the test get warnings and the node keeps working."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseArray, PoseStamped
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image, JointState
+
+from humanoid_reach_ros.io import msgs
+from humanoid_reach_ros.nodes import marker_localizer as ML
+from humanoid_reach_ros.nodes.scene_sim import camera_info_msg, image_msg
+from humanoid_reach_ros.perception.markers import camera_pose
+from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.sim import camera as C
+from humanoid_reach_ros.sim.scene import load_scene
+from nodetools import REPO_ROOT
+
+PARAMS_FILE = "config/marker_localizer.yaml"
+READY = r"marker localizer ready"
+HEAD_PITCH_RAD = 0.6   # half-sitting with this head pitch sees the valve marker (0 does not)
+
+
+def test_config_matches_declared_defaults() -> None:
+    doc = yaml.safe_load((REPO_ROOT / PARAMS_FILE).read_text())["/**"]["ros__parameters"]
+    assert doc == {k: spec.default for k, spec in ML.PARAMETERS.items()}
+
+
+# ---------------------------------------------------------------- parsers
+def test_gray_from_image_encodings_and_bad_sizes() -> None:
+    rgb = np.random.default_rng(0).integers(0, 255, (6, 5, 3), dtype=np.uint8)
+    gray = ML.gray_from_image(image_msg(rgb, "rgb8", "c", None))
+    assert gray.shape == (6, 5)
+    bgr = image_msg(rgb[:, :, ::-1], "bgr8", "c", None)
+    np.testing.assert_array_equal(ML.gray_from_image(bgr), gray)
+    mono = image_msg(gray, "mono8", "c", None)
+    np.testing.assert_array_equal(ML.gray_from_image(mono), gray)
+    padded = Image(height=6, width=5, encoding="mono8", step=8,
+                   data=np.pad(gray, ((0, 0), (0, 3))).tobytes())           # row padding
+    np.testing.assert_array_equal(ML.gray_from_image(padded), gray)
+    bad = {
+        "unsupported image encoding": Image(height=6, width=5, encoding="16UC1", step=10, data=bytes(60)),
+        "data has 29 bytes": Image(height=6, width=5, encoding="mono8", step=5, data=bytes(29)),
+        "step 4 < width 5": Image(height=6, width=5, encoding="mono8", step=4, data=bytes(24)),
+        "empty image": Image(height=0, width=5, encoding="mono8", step=5, data=b""),
+    }
+    for text, m in bad.items():
+        with pytest.raises(ValueError, match=text):
+            ML.gray_from_image(m)
+
+
+def test_intrinsics_from_camera_info() -> None:
+    cam = C.PinholeCamera.from_fov(64, 48, 1.0)
+    good = camera_info_msg(cam, "c", None)
+    np.testing.assert_allclose(ML.intrinsics_from_camera_info(good).K, cam.K)
+    zero = camera_info_msg(cam, "c", None)
+    zero.k[0] = 0.0
+    with pytest.raises(ValueError, match="focal lengths must be > 0"):
+        ML.intrinsics_from_camera_info(zero)
+    nan = camera_info_msg(cam, "c", None)
+    nan.k[4] = math.nan
+    with pytest.raises(ValueError, match="non-finite"):
+        ML.intrinsics_from_camera_info(nan)
+    with pytest.raises(ValueError, match="empty"):
+        ML.intrinsics_from_camera_info(CameraInfo(k=list(cam.K.ravel())))
+
+
+# ---------------------------------------------------------------- node tests
+def status(diags, suffix: str, level: int | None = None, text: str = ""):
+    for arr in reversed(diags.messages):
+        for st in arr.status:
+            if st.name.endswith(suffix) and (level is None or msgs.diagnostic_level(st) == level) \
+                    and text in st.message:
+                return st
+    return None
+
+
+@pytest.mark.node
+def test_valve_centre_within_1cm_with_joint_driver_and_scene_sim(start_node, ros_probe) -> None:
+    scene = load_scene("scenes/plant.yaml")
+    valve = scene.target.pose
+    start_node("joint_driver", params_file="config/joint_driver.yaml", params={"command_timeout_s": 600.0},
+               ready_log=r"simulated hrp2")
+    command = ros_probe.node.create_publisher(JointState, "/joint_command", 10)
+    targets = ros_probe.collect(PoseStamped, "/target_pose", qos_profile_sensor_data)
+    marker_arrays = ros_probe.collect(PoseArray, "/markers", qos_profile_sensor_data)
+    diags = ros_probe.collect(DiagnosticArray, "/diagnostics")
+    sim = start_node("scene_sim", params_file="config/scene_sim.yaml",
+                     params={"publish_points": False, "joint_states_timeout_s": 5.0}, ready_log=r"scene sensors ready")
+    loc = start_node("marker_localizer", params_file=PARAMS_FILE, params={"diagnostics_period_s": 0.3},
+                     ready_log=READY)
+    head = msgs.joint_state(["HEAD_JOINT1"], [HEAD_PITCH_RAD])
+
+    def settled_target():
+        command.publish(head)   # the driver holds it; resent until the head has arrived
+        # only poses from images taken once the head has stopped (two equal consecutive poses)
+        if len(targets) < 3:
+            return None
+        a, b = (msgs.se3_from_pose(m) for m in targets.messages[-2:])
+        return b if np.linalg.norm(a.translation - b.translation) < 1e-4 else None
+
+    pose = ros_probe.spin_until(settled_target, 60.0, "a settled /target_pose",
+                                on_timeout=lambda: sim.log_tail() + loc.log_tail())
+    assert targets.last.header.frame_id == "world"
+    err = np.linalg.norm(pose.translation - valve[:3, 3])
+    assert err < 0.01, f"valve centre off by {err * 1e3:.1f} mm"
+    angle = np.linalg.norm(np.asarray(pose.rotation.T @ valve[:3, :3]) - np.eye(3))
+    assert angle < 0.05
+    # /markers holds the marker's own pose (4 cm behind the valve centre, on the hub plate)
+    ros_probe.spin_until(lambda: len(marker_arrays) > 0, 20.0, "/markers")
+    arr = marker_arrays.last
+    assert arr.header.frame_id == "world" and len(arr.poses) == 1
+    m = msgs.se3_from_pose(arr.poses[0])
+    assert np.linalg.norm(m.translation - scene.target.marker_pose[:3, 3]) < 0.01
+    ros_probe.spin_until(lambda: status(diags, ": localization", msgs.LEVEL_OK), 20.0, "OK diagnostics",
+                         on_timeout=loc.log_tail)
+
+
+@pytest.mark.node
+def test_bad_images_and_camera_info_get_warnings_and_the_node_keeps_working(start_node, ros_probe) -> None:
+    """The test plays camera and joint driver: bad inputs first, then one good frame."""
+    model, scene = RobotModel(), load_scene("scenes/plant.yaml")
+    cam = C.PinholeCamera.from_fov(640, 480, math.radians(60.0))
+    joints = model.half_sitting_joints.copy()
+    joints[model.joint_index["HEAD_JOINT1"]] = HEAD_PITCH_RAD
+    T_wc = camera_pose(model, joints, "head_camera_optical_frame")
+    frame = C.render_image(scene, C.cast(scene, cam, T_wc), C.marker_print_from_scene(scene))
+
+    pubs = {
+        "js": ros_probe.node.create_publisher(JointState, "/joint_states", qos_profile_sensor_data),
+        "img": ros_probe.node.create_publisher(Image, "/head_camera/image_raw", qos_profile_sensor_data),
+        "info": ros_probe.node.create_publisher(CameraInfo, "/head_camera/camera_info", qos_profile_sensor_data),
+    }
+    targets = ros_probe.collect(PoseStamped, "/target_pose", qos_profile_sensor_data)
+    diags = ros_probe.collect(DiagnosticArray, "/diagnostics")
+    loc = start_node("marker_localizer", params_file=PARAMS_FILE, params={"diagnostics_period_s": 0.3},
+                     ready_log=READY)
+    t = [100.0]
+
+    def stamp():
+        t[0] += 0.01
+        return msgs.time_from_seconds(t[0])
+
+    def send(img_msg=None, info_msg=None) -> None:
+        s = stamp()
+        pubs["js"].publish(msgs.joint_state(model.joint_names, joints, stamp=s))
+        if info_msg is not None:
+            info_msg.header.stamp = s
+            pubs["info"].publish(info_msg)
+        if img_msg is not None:
+            img_msg.header.stamp = s
+            pubs["img"].publish(img_msg)
+
+    def expect_warning(pattern: str, make) -> None:
+        n = len(loc.log_lines(pattern))
+        ros_probe.spin_until(lambda: send(*make()) or len(loc.log_lines(pattern)) > n, 20.0,
+                             f"warning {pattern!r}", on_timeout=loc.log_tail)
+
+    good_img = lambda: image_msg(frame, "rgb8", "head_camera_optical_frame", None)  # noqa: E731
+    good_info = lambda: camera_info_msg(cam, "head_camera_optical_frame", None)     # noqa: E731
+
+    def zero_focal():
+        info = good_info()
+        info.k[0] = 0.0
+        return info
+
+    def short_data():
+        m = good_img()
+        m.data = bytes(m.data)[:-7]
+        return m
+
+    def bad_encoding():
+        m = good_img()
+        m.encoding = "32FC1"
+        return m
+
+    expect_warning(r"no valid camera_info received yet", lambda: (good_img(), None))
+    expect_warning(r"skipping camera_info .*focal lengths must be > 0", lambda: (good_img(), zero_focal()))
+    expect_warning(r"unsupported image encoding '32FC1'", lambda: (bad_encoding(), good_info()))
+    expect_warning(r"image data has \d+ bytes", lambda: (short_data(), good_info()))
+    ros_probe.spin_until(lambda: status(diags, ": localization", msgs.LEVEL_WARN, "skipping input"), 20.0,
+                         "WARN diagnostics for skipped input", on_timeout=loc.log_tail)
+    assert len(targets) == 0 and loc.alive()
+    # still working: a good frame gives the valve centre
+    ros_probe.spin_until(lambda: send(good_img(), good_info()) or len(targets) > 0, 30.0, "a /target_pose",
+                         on_timeout=loc.log_tail)
+    pose = msgs.se3_from_pose(targets.last)
+    assert np.linalg.norm(pose.translation - scene.target.pose[:3, 3]) < 0.01
+    assert loc.alive()
+
+
+@pytest.mark.node
+def test_bad_marker_table_stops_with_a_clear_error(start_node) -> None:
+    proc = start_node("marker_localizer", params_file=PARAMS_FILE, params={"marker_sizes_m": [0.1, 0.2]})
+    proc.ok_exit_codes = (2,)
+    line = proc.wait_for_log(r"cannot start", 30.0)
+    assert "1 marker_ids need 1 marker_sizes_m (got 2)" in line
+    assert proc.proc.wait(30.0) == 2
