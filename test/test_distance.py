@@ -112,3 +112,25 @@ def test_empty_tree_and_bad_shape(setup):
     assert empty.check(q0) and empty.min_distance(q0) == math.inf
     with pytest.raises(ValueError):
         rc.check_batch(np.zeros((3, 5)))
+
+
+def test_first_collision_is_the_first_invalid_of_check_batch(setup):
+    """first_collision (FK + tests config by config, stopping at the first hit) agrees
+    with check_batch on every prefix; counters count the configurations examined."""
+    robot, cm, tree, col = setup
+    rng = np.random.default_rng(17)
+    Q = random_configs(robot, rng, 400)
+    ok = col.check_batch(Q)
+    assert 0 < ok.sum() < len(ok)
+    free = Q[ok]
+    for start in range(0, 400, 7):
+        rows = Q[start:start + 25]
+        expect = len(rows) if col.check_batch(rows).all() else int(np.argmin(col.check_batch(rows)))
+        before = col.counters.checks
+        assert col.first_collision(rows) == expect
+        assert col.counters.checks - before == min(expect + 1, len(rows))
+    assert col.first_collision(free[:30]) == 30
+    assert col.first_collision(np.vstack([free[:5], Q[~ok][:1], free[5:9]])) == 5
+    assert col.first_collision(Q[:0]) == 0
+    with pytest.raises(ValueError):
+        col.first_collision(np.zeros((3, 5)))

@@ -102,3 +102,38 @@ def test_plan_config_round_trip(robot, projector, projected):
     bad[0, 0] = 10.0
     out = projector.project_plan_config(bad, "right")
     assert not out.ok[0] and out.failures["arm_limits"] == 1
+
+
+@pytest.mark.parametrize("arm", ["right", "left"])
+def test_compiled_plan_projection_matches_numpy_reference(robot, projector, arm):
+    """project_plan_config's fused numba kernel == the numpy path (LimbIKSet(compiled=False)):
+    same ok rows and failure counts, configurations within 1e-12 (1e-9 near a stretched
+    knee, see test_limb_ik), trunk poses within 1e-12; also for NaN rows, arm joints
+    outside their limits and trunk heights the legs cannot reach."""
+    from humanoid_reach_ros.robot.limb_ik import LimbIKSet
+
+    ref = Projector(robot, ik=LimbIKSet(robot, compiled=False))
+    assert projector.compiled and not ref.compiled
+    ji = list(robot.limbs[f"{arm}_arm"].joint_index)
+    lo = np.concatenate([robot.lower[ji] - 0.1, [0.45, -0.2, -0.2, -0.5]])
+    hi = np.concatenate([robot.upper[ji] + 0.1, [0.85, 0.2, 0.7, 0.5]])
+    rng = np.random.default_rng(21)
+    X = lo + rng.random((4000, 10)) * (hi - lo)
+    X[3, 7] = np.nan
+    X[4, 0] = np.inf
+    X[5, 6] = 2.0          # trunk far above the feet: legs unreachable
+    for rows in (X, X[:1], X[10:13]):
+        a = projector.project_plan_config(rows, arm)
+        b = ref.project_plan_config(rows, arm)
+        assert np.array_equal(a.ok, b.ok) and np.array_equal(a.arm, b.arm)
+        assert a.failures == b.failures
+        fin = np.isfinite(rows).all(axis=1)
+        np.testing.assert_allclose(a.trunk_p[fin], b.trunk_p[fin], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.trunk_R[fin], b.trunk_R[fin], rtol=0, atol=1e-12)
+        if a.ok.any():
+            diff = np.abs(a.q[a.ok] - b.q[a.ok]).max(axis=1)
+            assert diff.max() <= 1e-9
+            assert np.mean(diff <= 1e-12) >= (0.999 if len(diff) >= 1000 else 1.0)
+    full = projector.project_plan_config(X, arm)
+    f = full.failures
+    assert full.ok.mean() > 0.2 and f["arm_limits"] > 100 and f["right_leg"] + f["left_leg"] > 0

@@ -6,7 +6,7 @@ import pytest
 
 from humanoid_reach_ros.planning.path import (
     CountingChecker, PlanningSpace, PlanStatus, ShortcutOptions, check_edge, check_edges, check_path,
-    interpolate_edge, interpolate_path, plan, remove_redundant_waypoints, shortcut_path,
+    first_invalid, interpolate_edge, interpolate_path, plan, remove_redundant_waypoints, shortcut_path,
 )
 from humanoid_reach_ros.planning.rrt_connect import RRTConnectOptions, plan_rrt_connect
 
@@ -176,3 +176,62 @@ def test_rrt_connect_start_equal_to_goal():
     assert len(res.path) >= 1
     np.testing.assert_allclose(res.path[0], START_2D)
     np.testing.assert_allclose(res.path[-1], START_2D)
+
+
+def with_first_invalid(is_valid, examined: list):
+    """``is_valid`` plus a ``first_invalid`` that checks point by point and stops at the
+    first invalid one; ``examined`` collects how many points it looked at."""
+    def fn(Q):
+        return is_valid(Q)
+
+    def first(Q):
+        for k, q in enumerate(np.atleast_2d(Q)):
+            if not is_valid(q[None])[0]:
+                examined.append(k + 1)
+                return k
+        examined.append(len(Q))
+        return len(Q)
+
+    fn.first_invalid = first
+    return fn
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_prefix_edge_checks_agree_with_full_checks(seed):
+    """check_edges(prefix=True) == the full check up to and including the first invalid
+    edge, False after it; a checker's first_invalid is used and may stop early."""
+    rng = np.random.default_rng(seed)
+    space = unit_space(3, 0.02)
+    base = wall_with_gap(0.08)
+    examined: list[int] = []
+    fast = with_first_invalid(base, examined)
+    A, B = rng.random((12, 3)), rng.random((12, 3))
+    for include in (False, True):
+        full = check_edges(A, B, base, space, include_endpoints=include)
+        pre = check_edges(A, B, fast, space, include_endpoints=include, prefix=True)
+        k = len(full) if full.all() else int(np.argmin(full))
+        assert np.array_equal(pre[:k], full[:k]) and not pre[k:].any()
+        # a plain checker (no first_invalid) in prefix mode: same answer
+        assert np.array_equal(check_edges(A, B, base, space, include_endpoints=include, prefix=True), pre)
+    assert examined and all(n > 0 for n in examined)
+    Q = rng.random((50, 3))
+    ok = base(Q)
+    expect = len(Q) if ok.all() else int(np.argmin(ok))
+    assert first_invalid(base, Q) == expect == first_invalid(fast, Q)
+    counting = CountingChecker(fast)
+    assert counting.first_invalid(Q) == expect
+    assert counting.calls == 1 and counting.configs == min(expect + 1, len(Q))
+
+
+def test_rrt_connect_same_plan_with_early_exit_checker():
+    """RRT-connect grows the same tree whether or not the checker stops at the first
+    invalid point (early exit only skips work)."""
+    space = unit_space(3, 0.01)
+    base = wall_with_gap(0.06)
+    start, goals = np.array([0.1, 0.5, 0.5]), np.array([[0.9, 0.5, 0.5]])
+    opts = RRTConnectOptions(step=0.2, max_time_s=20.0)
+    a = plan_rrt_connect(start, goals, base, space, np.random.default_rng(4), opts)
+    examined: list[int] = []
+    b = plan_rrt_connect(start, goals, with_first_invalid(base, examined), space, np.random.default_rng(4), opts)
+    assert a.success and b.success and np.array_equal(a.path, b.path)
+    assert b.stats.checked_configs <= a.stats.checked_configs

@@ -34,7 +34,13 @@ from humanoid_reach_ros.geometry.sphere_tree import SphereTree, tree_any_interse
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.shapes import CollisionModel
 
-_JIT = dict(cache=True, nogil=True, fastmath=False)
+#: nogil=False on purpose: these kernels run on the planning thread of a multithreaded rclpy
+#: node (reach_planner). Releasing the GIL for each ~50 us call lets the executor threads
+#: (200 Hz /joint_states) take it, and the planning thread then queues to get it back
+#: (GIL convoy): bench/operator_wait.py measured plans 2.1x slower in the node than
+#: in-process with nogil=True, 1.06x with nogil=False (per-request medians, same load).
+#: Nothing runs these kernels in parallel threads, so holding the GIL costs nothing.
+_JIT = dict(cache=True, nogil=False, fastmath=False)
 _AXES = {"JointModelRX": 0, "JointModelRY": 1, "JointModelRZ": 2}
 
 
@@ -203,14 +209,35 @@ def _check_kernel(P0, P1, R, order, pi, pj, R_self, margin, nodes, children, dep
         out_env[c] = hit_env
 
 
+@nb.njit(**_JIT)
+def _first_hit_kernel(Q, jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l, R, order, pi, pj, margin, nodes,
+                      children, depth, do_env):
+    """Configurations in order: FK, self then environment test; returns the index of
+    the first one in collision (or C) -- the rows after it are never computed."""
+    C = Q.shape[0]
+    S = sl.shape[0]
+    P0 = np.empty((1, S, 3))
+    P1 = np.empty((1, S, 3))
+    out_env = np.zeros(1, np.bool_)
+    out_self = np.zeros(1, np.bool_)
+    for c in range(C):
+        _fk_shapes_kernel(Q[c:c + 1], jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l, P0, P1)
+        _check_kernel(P0, P1, R, order, pi, pj, R, margin, nodes, children, depth, do_env, True, True,
+                      out_env, out_self)
+        if out_env[0] or out_self[0]:
+            return c
+    return C
+
+
 # =================================================================== Python API
 @dataclass
 class CollisionCounters:
     """Statistics of a :class:`RobotCollision` (reset with :meth:`RobotCollision.reset_counters`).
 
     ``checks``: configurations checked; ``calls``: API calls; ``check_time_s``: time
-    in the collision tests (environment + self) only; ``fk_time_s``: time computing
-    world capsules from configurations.
+    in the collision tests (environment + self) only -- except for
+    :meth:`RobotCollision.first_collision`, whose kernel interleaves FK and tests and
+    counts both here; ``fk_time_s``: time computing world capsules from configurations.
     """
 
     checks: int = 0
@@ -361,6 +388,21 @@ class RobotCollision:
         """(C,) bool: collision-free, per configuration (e.g. an edge at a resolution)."""
         env, slf = self._run(Q, True, True, True)
         return ~(env | slf)
+
+    def first_collision(self, Q) -> int:
+        """Index of the first configuration of ``Q`` (C, nq) in collision (environment or
+        self), or C when all are free. Configurations after it are not computed (a
+        path or edge check that only needs the first invalid point). Counted: the
+        configurations computed, FK and check time together in ``check_time_s``."""
+        Q = self._as_batch(Q)
+        t0 = time.perf_counter()
+        k = _first_hit_kernel(Q, *self._fk_args, self.radii, self.env_order, self._pi, self._pj, self.self_margin_m,
+                              self.tree.nodes, self.tree.children, self.tree.depth, bool(self.tree.n_spheres > 0))
+        c = self.counters
+        c.check_time_s += time.perf_counter() - t0
+        c.checks += min(int(k) + 1, len(Q))
+        c.calls += 1
+        return int(k)
 
     def min_distance(self, q) -> float:
         """Smallest signed distance [m] between a robot shape and the environment."""

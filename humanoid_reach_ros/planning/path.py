@@ -140,6 +140,32 @@ class CountingChecker:
             raise ValueError("is_valid_batch must return one bool per configuration")
         return out
 
+    def first_invalid(self, Q: np.ndarray) -> int:
+        """:func:`first_invalid` through the wrapped checker; counts the configurations
+        actually examined (up to and including the first invalid one)."""
+        Q = np.atleast_2d(np.asarray(Q, dtype=float))
+        if len(Q) == 0:
+            return 0
+        k = first_invalid(self._fn, Q)
+        if not 0 <= k <= len(Q):
+            raise ValueError("first_invalid must return an index in [0, len(Q)]")
+        self.calls += 1
+        self.configs += min(k + 1, len(Q))
+        return k
+
+
+def first_invalid(checker: ValidityFn, Q: np.ndarray) -> int:
+    """Index of the first invalid configuration of ``Q`` (``len(Q)`` if all are valid).
+
+    A checker may provide ``first_invalid(Q) -> int`` that stops at the first invalid
+    configuration (the robot's does: :meth:`ReachPlanner.validity_fn`); otherwise the
+    whole batch is checked. Either way the answer is the same."""
+    fn = getattr(checker, "first_invalid", None)
+    if fn is not None:
+        return int(fn(Q))
+    ok = np.asarray(checker(Q), dtype=bool)
+    return len(ok) if ok.all() else int(np.argmin(ok))
+
 
 def as_counting(checker: ValidityFn) -> CountingChecker:
     return checker if isinstance(checker, CountingChecker) else CountingChecker(checker)
@@ -216,12 +242,20 @@ def _edges_points(A: np.ndarray, B: np.ndarray, space: PlanningSpace,
 
 
 def check_edges(A: np.ndarray, B: np.ndarray, checker: ValidityFn, space: PlanningSpace,
-                include_endpoints: bool = False, max_configs_per_call: int = 200_000) -> np.ndarray:
+                include_endpoints: bool = False, max_configs_per_call: int = 200_000,
+                prefix: bool = False) -> np.ndarray:
     """Validity of the straight edges ``A[e] -> B[e]``, shape ``(n_edges,)``.
 
     All interior points of all edges (and the endpoints when ``include_endpoints``)
     are checked with as few checker calls as possible (one unless more than
     ``max_configs_per_call`` configurations are needed).
+
+    ``prefix=True`` is for callers that only use the edges before the first invalid
+    one (RRT CONNECT/EXTEND, shortcuts, "is the whole chain valid"): the points are
+    checked in order through :func:`first_invalid`, which may stop at the first
+    invalid point; the edge holding it and every later edge are reported ``False``
+    (later ones unchecked), so ``ok`` is exact up to and including the first
+    ``False``, which is all those callers read.
     """
     A = np.atleast_2d(np.asarray(A, dtype=float))
     B = np.atleast_2d(np.asarray(B, dtype=float))
@@ -237,7 +271,13 @@ def check_edges(A: np.ndarray, B: np.ndarray, checker: ValidityFn, space: Planni
         cum = np.cumsum(per_edge[start:])
         stop = start + max(1, int(np.searchsorted(cum, max_configs_per_call, side="right")))
         pts, counts = _edges_points(A[start:stop], B[start:stop], space, include_endpoints)
-        if len(pts):
+        if len(pts) and prefix:
+            k = first_invalid(checker, pts)
+            if k < len(pts):
+                bad = start + int(np.searchsorted(np.cumsum(counts), k, side="right"))
+                ok[bad:] = False
+                return ok
+        elif len(pts):
             valid = checker(pts)
             bad_edge = np.repeat(np.arange(stop - start), counts)[~valid]
             ok[start + np.unique(bad_edge)] = False
@@ -247,8 +287,9 @@ def check_edges(A: np.ndarray, B: np.ndarray, checker: ValidityFn, space: Planni
 
 def check_edge(a: np.ndarray, b: np.ndarray, checker: ValidityFn, space: PlanningSpace,
                include_endpoints: bool = False) -> bool:
-    """Validity of one straight edge ``a -> b`` (one checker call)."""
-    return bool(check_edges(np.asarray(a)[None], np.asarray(b)[None], checker, space, include_endpoints)[0])
+    """Validity of one straight edge ``a -> b`` (one checker call, stops at the first invalid point)."""
+    return bool(check_edges(np.asarray(a)[None], np.asarray(b)[None], checker, space, include_endpoints,
+                            prefix=True)[0])
 
 
 def check_path(path: np.ndarray, checker: ValidityFn, space: PlanningSpace) -> bool:
@@ -321,7 +362,7 @@ def shortcut_path(path: np.ndarray, checker: ValidityFn, space: PlanningSpace,
             continue
         A = np.array([path[i], p1, p2])
         B = np.array([p1, p2, path[j + 1]])
-        if np.all(check_edges(A, B, checker, space, include_endpoints=True)):
+        if np.all(check_edges(A, B, checker, space, include_endpoints=True, prefix=True)):
             path = np.vstack([path[: i + 1], p1, p2, path[j + 1:]])
     if options.remove_redundant:
         path = remove_redundant_waypoints(path, checker, space)

@@ -24,21 +24,33 @@ Our choices, named:
 * Among the closed-form branches within joint limits, the one nearest the reference
   posture is taken (``LimbIK`` default).
 
+Implementation: :meth:`Projector.project_config` (goal sampling) is numpy-batched
+over samples (legs through the compiled leg IK of ``LimbIK``); the planner's
+:meth:`Projector.project_plan_config` runs as one numba kernel over its rows
+(``_project_plan_kernel``: trunk pose, arm joints and limits, both legs by
+``limb_ik.leg_ik_pose``), because the planner calls it for every tree node and edge
+point in many small batches. A ``Projector`` built on ``LimbIKSet(compiled=False)``
+runs the numpy reference path instead (same results; the tests compare them).
+
 No ROS here.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from humanoid_reach_ros.planning.wgr import matrix_rpy, rpy_matrix
-from humanoid_reach_ros.robot.limb_ik import LimbIKSet
+from humanoid_reach_ros.robot.limb_ik import LEG_WORK_SIZE, LimbIKSet, leg_ik_pose
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 
 ARMS = ("right_arm", "left_arm")
 LEGS = ("right_leg", "left_leg")
 RIGHT, LEFT, NONE = 0, 1, -1
+#: numba options; nogil=False: see geometry/distance.py (GIL convoy in the reach_planner node)
+_JIT = dict(cache=True, nogil=False, fastmath=False)
 ARM_CODES = {"right": RIGHT, "left": LEFT}
 
 
@@ -69,6 +81,76 @@ def quat_xyzw_matrix(quat: np.ndarray) -> np.ndarray:
     R[..., 2, 1] = 2 * (y * z + x * w)
     R[..., 2, 2] = 1 - 2 * (x * x + y * y)
     return R
+
+
+@nb.njit(**_JIT)
+def _project_plan_kernel(q_plan, v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, leg_cols, feet_p, feet_R, leg_ref,
+                         R0, t0, Re, te, l1, l2, leg_lo, leg_hi, Q, ok, trunk_p, trunk_R, fails):
+    """:meth:`Projector.project_plan_config` for N rows in one compiled call (same
+    steps as the numpy path: trunk pose by lines 2-4, arm joints set and limit-checked,
+    right then left leg by :func:`~humanoid_reach_ros.robot.limb_ik.leg_ik_pose` with the
+    limb's default reference). ``fails``: (right_leg, left_leg, arm_limits) counts."""
+    n = q_plan.shape[0]
+    nq = q_ref.shape[0]
+    Rt = np.empty((3, 3))
+    pt = np.empty(3)
+    qleg = np.empty(6)
+    work = np.empty(LEG_WORK_SIZE)
+    for k in range(n):
+        roll, pitch, yaw = q_plan[k, 7], q_plan[k, 8], q_plan[k, 9]
+        cr, sr = math.cos(roll), math.sin(roll)
+        cp, sp = math.cos(pitch), math.sin(pitch)
+        cy, sy = math.cos(yaw), math.sin(yaw)
+        Rt[0, 0] = cy * cp
+        Rt[0, 1] = cy * sp * sr - sy * cr
+        Rt[0, 2] = cy * sp * cr + sy * sr
+        Rt[1, 0] = sy * cp
+        Rt[1, 1] = sy * sp * sr + cy * cr
+        Rt[1, 2] = sy * sp * cr - cy * sr
+        Rt[2, 0] = -sp
+        Rt[2, 1] = cp * sr
+        Rt[2, 2] = cp * cr
+        for a in range(3):
+            pt[a] = Rt[a, 0] * v[0] + Rt[a, 1] * v[1] + Rt[a, 2] * v[2]
+        pt[0] += cog_xy[0]
+        pt[1] += cog_xy[1]
+        pt[2] = q_plan[k, 6]
+        for a in range(3):
+            trunk_p[k, a] = pt[a]
+            for b in range(3):
+                trunk_R[k, a, b] = Rt[a, b]
+        for i in range(nq):
+            Q[k, i] = q_ref[i]
+        Q[k, 0], Q[k, 1], Q[k, 2] = pt[0], pt[1], pt[2]
+        hr, hp, hy = 0.5 * roll, 0.5 * pitch, 0.5 * yaw
+        cr, sr = math.cos(hr), math.sin(hr)
+        cp, sp = math.cos(hp), math.sin(hp)
+        cy, sy = math.cos(hy), math.sin(hy)
+        Q[k, 3] = sr * cp * cy - cr * sp * sy
+        Q[k, 4] = cr * sp * cy + sr * cp * sy
+        Q[k, 5] = cr * cp * sy - sr * sp * cy
+        Q[k, 6] = cr * cp * cy + sr * sp * sy
+        lim = True
+        for a in range(6):
+            x = q_plan[k, a]
+            Q[k, arm_cols[a]] = x
+            if not (x >= arm_lo[a] and x <= arm_hi[a]):
+                lim = False
+        ok[k] = False
+        if not lim:
+            fails[2] += 1
+            continue
+        good = True
+        for g in range(2):
+            reason, _ = leg_ik_pose(pt, Rt, feet_p[g], feet_R[g], leg_ref[g], R0[g], t0[g], Re[g], te[g], l1[g],
+                                    l2[g], leg_lo[g], leg_hi[g], qleg, work)
+            if reason != 0:
+                fails[g] += 1
+                good = False
+                break
+            for a in range(6):
+                Q[k, leg_cols[g, a]] = qleg[a]
+        ok[k] = good
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,6 +205,24 @@ class Projector:
         soles = robot.stance_soles
         self.feet = {leg: (s.translation.copy(), s.rotation.copy()) for leg, s in zip(LEGS, soles)}
         self.cols = {name: np.array(spec.joint_index) + N_BASE_Q for name, spec in robot.limbs.items()}
+        self._v_c = np.array(self.v, dtype=float)
+        self._cog_xy_c = np.array(self.cog_approx_xy, dtype=float)
+        self._q_ref_c = np.array(self.q_ref, dtype=float)
+        #: project_plan_config runs the fused numba kernel when the IK set is compiled
+        self.compiled = bool(getattr(self.ik, "compiled", False))
+        legs = [self.ik[leg] for leg in LEGS]
+        kc = [np.ascontiguousarray(np.stack([lk._kc[i] for lk in legs])) for i in range(8)]
+        self._kernel_legs = (
+            np.ascontiguousarray(np.stack([self.cols[leg] for leg in LEGS]), dtype=np.int64),
+            np.ascontiguousarray(np.stack([self.feet[leg][0] for leg in LEGS])),
+            np.ascontiguousarray(np.stack([self.feet[leg][1] for leg in LEGS])),
+            np.ascontiguousarray(np.stack([lk.q_default for lk in legs])),
+            *kc)
+        self._kernel_arm = {}
+        for arm in ARM_CODES:
+            ji = np.array(robot.limbs[f"{arm}_arm"].joint_index)
+            self._kernel_arm[arm] = (np.ascontiguousarray(self.cols[f"{arm}_arm"], dtype=np.int64),
+                                     np.array(robot.lower[ji], dtype=float), np.array(robot.upper[ji], dtype=float))
 
     # ------------------------------------------------------------ pieces
     def trunk_pose(self, z_t: np.ndarray, rpy_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -212,6 +312,8 @@ class Projector:
         q_plan = np.atleast_2d(np.asarray(q_plan, float))
         if q_plan.shape[1] != 10:
             raise ValueError(f"q_plan must have 10 columns (q_arm, z_t, rpy_t), got {q_plan.shape}")
+        if self.compiled:
+            return self._project_plan_compiled(q_plan, arm)
         name = f"{arm}_arm"
         p_t, R_t = self.trunk_pose(q_plan[:, 6], q_plan[:, 7:10])
         Q = self._base(p_t, R_t, q_plan[:, 7:10])
@@ -222,6 +324,19 @@ class Projector:
         idx = self._legs(Q, p_t, R_t, np.flatnonzero(lim), failures)
         ok = np.zeros(len(q_plan), bool)
         ok[idx] = True
+        arm_used = np.where(ok, ARM_CODES[arm], NONE).astype(np.int8)
+        return ProjectionResult(Q, ok, arm_used, failures, p_t, R_t)
+
+    def _project_plan_compiled(self, q_plan: np.ndarray, arm: str) -> ProjectionResult:
+        n = len(q_plan)
+        Q = np.empty((n, len(self.q_ref)))
+        ok = np.empty(n, np.bool_)
+        p_t = np.empty((n, 3))
+        R_t = np.empty((n, 3, 3))
+        fails = np.zeros(3, np.int64)
+        _project_plan_kernel(np.ascontiguousarray(q_plan, dtype=np.float64), self._v_c, self._cog_xy_c,
+                             self._q_ref_c, *self._kernel_arm[arm], *self._kernel_legs, Q, ok, p_t, R_t, fails)
+        failures = {"right_leg": int(fails[0]), "left_leg": int(fails[1]), "arm_limits": int(fails[2])}
         arm_used = np.where(ok, ARM_CODES[arm], NONE).astype(np.int8)
         return ProjectionResult(Q, ok, arm_used, failures, p_t, R_t)
 

@@ -56,6 +56,7 @@ from humanoid_reach_ros.planning.path import (
 from humanoid_reach_ros.planning.projector import ARM_CODES, LEFT, LEGS, RIGHT, Projector
 from humanoid_reach_ros.planning.trajectory import SplineTrajectory, TrajectoryOptions
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion
+from humanoid_reach_ros.robot.limb_ik import LimbIKSet
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 from humanoid_reach_ros.robot.shapes import load_collision_model
 
@@ -106,9 +107,10 @@ class PlannerParams:
     include the start), metric ``||W dq||`` with ``W = (arm_weight x6, trunk_z_weight,
     trunk_rpy_weight x3)``, edges checked every ``edge_resolution``, RRT step ``rrt_step``.
     ``rrt_step`` is 1.0 (not 0.3): every checker call projects its batch through the
-    closed-form leg IK, whose numpy cost is per call rather than per configuration, so
-    fewer, longer CONNECT/EXTEND calls plan ~2.5x faster on the plant scene (20 valve
-    requests: path mean 1.28 s at 0.3 vs 0.50 s at 1.0, with 3 vs 0 timeouts in 2 s).
+    closed-form leg IK, whose numpy cost was per call rather than per configuration, so
+    fewer, longer CONNECT/EXTEND calls planned ~2.5x faster on the plant scene (20 valve
+    requests: path mean 1.28 s at 0.3 vs 0.50 s at 1.0, with 3 vs 0 timeouts in 2 s;
+    measured before the compiled projection kernel, which made the per-call cost small).
     Path: ``shortcut_iterations`` random shortcuts (``shortcut_time_s`` is only a safety
     cap: the result stays a deterministic function of the seed while it is not hit).
     Trajectory: ``joint_velocity_rad_s`` (durations rule), samples every
@@ -237,15 +239,21 @@ class ReachPlanner:
     """Goal sampling + path planning + trajectory for reach requests (see module doc).
 
     ``robot`` defaults to ``RobotModel()``; the collision model is the robot's default.
+    ``compiled_kinematics=False`` projects q_plan through the numpy reference leg IK
+    instead of the fused numba kernel, ``early_exit_checks=False`` checks every point of
+    an edge chain even after an invalid one (both: same plans, slower; for baseline
+    benchmarks).
     Thread safety: :meth:`set_map` may be called while a plan runs (a plan uses the map it
     started with); overlapping :meth:`plan` calls get ``BUSY``.
     """
 
-    def __init__(self, robot: RobotModel | None = None, params: PlannerParams = PlannerParams()) -> None:
+    def __init__(self, robot: RobotModel | None = None, params: PlannerParams = PlannerParams(),
+                 compiled_kinematics: bool = True, early_exit_checks: bool = True) -> None:
         self.robot = RobotModel() if robot is None else robot
         self.params = params
         self.collision_model = load_collision_model(None, self.robot)
-        self.projector = Projector(self.robot)
+        self.projector = Projector(self.robot, LimbIKSet(self.robot, compiled=compiled_kinematics))
+        self.early_exit_checks = bool(early_exit_checks)
         self._collision: RobotCollision | None = None
         self._map_voxels = 0
         self._tree_build_s = 0.0
@@ -377,6 +385,15 @@ class ReachPlanner:
                 ok[idx] = collision.check_batch(res.q[idx])
             return ok
 
+        def first_invalid(Q: np.ndarray) -> int:
+            """The first row that does not project or collides (len(Q) if none); the
+            rows after it are not collision-checked (see ``path.check_edges(prefix=True)``)."""
+            res = projector.project_plan_config(Q, arm)
+            k = len(Q) if res.ok.all() else int(np.argmin(res.ok))
+            return collision.first_collision(res.q[:k]) if k else 0
+
+        if self.early_exit_checks:
+            is_valid.first_invalid = first_invalid
         return is_valid
 
     def full_configs(self, Q_plan: np.ndarray, arm: str) -> np.ndarray:
@@ -633,7 +650,9 @@ class ReachPlanner:
     def warm_up(self) -> None:
         """Compile the numba kernels (free-space plan) so the first request is fast."""
         from humanoid_reach_ros.planning.wgr import valve_region
+        from humanoid_reach_ros.robot import limb_ik
 
+        limb_ik.warm_up()
         saved = (self._collision, self._map_voxels, self._tree_build_s)
         try:
             self.set_map(np.array([[5.0, 5.0, 5.0]]))

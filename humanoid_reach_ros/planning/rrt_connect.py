@@ -14,8 +14,9 @@ are used as seeds for search trees." Tree ``T_a`` is rooted at ``q_start``; tree
 ``eps`` is :attr:`RRTConnectOptions.step` (weighted metric of the
 :class:`~.path.PlanningSpace`). CONNECT is done in one checker call: the whole
 straight line ``q_near -> q_new`` is cut into sub-edges of length ``<= eps``, all
-sub-edges are discretised at the edge resolution and checked together, and the
-nodes are added up to the first invalid sub-edge (the tree an iterated EXTEND
+sub-edges are discretised at the edge resolution and checked together in order
+(``check_edges(prefix=True)``: a checker with ``first_invalid`` stops at the first
+invalid point), and the nodes are added up to the first invalid sub-edge (the tree an iterated EXTEND
 would grow; tree edges are exactly the edges of the returned path, so every
 configuration :func:`~.path.interpolate_path` produces has been checked).
 
@@ -108,7 +109,8 @@ def _grow(tree: _Tree, target: np.ndarray, step: float, checker: CountingChecker
     chain = q_near + (np.arange(1, n_seg + 1)[:, None] / n_seg) * ((length / dist) * (target - q_near))
     if length >= dist - 1e-12:
         chain[-1] = target
-    ok = check_edges(np.vstack([q_near[None], chain[:-1]]), chain, checker, space, include_endpoints=True)
+    ok = check_edges(np.vstack([q_near[None], chain[:-1]]), chain, checker, space, include_endpoints=True,
+                     prefix=True)
     n_ok = n_seg if ok.all() else int(np.argmin(ok))
     if n_ok == 0:
         return "trapped", i_near

@@ -86,9 +86,15 @@ Numerical robustness (errors quoted are bounds on FK(IK(x)) - x):
   the solver can then answer JOINT_LIMITS for a pose that is (barely) feasible.
 
 Failed rows carry ``NaN`` joints, ``ok = False`` and a reason code (:class:`IKReason`).
-A single pose (N = 1) is solved by a pure-Python twin of the batched numpy code
-(same algorithm, branch order and tolerances; ~10x faster than numpy on 1-element
-arrays); larger batches use numpy. This module never imports rclpy.
+Implementations: the LEGS are solved by a numba kernel (:func:`_leg_ik_kernel`, one
+pose at a time, no temporaries; the planner projects every tree node and edge point
+through both legs in many small batches, where numpy's per-call overhead dominated).
+The numpy batch code (and, for N = 1, its pure-Python twin) is the reference: same
+algorithm, branch order, tolerances and tie-breaking; the arms use it, and
+``LimbIK(..., compiled=False)`` / :meth:`LimbIK.solve_reference` use it for the legs
+too (tests check kernel == reference to 1e-12). The kernel is compiled into numba's
+on-disk cache by :func:`warm_up` (called from ``humanoid_reach_ros.warmup`` through
+``ReachPlanner.warm_up``). This module never imports rclpy.
 """
 from __future__ import annotations
 
@@ -97,6 +103,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Iterator, Mapping
 
+import numba as nb
 import numpy as np
 import pinocchio as pin
 
@@ -120,6 +127,11 @@ STRETCH_TOL = 1e-11
 STRUCT_TOL = 1e-12
 #: rotation inputs further than this from orthonormal are rejected (INVALID_INPUT)
 ROTATION_TOL = 1e-6
+#: numba options of the compiled leg IK; nogil=False: see geometry/distance.py (GIL convoy
+#: in the multithreaded reach_planner node)
+_JIT = dict(cache=True, nogil=False, fastmath=False)
+#: size of the float scratch array of :func:`leg_ik_pose`
+LEG_WORK_SIZE = 110
 
 _AXIS_OF_JOINT = {"JointModelRX": "x", "JointModelRY": "y", "JointModelRZ": "z"}
 #: joint-axis pattern (chain order) -> solver kind
@@ -218,6 +230,7 @@ class LimbIK:
 
     model: RobotModel
     limb_name: str
+    compiled: bool = True
     kind: str = field(init=False)
     joint_names: tuple[str, ...] = field(init=False)
     axes: str = field(init=False)
@@ -233,6 +246,7 @@ class LimbIK:
     _chain: tuple = field(init=False, repr=False)    # (t_i, R_i) joint placements
     _py: tuple = field(init=False, repr=False)       # R0, t0, Re, te as Python lists
     _lo: list = field(init=False, repr=False)
+    _kc: tuple = field(init=False, repr=False)       # constants of the compiled kernel
     _hi: list = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -301,6 +315,8 @@ class LimbIK:
         chain = [(self.t0, self.R0)] + [(np.array(p.translation), np.array(p.rotation)) for p in P[1:]]
         set_(self, "_chain", tuple(chain))
         set_(self, "_py", (self.R0.tolist(), self.t0.tolist(), self.Re.tolist(), self.te.tolist()))
+        set_(self, "_kc", (self.R0.copy(), self.t0.copy(), self.Re.copy(), self.te.copy(), self.l1, self.l2,
+                           lo.copy(), hi.copy()))   # writable C arrays: one numba signature
         set_(self, "_lo", lo.tolist())
         set_(self, "_hi", hi.tolist())
         for arr in (self.lower, self.upper, self.q_default, self.t0, self.R0, self.te, self.Re):
@@ -354,9 +370,32 @@ class LimbIK:
                 if len(a) != 1:
                     raise ValueError(f"inconsistent batch sizes: {[len(a) for a in arrs]} (each N or 1)")
                 arrs[k] = np.broadcast_to(a, (n,) + a.shape[1:])
+        if self.compiled and self.kind == "leg":
+            return self._solve_compiled(n, *arrs)
         if n == 1:
             return self._solve_one(*(a[0].tolist() for a in arrs))
         return self._solve_batch(*arrs)
+
+    def solve_reference(self, root_p, root_R, tip_p, tip_R, q_ref=None) -> IKResult:
+        """:meth:`solve` by the reference implementation (numpy batch, pure Python for
+        N = 1), whatever ``compiled`` says; used by the tests and ``--baseline`` benches."""
+        if not self.compiled:
+            return self.solve(root_p, root_R, tip_p, tip_R, q_ref)
+        ref_ik = self.__dict__.get("_reference")
+        if ref_ik is None:
+            ref_ik = LimbIK(self.model, self.limb_name, compiled=False)
+            object.__setattr__(self, "_reference", ref_ik)
+        return ref_ik.solve(root_p, root_R, tip_p, tip_R, q_ref)
+
+    def _solve_compiled(self, n: int, root_p, root_R, tip_p, tip_R, ref) -> IKResult:
+        """The numba leg kernel :func:`_leg_ik_kernel` (legs only; inputs (N or 1, ...))."""
+        q = np.empty((n, 6))
+        ok = np.empty(n, np.bool_)
+        reason = np.empty(n, np.int8)
+        branch = np.empty(n, np.int64)
+        _leg_ik_kernel(_kernel_arg(root_p), _kernel_arg(root_R), _kernel_arg(tip_p), _kernel_arg(tip_R),
+                       _kernel_arg(ref), *self._kc, q, ok, reason, branch)
+        return IKResult(q=q, ok=ok, reason=reason, branch=branch)
 
     def _solve_batch(self, root_p, root_R, tip_p, tip_R, ref) -> IKResult:
         """The numpy-batched solver (inputs already (N, ...) with equal N)."""
@@ -733,15 +772,251 @@ def _redistribute1(q, i, j, coef, ref, lo, hi) -> None:
 
 
 
+# ----------------------------------------------------------------- compiled leg IK
+# The leg solver of LimbIK._solve_leg + _select (+ _redistribute) as one numba kernel,
+# one pose at a time, no temporaries: the planner projects every RRT node / edge
+# point through both legs, in many small batches, where numpy's per-call overhead
+# dominated. Same formulas, branch order (4 knee + 2 roll + hip), tolerances and
+# tie-breaking; test_limb_ik.py checks it against the numpy reference to 1e-12.
+@nb.njit(**_JIT)
+def _leg_wrap(x, lo):
+    base = lo - LIMIT_TOL
+    return base + (x - base) % TWO_PI
+
+
+@nb.njit(**_JIT)
+def _leg_rot_ok(R):
+    """Twin of :func:`_valid_rotation` for one matrix."""
+    err = 0.0
+    for a in range(3):
+        for b in range(3):
+            d = R[0, a] * R[0, b] + R[1, a] * R[1, b] + R[2, a] * R[2, b]
+            e = abs(d - (1.0 if a == b else 0.0))
+            if not e <= err:       # NaN counts as "bad"
+                err = e if e == e else np.inf
+    det = ((R[0, 1] * R[1, 2] - R[0, 2] * R[1, 1]) * R[2, 0]
+           + (R[0, 2] * R[1, 0] - R[0, 0] * R[1, 2]) * R[2, 1]
+           + (R[0, 0] * R[1, 1] - R[0, 1] * R[1, 0]) * R[2, 2])
+    return err <= ROTATION_TOL and det > 0.0
+
+
+@nb.njit(**_JIT)
+def _leg_ik_kernel(root_p, root_R, tip_p, tip_R, ref, R0, t0, Re, te, A, B, lo, hi,
+                   out_q, out_ok, out_reason, out_branch):
+    """Closed-form leg IK of N poses (inputs with a leading dimension N or 1)."""
+    n = out_q.shape[0]
+    work = np.empty(LEG_WORK_SIZE)
+    for k in range(n):
+        ir = k if root_p.shape[0] > 1 else 0
+        iR = k if root_R.shape[0] > 1 else 0
+        it = k if tip_p.shape[0] > 1 else 0
+        iT = k if tip_R.shape[0] > 1 else 0
+        jf = k if ref.shape[0] > 1 else 0
+        reason, branch = leg_ik_pose(root_p[ir], root_R[iR], tip_p[it], tip_R[iT], ref[jf], R0, t0, Re, te, A, B,
+                                     lo, hi, out_q[k], work)
+        out_ok[k] = reason == 0
+        out_reason[k] = reason
+        out_branch[k] = branch
+
+
+@nb.njit(**_JIT)
+def leg_ik_pose(rp, rR, tp, tR, rf, R0, t0, Re, te, A, B, lo, hi, q_out, work):
+    """One leg pose: writes ``q_out`` (6,) (NaN on failure); returns ``(reason, branch)``
+    (:class:`IKReason` code, branch index or -1). ``R0, t0, Re, te, A = l1, B = l2, lo,
+    hi``: the :class:`LimbIK` constants (``LimbIK._kc``); ``work``: float scratch of
+    ``LEG_WORK_SIZE``. For other numba kernels (the planner's fused projection) and
+    :func:`_leg_ik_kernel`."""
+    s = (rp[0] + rp[1] + rp[2]) + (tp[0] + tp[1] + tp[2]) + (rf[0] + rf[1] + rf[2] + rf[3] + rf[4] + rf[5])
+    if not (np.isfinite(s) and _leg_rot_ok(rR) and _leg_rot_ok(tR)):
+        for a in range(6):
+            q_out[a] = np.nan
+        return 3, -1             # INVALID_INPUT
+    # scratch views of `work` (no allocation per pose)
+    Rc = work[0:9].reshape((3, 3))
+    R5 = work[9:18].reshape((3, 3))
+    Mt = work[18:27].reshape((3, 3))
+    M1 = work[27:36].reshape((3, 3))
+    M = work[36:45].reshape((3, 3))
+    c = work[45:48]
+    w = work[48:51]
+    r = work[51:54]
+    Q = work[54:102].reshape((8, 6))
+    gim = work[102:110]          # 1.0 where the branch is at gimbal lock
+    # Rc = root_R R0, c = root_p + root_R t0, R5 = tip_R Re^T, w = tip_p - R5 te
+    for a in range(3):
+        for b in range(3):
+            Rc[a, b] = rR[a, 0] * R0[0, b] + rR[a, 1] * R0[1, b] + rR[a, 2] * R0[2, b]
+            R5[a, b] = tR[a, 0] * Re[b, 0] + tR[a, 1] * Re[b, 1] + tR[a, 2] * Re[b, 2]
+        c[a] = rp[a] + (rR[a, 0] * t0[0] + rR[a, 1] * t0[1] + rR[a, 2] * t0[2])
+    for a in range(3):
+        w[a] = tp[a] - (R5[a, 0] * te[0] + R5[a, 1] * te[1] + R5[a, 2] * te[2])
+    d0, d1, d2 = c[0] - w[0], c[1] - w[1], c[2] - w[2]
+    for a in range(3):
+        r[a] = R5[0, a] * d0 + R5[1, a] * d1 + R5[2, a] * d2
+        for b in range(3):
+            Mt[a, b] = Rc[0, a] * R5[0, b] + Rc[1, a] * R5[1, b] + Rc[2, a] * R5[2, b]
+    # knee (law of cosines), 2 branches
+    c3 = ((r[0] * r[0] + r[1] * r[1] + r[2] * r[2]) - A * A - B * B) / (2.0 * A * B)
+    reach = abs(c3) <= 1.0 + REACH_TOL
+    if not reach:
+        for a in range(6):
+            q_out[a] = np.nan
+        return 1, -1             # UNREACHABLE
+    c3 = min(max(c3, -1.0), 1.0)
+    s3 = math.sqrt((1.0 - c3) * (1.0 + c3))
+    # ankle roll, 2 branches
+    if math.hypot(r[1], r[2]) < SINGULAR_TOL:
+        q5a = rf[5]
+    else:
+        q5a = math.atan2(r[1], r[2])
+    any_gim = False
+    # A candidate whose knee, ankle pitch or ankle roll is outside its limits (after
+    # wrapping) can never be selected (the gimbal redistribution only moves q0, q2):
+    # its hip angles are not computed (row set to NaN, which fails the limit test).
+    for kb in range(2):
+        s3b = s3 if kb == 0 else -s3
+        q3 = math.atan2(s3b, c3)
+        q3w = _leg_wrap(q3, lo[3])
+        knee_out = not (q3w <= hi[3] + LIMIT_TOL)
+        alpha = math.atan2(-A * s3b, A * c3 + B)
+        for rb in range(2):
+            q5 = q5a if rb == 0 else q5a + np.pi
+            q5w = _leg_wrap(q5, lo[5])
+            if knee_out or not (q5w <= hi[5] + LIMIT_TOL):
+                for hb in range(2):
+                    b = 4 * kb + 2 * rb + hb
+                    gim[b] = 0.0
+                    for a in range(6):
+                        Q[b, a] = np.nan
+                continue
+            vz = math.sin(q5) * r[1] + math.cos(q5) * r[2]
+            q4 = alpha - math.atan2(r[0], vz)
+            q4w = _leg_wrap(q4, lo[4])
+            if not (q4w <= hi[4] + LIMIT_TOL):
+                for hb in range(2):
+                    b = 4 * kb + 2 * rb + hb
+                    gim[b] = 0.0
+                    for a in range(6):
+                        Q[b, a] = np.nan
+                continue
+            # M = Mt Rx(-q5) Ry(-(q3 + q4))
+            cx, sx = math.cos(-q5), math.sin(-q5)
+            th = -(q3 + q4)
+            cy, sy = math.cos(th), math.sin(th)
+            for a in range(3):
+                M1[a, 0] = Mt[a, 0]
+                M1[a, 1] = Mt[a, 1] * cx + Mt[a, 2] * sx
+                M1[a, 2] = -Mt[a, 1] * sx + Mt[a, 2] * cx
+            for a in range(3):
+                M[a, 0] = M1[a, 0] * cy - M1[a, 2] * sy
+                M[a, 1] = M1[a, 1]
+                M[a, 2] = M1[a, 0] * sy + M1[a, 2] * cy
+            gimbal = math.hypot(M[0, 1], M[1, 1]) < GIMBAL_TOL
+            if gimbal:
+                q0a = rf[0]
+                any_gim = True
+            else:
+                q0a = math.atan2(-M[0, 1], M[1, 1])
+            for hb in range(2):
+                q0 = q0a if hb == 0 else q0a + np.pi
+                ca, sa = math.cos(q0), math.sin(q0)
+                n00 = ca * M[0, 0] + sa * M[1, 0]
+                n02 = ca * M[0, 2] + sa * M[1, 2]
+                n11 = -sa * M[0, 1] + ca * M[1, 1]
+                q2 = math.atan2(n02, n00)
+                q1 = math.atan2(M[2, 1], n11)
+                if gimbal:
+                    q1 = math.copysign(0.5 * np.pi, q1)
+                b = 4 * kb + 2 * rb + hb
+                gim[b] = 1.0 if gimbal else 0.0
+                Q[b, 0] = _leg_wrap(q0, lo[0])
+                Q[b, 1] = _leg_wrap(q1, lo[1])
+                Q[b, 2] = _leg_wrap(q2, lo[2])
+                Q[b, 3] = q3w
+                Q[b, 4] = q4w
+                Q[b, 5] = q5w
+    if any_gim:
+        # gimbal lock: only q0 + sin(q1) q2 fixed; move (q0, q2) += (d, coef d) with
+        # coef = -sin(q1), within the limits, closest to ref (LimbIK._redistribute)
+        for b in range(8):
+            if gim[b] == 0.0:
+                continue
+            cf = -math.sin(Q[b, 1])
+            cc = 1.0 if cf > 0.0 else (-1.0 if cf < 0.0 else 1.0)
+            qi, qj = Q[b, 0], Q[b, 2]
+            best = np.inf
+            d_best = 0.0
+            qj_best = qj
+            for m in range(-2, 3):
+                qjm = qj + TWO_PI * m
+                e1, e2 = cc * (lo[2] - qjm), cc * (hi[2] - qjm)
+                lo_d = max(lo[0] - qi, min(e1, e2))
+                hi_d = min(hi[0] - qi, max(e1, e2))
+                dd = min(max(0.5 * ((rf[0] - qi) + cc * (rf[2] - qjm)), lo_d), hi_d)
+                cost = (qi + dd - rf[0]) ** 2 + (qjm + cc * dd - rf[2]) ** 2
+                if lo_d <= hi_d and cost < best:
+                    best, d_best, qj_best = cost, dd, qjm
+            if best < np.inf:
+                Q[b, 0] = qi + d_best
+                Q[b, 2] = qj_best + cc * d_best
+            for a in range(6):
+                Q[b, a] = _leg_wrap(Q[b, a], lo[a])
+    best_b = -1
+    best_d = np.inf
+    if reach:   # (always here: unreachable returned above)
+        for b in range(8):
+            inlim = True
+            for a in range(6):
+                if not (Q[b, a] <= hi[a] + LIMIT_TOL):     # NaN fails too
+                    inlim = False
+                    break
+            if not inlim:
+                continue
+            dist = 0.0
+            for a in range(6):
+                Q[b, a] = min(max(Q[b, a], lo[a]), hi[a])
+                dist += (Q[b, a] - rf[a]) ** 2
+            if dist < best_d:
+                best_d = dist
+                best_b = b
+    if best_b < 0:
+        for a in range(6):
+            q_out[a] = np.nan
+        return (2 if reach else 1), -1       # JOINT_LIMITS / UNREACHABLE
+    for a in range(6):
+        q_out[a] = Q[best_b, a]
+    return 0, best_b
+
+
+def _kernel_arg(a: np.ndarray) -> np.ndarray:
+    """A batch argument as a writable C-contiguous float array; a broadcast one
+    (stride 0 along N) is passed as its single row (the kernel broadcasts N = 1)."""
+    if a.shape[0] > 1 and a.strides[0] == 0:
+        a = a[:1]
+    if not (a.flags.c_contiguous and a.flags.writeable and a.dtype == np.float64):
+        a = np.array(a, dtype=np.float64, order="C")
+    return a
+
+
+def warm_up() -> None:
+    """Compile (or load from the numba cache) the leg kernel on a tiny batch."""
+    eye = np.eye(3)[None]
+    z = np.zeros((1, 3))
+    out = (np.empty((1, 6)), np.empty(1, np.bool_), np.empty(1, np.int8), np.empty(1, np.int64))
+    _leg_ik_kernel(z, eye, z - [0.0, 0.0, 0.6], eye, np.zeros((1, 6)), eye[0], z[0], eye[0], z[0], 0.3, 0.3,
+                   np.full(6, -3.0), np.full(6, 3.0), *out)
+
+
 @dataclass(frozen=True, eq=False)
 class LimbIKSet:
     """The closed-form IK of every limb of ``model`` (``model.limbs``), by name."""
 
     model: RobotModel
+    compiled: bool = True
     limbs: Mapping[str, LimbIK] = field(init=False)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "limbs", {n: LimbIK(self.model, n) for n in self.model.limbs})
+        object.__setattr__(self, "limbs", {n: LimbIK(self.model, n, self.compiled) for n in self.model.limbs})
 
     def __getitem__(self, limb: str) -> LimbIK:
         return self.limbs[limb]
