@@ -18,6 +18,7 @@ from sensor_msgs.msg import PointCloud2
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import Marker, MarkerArray
 
+from humanoid_reach_ros.geometry.voxels import without_target
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes import reach_planner
 from humanoid_reach_ros.planning.wgr import valve_region
@@ -285,7 +286,9 @@ def test_voxel_map_switch_collision_busy_and_malformed(start_node, ros_probe, mo
     assert E.BUSY in codes, codes
     blocked = r1 if r2.error_code == E.BUSY else r2
     assert blocked.error_code in (E.TARGET_OUT_OF_REACH, E.NO_PATH, E.TIMED_OUT), blocked.message
-    assert blocked.statistics.map_voxels == len(walled)
+    # the voxels around the valve target are left out (target_exclusion_radius_m)
+    kept = without_target(walled, valve_region().target_p, 0.15)
+    assert len(kept) < len(walled) and blocked.statistics.map_voxels == len(kept)
     assert proc.alive()
 
 
@@ -337,6 +340,34 @@ def test_stale_inputs_in_order(ros_env) -> None:
         node._joint_time = time.monotonic()
         joints, reason = node.current_joints()
         assert reason == "" and np.allclose(joints, model.half_sitting_joints)
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+def test_measured_map_leaves_the_target_object_out(ros_env) -> None:
+    """In process: voxels of a /voxel_map around the request's target (the valve, in a measured map)
+    are left out of the planner's map (target_exclusion_radius_m), per target; 0 keeps them all."""
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    try:
+        node = reach_planner.ReachPlannerNode(context=ctx)
+        node.current_joints = lambda: (node.model.half_sitting_joints.copy(), "")
+        full = load_scene(REPO_ROOT / "config/scenes/plant.yaml").voxelize(0.02)  # valve included
+        node._on_map(msgs.cloud_from_points(full, "world"))
+        target = valve_region().target_p
+        resp = node._on_plan_reach(valve_request(time_budget_s=SUCCESS_BUDGET_S), PlanReach.Response())
+        assert resp.success, (resp.error_code, resp.message)
+        kept = without_target(full, target, 0.15)
+        # (+-few: voxels exactly at the radius, and the target's float round trip through the message)
+        assert len(full) - len(kept) > 100 and abs(resp.statistics.map_voxels - len(kept)) <= 4
+        assert np.all(np.linalg.norm(kept - target, axis=1) > 0.15)
+        node.set_parameters([Parameter("target_exclusion_radius_m", value=0.0)])
+        resp = node._on_plan_reach(valve_request(goal_count=1, time_budget_s=SUCCESS_BUDGET_S), PlanReach.Response())
+        assert resp.statistics.map_voxels == len(full), resp.message
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=ctx)

@@ -60,6 +60,7 @@ from sensor_msgs.msg import JointState, PointCloud2
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
+from humanoid_reach_ros.geometry.voxels import without_target
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes.common import ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.paths import config_path
@@ -97,6 +98,9 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "scene_exclude_groups": ParamSpec(["valve"], "scene primitive groups left out of the scene-file map "
                                       "(the object to be grasped)"),
     "map_frame": ParamSpec("world", "frame of /voxel_map, the trajectory and markers (the stance frame)"),
+    "target_exclusion_radius_m": ParamSpec(0.15, "voxels of a /voxel_map within this distance of the request's "
+                                           "target are the object to be reached and left out of the collision "
+                                           "map [m]; 0 = keep all", (0.0, 1.0), read_only=False),
     "joint_states_timeout_s": ParamSpec(0.5, "/joint_states older than this [s] -> NO_JOINT_STATES",
                                         (0.001, 3600.0), read_only=False),
     "target_timeout_s": ParamSpec(1.0, "/target_pose older than this [s] -> NO_TARGET for use_marker_target",
@@ -162,6 +166,8 @@ class ReachPlannerNode(Node):
 
         self._plan_lock = threading.Lock()   # one request at a time; a second one gets BUSY
         self._state_lock = threading.Lock()  # latest joint state / target
+        self._map_points: np.ndarray | None = None   # the last /voxel_map (uncarved)
+        self._carved_for: tuple | None = None          # (map, target) the planner's map is carved for
         self._joint_msg: JointState | None = None
         self._joint_time = -math.inf
         self._target_msg: PoseStamped | None = None
@@ -228,6 +234,8 @@ class ReachPlannerNode(Node):
             if cloud.frame_id not in ("", self.map_frame):
                 raise ValueError(f"frame_id {cloud.frame_id!r} is not the map frame {self.map_frame!r}")
             build_s = float(self.planner.set_map(cloud.points))
+            with self._state_lock:
+                self._map_points, self._carved_for = cloud.points, None
         except Exception as exc:  # malformed cloud or a map the planner refuses: keep the old one
             self.map_info.rejected += 1
             self.map_info.last_rejection = f"{type(exc).__name__}: {exc}"
@@ -244,6 +252,27 @@ class ReachPlannerNode(Node):
         if cloud.dropped_nonfinite:
             log.warning(f"/voxel_map had {cloud.dropped_nonfinite} points with NaN/inf coordinates (dropped)")
         self._publish_diagnostics()
+
+    def _carve_target(self, target_p: np.ndarray) -> None:
+        """Leave the object at the target out of a measured map (see ``geometry.voxels.without_target``);
+        the sphere tree is rebuilt only when the map or the target changed."""
+        radius = float(self._p["target_exclusion_radius_m"])
+        with self._state_lock:
+            points, done = self._map_points, self._carved_for
+        if points is None or radius <= 0.0:
+            return
+        key = (id(points), radius, *np.round(target_p, 3))
+        if key == done:
+            return
+        kept = without_target(points, target_p, radius)
+        build_s = float(self.planner.set_map(kept))
+        with self._state_lock:
+            if self._map_points is points:
+                self._carved_for = key
+        self.map_info.voxels, self.map_info.build_time_s = int(len(kept)), build_s
+        self.get_logger().info(f"/voxel_map: {len(points) - len(kept)} of {len(points)} voxels within "
+                               f"{radius:g} m of the target {np.round(target_p, 3).tolist()} left out (the object "
+                               f"to be reached); sphere tree rebuilt in {build_s * 1e3:.1f} ms")
 
     # ------------------------------------------------------------ inputs
     def current_joints(self) -> tuple[np.ndarray | None, str]:
@@ -348,6 +377,7 @@ class ReachPlannerNode(Node):
             result.code = E.NO_MAP
             result.message = "no environment map: no /voxel_map received and no scene_file"
             return result
+        self._carve_target(result.region.target_p)
         plan_request = PlanRequest(region=result.region, arm=rr.arm, goal_count=rr.goal_count, planner=rr.planner,
                                    time_budget_s=rr.time_budget_s, seed=rr.seed)
         outcome = self.planner.plan(joints, plan_request)
