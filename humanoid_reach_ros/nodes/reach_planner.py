@@ -259,7 +259,7 @@ class ReachPlannerNode(Node):
         radius = float(self._p["target_exclusion_radius_m"])
         with self._state_lock:
             points, done = self._map_points, self._carved_for
-        if points is None or radius <= 0.0:
+        if points is None:
             return
         key = (id(points), radius, *np.round(target_p, 3))
         if key == done:
