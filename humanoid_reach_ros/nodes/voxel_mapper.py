@@ -1,0 +1,517 @@
+"""``voxel_mapper``: the measured voxel map of Kanehiro et al. (Sec. II) from the head sensors.
+
+A thin node around ``humanoid_reach_ros.perception.voxel_map.VoxelMap`` (003's weighted
+incremental fusion with free-space clearing; see that module) and, with ``use_stereo``,
+``humanoid_reach_ros.perception.stereo.StereoMatcher`` (rectification, semi-global
+matching, left-right consistency check):
+
+* subscribes ``/head_camera/points`` (sensor_msgs/PointCloud2, sensor-data QoS). A cloud in
+  ``map_frame`` (``world``) is integrated as is; a cloud in a frame of the robot's URDF
+  (``head_camera_optical_frame``, as ``scene_sim`` publishes by default) is placed by
+  forward kinematics of ``/joint_states`` at the cloud's stamp (interpolated; feet fixed
+  on the floor, ``RobotModel.base_on_feet``; an unstamped cloud (stamp 0) takes the newest
+  joint state). The rays' origin, needed for free-space
+  clearing, is the ``sensor_frame`` origin by the same forward kinematics (for a world-frame
+  cloud without joint states at its stamp the points are marked but nothing is cleared).
+  Any other frame is unknown: throttled warning + diagnostic, the cloud is not used;
+* subscribes ``/joint_states`` (kept for ``joint_states_window_s``);
+* with ``use_stereo``: ``/stereo/{left,right}/image_raw`` + ``camera_info``; a pair with equal
+  stamps becomes a cloud in the left image's frame and is integrated the same way;
+* publishes ``/voxel_map`` (PointCloud2 of occupied voxel centres, float32 x y z, frame
+  ``map_frame``; reliable, transient local, depth 1: what ``reach_planner`` subscribes) and
+  ``/voxel_map/markers`` (MarkerArray: one CUBE_LIST) every ``publish_period_s`` when the map
+  changed, and ``/diagnostics``;
+* serves ``~/clear`` (std_srvs/Trigger): forget the map.
+
+Throughput policy: the subscription callbacks only store the newest cloud (or stereo pair)
+in a one-slot mailbox; a worker thread converts it and integrates it in the numba kernel.
+A cloud that arrives while the previous one is still waiting replaces it and is counted as
+dropped: the node never queues without bound, and the map's memory is fixed by the
+extent (``VoxelMap`` is a dense array over it), whatever the input rate.
+
+Bad input -- malformed clouds (missing x/y/z, non-float fields, wrong point_step or data
+length), NaN points (dropped and counted), unknown frames, no joint states at the stamp,
+unsupported image encodings, images without camera_info -- gets a throttled warning and a
+diagnostic; the map is not touched by a rejected message.
+
+Run: ``python -m humanoid_reach_ros.nodes.voxel_mapper --ros-args --params-file
+config/voxel_mapper.yaml`` (``ros2 run humanoid_reach_ros voxel_mapper`` on an install).
+"""
+from __future__ import annotations
+
+import sys
+import threading
+import time
+import traceback
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import Point
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image, JointState, PointCloud2
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import Marker, MarkerArray
+
+from humanoid_reach_ros.io import msgs
+from humanoid_reach_ros.nodes.common import ParamSpec, declare_parameters, run_node
+from humanoid_reach_ros.perception.markers import JointStateBuffer, camera_pose, joint_vector
+from humanoid_reach_ros.perception.stereo import StereoCalibration, StereoMatcher, StereoParams, image_to_gray
+from humanoid_reach_ros.perception.voxel_map import FusionParams, VoxelMap
+from humanoid_reach_ros.robot.model import RobotModel
+
+NODE_NAME = "voxel_mapper"
+
+_F = FusionParams()
+_S = StereoParams()
+# Defaults match config/voxel_mapper.yaml (checked by test_voxel_mapper_node).
+FUSION_PARAMETERS: dict[str, ParamSpec] = {
+    "resolution_m": ParamSpec(_F.resolution_m, "voxel size h [m] (voxel i covers [i h, (i+1) h))", (0.001, 1.0)),
+    "extent_min_m": ParamSpec(list(_F.extent_min_m), "lower corner of the mapped box in map_frame [m] (x, y, z)"),
+    "extent_max_m": ParamSpec(list(_F.extent_max_m), "upper corner of the mapped box in map_frame [m] (x, y, z)"),
+    "hit_weight": ParamSpec(_F.hit_weight, "w_M of an occupied observation (003's weighted fusion)", (1e-6, 1e6)),
+    "free_weight": ParamSpec(_F.free_weight, "w_M of a free observation (a ray through the voxel)", (1e-6, 1e6)),
+    "max_weight": ParamSpec(_F.max_weight, "cap of the accumulated weight W (fading memory: removed objects clear)",
+                            (1e-6, 1e9)),
+    "occupied_threshold": ParamSpec(_F.occupied_threshold, "a voxel is occupied when V exceeds this", (0.0, 0.999)),
+    "min_weight": ParamSpec(_F.min_weight, "... and its weight W reaches this", (0.0, 1e9)),
+    "max_range_m": ParamSpec(_F.max_range_m, "rays are truncated at this range [m] (farther points only clear)",
+                             (0.01, 100.0)),
+    "floor_z_m": ParamSpec(_F.floor_z_m, "points below this height [m, map_frame] are the floor: they clear, "
+                           "they are not marked", (-1e3, 1e3)),
+    "clear_margin_m": ParamSpec(_F.clear_margin_m, "free-space clearing stops this short of the measured point [m]",
+                                (0.0, 1.0)),
+    "discretize_rays": ParamSpec(_F.discretize_rays, "clear along one ray per distinct end voxel and depth map "
+                                 "(OctoMap's discretized insertion; faster, may leave voxels only skipped rays cross)"),
+}
+STEREO_PARAMETERS: dict[str, ParamSpec] = {
+    "stereo_num_disparities": ParamSpec(_S.num_disparities, "StereoSGBM numDisparities (multiple of 16)"),
+    "stereo_block_size": ParamSpec(_S.block_size, "StereoSGBM blockSize (odd) [px]"),
+    "stereo_uniqueness_ratio": ParamSpec(_S.uniqueness_ratio, "StereoSGBM uniquenessRatio [%] (rejects ambiguous "
+                                         "matches)"),
+    "stereo_lr_max_diff_px": ParamSpec(_S.lr_max_diff_px, "left-right consistency: max disparity disagreement [px]",
+                                       (0.0, 100.0)),
+    "stereo_subpixel": ParamSpec(_S.subpixel, "re-estimate disparities by a parabola through the block SSD (removes "
+                                 "SGBM's integer locking)"),
+    "stereo_min_depth_m": ParamSpec(_S.min_depth_m, "stereo points nearer than this are dropped [m]", (0.0, 100.0)),
+    "stereo_max_depth_m": ParamSpec(_S.max_depth_m, "stereo points farther than this are dropped [m]", (0.01, 100.0)),
+}
+NODE_PARAMETERS: dict[str, ParamSpec] = {
+    "map_frame": ParamSpec("world", "frame of the map, /voxel_map and the markers (the stance frame)"),
+    "sensor_frame": ParamSpec("head_camera_optical_frame", "URDF frame whose origin is the rays' origin for "
+                              "world-frame clouds"),
+    "robot_config": ParamSpec("robots/hrp2.yaml", "robot semantic YAML, relative to config/ or absolute"),
+    "joint_states_window_s": ParamSpec(2.0, "how long joint states are kept for look-up at a cloud stamp [s]",
+                                       (0.05, 60.0)),
+    "joint_states_max_gap_s": ParamSpec(0.1, "a cloud stamp may lie this far outside the buffered joint states [s]",
+                                        (0.0, 10.0)),
+    "use_stereo": ParamSpec(False, "also map the stereo pair /stereo/{left,right}/image_raw + camera_info"),
+    "publish_period_s": ParamSpec(0.5, "period of /voxel_map and /voxel_map/markers when the map changed [s]",
+                                  (0.01, 60.0)),
+    "markers_enabled": ParamSpec(True, "publish /voxel_map/markers (a CUBE_LIST of the occupied voxels)"),
+    "diagnostics_period_s": ParamSpec(1.0, "period of /diagnostics [s]", (0.05, 60.0)),
+    "warn_throttle_s": ParamSpec(2.0, "minimum interval between repeated warnings of one kind [s]", (0.0, 3600.0)),
+    "problem_hold_s": ParamSpec(5.0, "diagnostics stay WARN this long after a rejected input [s]", (0.0, 3600.0)),
+}
+PARAMETERS: dict[str, ParamSpec] = {**FUSION_PARAMETERS, **STEREO_PARAMETERS, **NODE_PARAMETERS}
+STEREO_ENCODINGS = ("mono8", "rgb8", "bgr8")
+
+
+def fusion_params(p: dict[str, Any]) -> FusionParams:
+    return FusionParams(
+        resolution_m=p["resolution_m"], extent_min_m=tuple(float(v) for v in p["extent_min_m"]),
+        extent_max_m=tuple(float(v) for v in p["extent_max_m"]), hit_weight=p["hit_weight"],
+        free_weight=p["free_weight"], max_weight=p["max_weight"], occupied_threshold=p["occupied_threshold"],
+        min_weight=p["min_weight"], max_range_m=p["max_range_m"], floor_z_m=p["floor_z_m"],
+        clear_margin_m=p["clear_margin_m"], discretize_rays=p["discretize_rays"])
+
+
+def stereo_params(p: dict[str, Any]) -> StereoParams:
+    return StereoParams(num_disparities=p["stereo_num_disparities"], block_size=p["stereo_block_size"],
+                        uniqueness_ratio=p["stereo_uniqueness_ratio"], subpixel=p["stereo_subpixel"],
+                        lr_max_diff_px=p["stereo_lr_max_diff_px"], min_depth_m=p["stereo_min_depth_m"],
+                        max_depth_m=p["stereo_max_depth_m"])
+
+
+def cube_list_marker(centres: np.ndarray, size_m: float, frame_id: str, stamp, ns: str = "voxel_map",
+                     color: tuple[float, float, float, float] = (0.3, 0.6, 0.9, 0.8)) -> Marker:
+    """One CUBE_LIST marker of cubes of edge ``size_m`` at ``centres`` (N, 3)."""
+    m = Marker(header=msgs.header(frame_id, stamp), ns=ns, id=0, type=Marker.CUBE_LIST, action=Marker.ADD)
+    m.pose.orientation.w = 1.0
+    m.scale.x = m.scale.y = m.scale.z = float(size_m)
+    m.color.r, m.color.g, m.color.b, m.color.a = color
+    m.points = [Point(x=x, y=y, z=z) for x, y, z in np.asarray(centres, dtype=float).tolist()]
+    return m
+
+
+def camera_info_arrays(info: CameraInfo) -> dict[str, np.ndarray]:
+    """K, D, R, P and the image size of a ``sensor_msgs/CameraInfo`` as numpy arrays."""
+    return {"K": np.asarray(info.k, float).reshape(3, 3), "D": np.asarray(info.d, float).ravel(),
+            "R": np.asarray(info.r, float).reshape(3, 3), "P": np.asarray(info.p, float).reshape(3, 4),
+            "size": (int(info.width), int(info.height))}
+
+
+def image_array(msg: Image) -> np.ndarray:
+    """Pixels of an 8-bit ``sensor_msgs/Image`` (mono8 (H, W), rgb8 / bgr8 (H, W, 3)); ``ValueError``
+    for other encodings or inconsistent sizes."""
+    channels = {"mono8": 1, "rgb8": 3, "bgr8": 3}.get(msg.encoding)
+    if channels is None:
+        raise ValueError(f"unsupported image encoding {msg.encoding!r} (use one of {', '.join(STEREO_ENCODINGS)})")
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    if h <= 0 or w <= 0 or step < w * channels or len(msg.data) != h * step:
+        raise ValueError(f"image of {w}x{h} {msg.encoding} with step {step} has {len(msg.data)} bytes "
+                         f"(expected step >= {w * channels} and height * step bytes)")
+    data = np.frombuffer(bytes(msg.data), dtype=np.uint8).reshape(h, step)[:, :w * channels]
+    return data.reshape(h, w, channels) if channels == 3 else data.reshape(h, w)
+
+
+@dataclass
+class Counters:
+    """What happened to the inputs (diagnostics)."""
+
+    clouds_received: int = 0
+    clouds_integrated: int = 0
+    clouds_dropped_busy: int = 0
+    clouds_rejected: int = 0
+    unknown_frame: int = 0
+    no_pose: int = 0
+    points_integrated: int = 0
+    points_nonfinite: int = 0
+    points_outside: int = 0
+    points_floor: int = 0
+    points_beyond_range: int = 0
+    stereo_pairs: int = 0
+    stereo_rejected: int = 0
+    joint_states_rejected: int = 0
+    last_integration_s: float = 0.0
+    integration_time_s: float = 0.0
+    last_problem: str = ""
+    last_problem_time: float = -1e9
+    clears: int = 0
+    problems: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Job:
+    """A depth map waiting for the worker: points (N, 3) in ``frame``, stamp, source."""
+
+    points: np.ndarray
+    frame: str
+    stamp_s: float
+    source: str
+
+
+class VoxelMapperNode(Node):
+    """Conversions, pose look-up, a worker thread and publishing; fusion is ``VoxelMap``'s."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        p = declare_parameters(self, PARAMETERS)
+        self._p = p
+        if len(p["extent_min_m"]) != 3 or len(p["extent_max_m"]) != 3:
+            raise ValueError("extent_min_m and extent_max_m must have 3 entries (x, y, z)")
+        self.map = VoxelMap(fusion_params(p))   # ValueError for bad fusion parameters
+        self.map_frame: str = p["map_frame"]
+        self.model = RobotModel(p["robot_config"])
+        self.model.frame_id(p["sensor_frame"])  # KeyError for a frame the URDF lacks
+        self.joint_buffer = JointStateBuffer(p["joint_states_window_s"])
+        self.stereo: StereoMatcher | None = None
+        self._stereo_params = stereo_params(p)
+        self._stereo_params.validate()
+        self.counters = Counters()
+        self._map_lock = threading.Lock()
+        self._state_lock = threading.Lock()
+        self._cond = threading.Condition()
+        self._mailbox: Any = None        # newest PointCloud2 or stereo tuple not yet taken by the worker
+        self._stop = False
+        self._version = 0                # map changes
+        self._published_version = -1
+        self._last_warn: dict[str, float] = {}
+        self._stereo_left: Image | None = None
+        self._stereo_right: Image | None = None
+        self._stereo_infos: dict[str, CameraInfo] = {}
+        self._newest_joint_stamp = 0.0
+
+        t0 = time.perf_counter()   # compile / load the numba kernels before the first cloud
+        self.map.integrate(np.array([[0.0, 0.0, 1.0]]), np.eye(4))
+        self.map.occupied_centers()
+        self.map.clear()
+        self.get_logger().info(f"fusion kernels warmed up in {1e3 * (time.perf_counter() - t0):.0f} ms")
+
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.map_pub = self.create_publisher(PointCloud2, "voxel_map", latched)
+        self.markers_pub = self.create_publisher(MarkerArray, "voxel_map/markers", latched)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        inputs = MutuallyExclusiveCallbackGroup()
+        output = MutuallyExclusiveCallbackGroup()
+        self.create_subscription(PointCloud2, "head_camera/points", self._on_cloud, qos_profile_sensor_data,
+                                 callback_group=inputs)
+        self.create_subscription(JointState, "joint_states", self._on_joint_states, qos_profile_sensor_data,
+                                 callback_group=inputs)
+        if p["use_stereo"]:
+            for side in ("left", "right"):
+                self.create_subscription(Image, f"stereo/{side}/image_raw",
+                                         lambda m, s=side: self._on_stereo_image(s, m), qos_profile_sensor_data,
+                                         callback_group=inputs)
+                self.create_subscription(CameraInfo, f"stereo/{side}/camera_info",
+                                         lambda m, s=side: self._on_camera_info(s, m), qos_profile_sensor_data,
+                                         callback_group=inputs)
+        self.create_service(Trigger, "~/clear", self._on_clear, callback_group=output)
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(p["publish_period_s"], self._publish_map, clock=steady, callback_group=output)
+        self.create_timer(p["diagnostics_period_s"], self._publish_diagnostics, clock=steady, callback_group=output)
+        self._worker = threading.Thread(target=self._work, name="voxel_mapper_integrate", daemon=True)
+        self._worker.start()
+        self._publish_map()
+        m = self.map
+        self.get_logger().info(
+            f"voxel mapper ready: {m.shape[0]}x{m.shape[1]}x{m.shape[2]} voxels of {m.resolution_m} m over "
+            f"{list(m.params.extent_min_m)}..{list(m.params.extent_max_m)} in {self.map_frame} "
+            f"({m.nbytes / 1e6:.1f} MB), stereo {'on' if p['use_stereo'] else 'off'}")
+
+    # ------------------------------------------------------------ problems
+    def _problem(self, kind: str, text: str, counter: str = "", amount: int = 1) -> None:
+        """Count (also into ``Counters.<counter>`` by ``amount``), remember for diagnostics,
+        and warn at most once per ``warn_throttle_s`` per kind."""
+        now = time.monotonic()
+        with self._state_lock:
+            c = self.counters
+            if counter:
+                setattr(c, counter, getattr(c, counter) + amount)
+            c.problems[kind] = c.problems.get(kind, 0) + 1
+            c.last_problem, c.last_problem_time = f"{kind}: {text}", now
+            last = self._last_warn.get(kind, -1e9)
+            if now - last < self._p["warn_throttle_s"]:
+                return
+            self._last_warn[kind] = now
+            n = c.problems[kind]
+        self.get_logger().warning(f"{text} ({kind}, {n} so far)")
+
+    # ------------------------------------------------------------ inputs
+    def _on_joint_states(self, msg: JointState) -> None:
+        joints, reason = joint_vector(self.model.joint_index, list(msg.name), msg.position)
+        if joints is None:
+            self._problem("bad_joint_states", f"/joint_states ignored: {reason}", "joint_states_rejected")
+            return
+        with self._state_lock:
+            self._newest_joint_stamp = msgs.seconds_from_time(msg.header.stamp)
+            self.joint_buffer.push(self._newest_joint_stamp, joints)
+
+    def _post(self, item: Any) -> None:
+        with self._cond:
+            if self._mailbox is not None:
+                self.counters.clouds_dropped_busy += 1
+            self._mailbox = item
+            self._cond.notify()
+
+    def _on_cloud(self, msg: PointCloud2) -> None:
+        with self._state_lock:
+            self.counters.clouds_received += 1
+        self._post(msg)
+
+    def _on_camera_info(self, side: str, msg: CameraInfo) -> None:
+        with self._state_lock:
+            self._stereo_infos[side] = msg
+
+    def _on_stereo_image(self, side: str, msg: Image) -> None:
+        if msg.encoding not in STEREO_ENCODINGS:
+            self._problem("stereo_encoding", f"/stereo/{side}/image_raw: unsupported encoding {msg.encoding!r} "
+                          f"(use one of {', '.join(STEREO_ENCODINGS)}); image ignored", "stereo_rejected")
+            return
+        with self._state_lock:
+            if side == "left":
+                self._stereo_left = msg
+            else:
+                self._stereo_right = msg
+            left, right = self._stereo_left, self._stereo_right
+            if left is None or right is None or left.header.stamp != right.header.stamp:
+                return
+            self._stereo_left = self._stereo_right = None
+            infos = (self._stereo_infos.get("left"), self._stereo_infos.get("right"))
+        if infos[0] is None or infos[1] is None:
+            missing = [s for s, i in zip(("left", "right"), infos) if i is None]
+            self._problem("stereo_no_camera_info", f"stereo pair ignored: no camera_info yet for {', '.join(missing)}",
+                          "stereo_rejected")
+            return
+        self._post((left, right, infos[0], infos[1]))
+
+    # ------------------------------------------------------------ worker
+    def _work(self) -> None:
+        while True:
+            with self._cond:
+                while self._mailbox is None and not self._stop:
+                    self._cond.wait(0.2)
+                if self._stop:
+                    return
+                item, self._mailbox = self._mailbox, None
+            try:
+                job = self._stereo_job(item) if isinstance(item, tuple) else self._cloud_job(item)
+                if job is not None:
+                    self._integrate(job)
+            except Exception as exc:  # the node never dies on an input
+                self._problem("internal_error", f"internal error on an input: {type(exc).__name__}: {exc}\n"
+                              f"{traceback.format_exc()}")
+
+    def _cloud_job(self, msg: PointCloud2) -> Job | None:
+        try:
+            cloud = msgs.points_from_cloud(msg)
+        except ValueError as exc:
+            self._problem("malformed_cloud", f"/head_camera/points rejected: {exc}", "clouds_rejected")
+            return None
+        if cloud.dropped_nonfinite:
+            self._problem("nonfinite_points", f"/head_camera/points: dropped {cloud.dropped_nonfinite} points with "
+                          f"NaN/inf coordinates (of {cloud.dropped_nonfinite + len(cloud.points)})",
+                          "points_nonfinite", cloud.dropped_nonfinite)
+        return Job(cloud.points, cloud.frame_id, cloud.stamp_s, "/head_camera/points")
+
+    def _stereo_job(self, item: tuple) -> Job | None:
+        left, right, info_l, info_r = item
+        try:
+            calib = StereoCalibration.from_camera_infos(camera_info_arrays(info_l), camera_info_arrays(info_r))
+            if self.stereo is None or self.stereo.calibration != calib:
+                self.stereo = StereoMatcher(calib, self._stereo_params)
+            gl, gr = image_to_gray(image_array(left), left.encoding), image_to_gray(image_array(right), right.encoding)
+            points = self.stereo.points(gl, gr)
+        except ValueError as exc:
+            self._problem("stereo_rejected", f"stereo pair rejected: {exc}", "stereo_rejected")
+            return None
+        with self._state_lock:
+            self.counters.stereo_pairs += 1
+        return Job(points, left.header.frame_id, msgs.seconds_from_time(left.header.stamp), "stereo")
+
+    def _sensor_pose(self, frame: str, stamp_s: float) -> tuple[np.ndarray | None, str]:
+        """World pose (4x4) of a URDF frame at a stamp by forward kinematics, or None and the reason."""
+        with self._state_lock:
+            if stamp_s == 0.0 and len(self.joint_buffer):   # unstamped: the newest joint state
+                joints, reason = self.joint_buffer.at(self._newest_joint_stamp, 0.0)
+            else:
+                joints, reason = self.joint_buffer.at(stamp_s, self._p["joint_states_max_gap_s"])
+        if joints is None:
+            return None, reason
+        return camera_pose(self.model, joints, frame), ""
+
+    def _integrate(self, job: Job) -> None:
+        pts = job.points
+        if job.frame == self.map_frame:
+            pose, reason = self._sensor_pose(self._p["sensor_frame"], job.stamp_s)
+            world = pts
+            if pose is None:   # mark only: the rays' origin is unknown
+                self._problem("no_pose", f"{job.source} in {job.frame!r}: no sensor origin ({reason}); points are "
+                              "marked without free-space clearing")
+        elif job.frame and self.model.model.existFrame(job.frame):
+            pose, reason = self._sensor_pose(job.frame, job.stamp_s)
+            if pose is None:
+                self._problem("no_pose", f"{job.source} in {job.frame!r} ignored: no camera pose at its stamp "
+                              f"({reason})", "no_pose")
+                return
+            world = None
+        else:
+            self._problem("unknown_frame", f"{job.source} ignored: unknown frame {job.frame!r} (use "
+                          f"{self.map_frame!r} or a frame of the robot model, e.g. {self._p['sensor_frame']!r})",
+                          "unknown_frame")
+            return
+        t0 = time.perf_counter()
+        with self._map_lock:
+            if world is None:
+                st = self.map.integrate(pts, pose)
+            elif pose is None:
+                st = self.map.integrate(world, origin=None, mark_only=True)
+            else:
+                st = self.map.integrate(world, origin=pose[:3, 3])
+            self._version += 1
+        dt = time.perf_counter() - t0
+        with self._state_lock:
+            c = self.counters
+            c.clouds_integrated += 1
+            c.points_integrated += st.hits
+            c.points_outside += st.outside
+            c.points_floor += st.floor
+            c.points_beyond_range += st.beyond_range
+            c.last_integration_s = dt
+            c.integration_time_s += dt
+
+    # ------------------------------------------------------------ outputs
+    def _on_clear(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
+        with self._map_lock:
+            n = self.map.occupied_count()
+            self.map.clear()
+            self._version += 1
+        with self._state_lock:
+            self.counters.clears += 1
+        resp.success, resp.message = True, f"voxel map cleared ({n} occupied voxels forgotten)"
+        self.get_logger().info(resp.message)
+        self._publish_map()
+        return resp
+
+    def _publish_map(self) -> None:
+        with self._map_lock:
+            if self._version == self._published_version:
+                return
+            version = self._version
+            centres = self.map.occupied_centers()
+        stamp = self.get_clock().now().to_msg()
+        self.map_pub.publish(msgs.cloud_from_points(centres, self.map_frame, stamp))
+        if self._p["markers_enabled"]:
+            self.markers_pub.publish(msgs.marker_array(
+                [cube_list_marker(centres, self.map.resolution_m, self.map_frame, stamp)], True, self.map_frame, stamp))
+        self._published_version = version
+
+    def diagnostic_statuses(self) -> list:
+        name = self.get_name()
+        with self._map_lock:
+            occupied, depth_maps = self.map.occupied_count(), self.map.depth_maps
+            version, published = self._version, self._published_version
+        with self._state_lock:
+            c = Counters(**{k: (dict(v) if isinstance(v, dict) else v) for k, v in vars(self.counters).items()})
+            buffered = len(self.joint_buffer)
+        m = self.map
+        recent = time.monotonic() - c.last_problem_time < self._p["problem_hold_s"]
+        mean_s = c.integration_time_s / c.clouds_integrated if c.clouds_integrated else 0.0
+        values = {"occupied_voxels": occupied, "capacity_voxels": m.capacity, "memory_bytes": m.nbytes,
+                  "resolution_m": m.resolution_m, "depth_maps": depth_maps, "frame_id": self.map_frame,
+                  "last_integration_ms": c.last_integration_s * 1e3, "mean_integration_ms": mean_s * 1e3,
+                  "points_per_s": (c.points_integrated + c.points_outside + c.points_floor) / c.integration_time_s
+                  if c.integration_time_s > 0 else 0.0, "clears": c.clears,
+                  "map_version": version, "published_version": published}
+        statuses = [msgs.diagnostic_status(f"{name}: map", msgs.LEVEL_OK,
+                                           f"{occupied} occupied voxels from {depth_maps} depth maps", values)]
+        values = {k: v for k, v in vars(c).items() if isinstance(v, int)}
+        values["joint_states_buffered"] = buffered
+        values["last_problem"] = c.last_problem
+        for kind, n in sorted(c.problems.items()):
+            values[f"problem_{kind}"] = n
+        if recent:
+            level, message = msgs.LEVEL_WARN, f"rejected input: {c.last_problem.splitlines()[0]}"
+        elif c.clouds_received == 0 and c.stereo_pairs == 0:
+            level, message = msgs.LEVEL_WARN, "no depth input yet"
+        else:
+            level, message = msgs.LEVEL_OK, (f"{c.clouds_integrated} depth maps integrated, "
+                                             f"{c.clouds_dropped_busy} dropped while busy")
+        statuses.append(msgs.diagnostic_status(f"{name}: inputs", level, message, values))
+        return statuses
+
+    def _publish_diagnostics(self) -> None:
+        self.diagnostics_pub.publish(msgs.diagnostic_array(self.diagnostic_statuses(),
+                                                           self.get_clock().now().to_msg()))
+
+    def destroy_node(self) -> None:
+        with self._cond:
+            self._stop = True
+            self._cond.notify_all()
+        self._worker.join(timeout=5.0)
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the node until Ctrl-C / SIGTERM (exit 0); a configuration error exits 2."""
+    return run_node(VoxelMapperNode, NODE_NAME, args, executor=lambda: MultiThreadedExecutor(num_threads=3))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
