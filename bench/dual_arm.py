@@ -1,0 +1,302 @@
+#!/usr/bin/env python3
+"""Benchmark: dissertation Table 2 (Sec. 5.2.3) and Fig. 14 (Sec. 5.1.3) on the HRP-2-class model.
+
+Table 2. ``pairs_per_hand`` (27) random target positions per hand, uniform in the Sec. 4.1
+workspace boxes (config/torso_regression/workspace.yaml), every right/left combination:
+27 x 27 = 729 target pairs. Each pair is one motion from the initial posture, interpolated
+at 0.38 m/s with 5 ms control steps (hands linear + Rodrigues, CoM to the eq. 6 candidate).
+
+* proposed: DualArmReachController (regression once per pair, eq. 6 and the check that the
+  final whole-body configuration exists -- their time is added to the first step --, then
+  per step Algorithm 3 legs and closed-form arms). A pair whose final configuration does
+  not exist is refused before moving (counted as a failure, no motion);
+* conventional: FullBodyLMIK -- one LM on legs + chest + arms (26 joints, 24 task rows),
+  the same references per step (hand poses, CoM, upright waist, swing sole), warm-started
+  from the previous step, same tolerance as Algorithm 3 (1e-7), at most ``--lm-max-iter``
+  iterations per step.
+
+Per method: mean final hand position error norm (per hand, mm; proposed: over the pairs it
+executed, conventional: over all pairs), mean CoM error over all steps (mm), mean and max
+calculation time per control step (ms, CPU time of the thread), success rate over all
+pairs (both hands within 1 mm of the target at the end, every step solved, balanced at
+every step), and the speed ratio (mean step time, conventional / proposed, on the pairs
+both executed). Balance at every step: the CoM projection and the ZMP -- from floating-base
+inverse dynamics (RNEA) of the commanded motion, balance.zmp_trajectory -- inside the
+support polygon of both soles with ``--margin-m`` (0.02 m).
+
+``--baseline-pairs N`` runs the conventional method on N of the pairs only, spread evenly
+over the list (a named reduction, reported in the JSON), when the full run does not fit
+the time at hand; the speed ratio is then taken on those pairs.
+
+Fig. 14. One motion with the upper-body IK of Algorithm 1 (waist and legs fixed), standard
+vs weighted pseudo-inverse (chest mobility 0.1), 3 s, interpolated targets: chest pitch
+trajectory and frontal ZMP trajectory (RNEA) -> doc/fig14_chest_pitch.png, doc/fig14_zmp.png.
+
+The last stdout line is one JSON object.
+"""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")   # small matrices: no BLAS threads
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from humanoid_reach_ros.reach.balance import com_projection, polygon_margin, support_polygon, zmp_trajectory
+from humanoid_reach_ros.reach.controller import DualArmReachController, min_jerk
+from humanoid_reach_ros.reach.kinematics import HandTargets, rodrigues_interpolate
+from humanoid_reach_ros.reach.torso_regression import TorsoRegression
+from humanoid_reach_ros.reach.upper_body_ik import UpperBodyIK
+from humanoid_reach_ros.reach.whole_body_ik import FullBodyLMIK, measure_errors
+
+REPO = Path(__file__).resolve().parents[1]
+CLOCK = time.thread_time
+DATA: list = []
+PLAN_MS: list = []      # planning time per pair (regression, eq. 6, path check) [ms]
+STEP_MS: list = []      # proposed step times without the planning [ms]
+
+
+def run_proposed(ctl: DualArmReachController, pr, pl, ws):
+    """Proposed method; per-step time = CPU time of the step (thread_time: preemption by
+    other processes on the shared machine is not counted) + the planning (regression,
+    eq. 6, final-configuration check) in the first step. Errors are measured after the
+    timed step. Returns (plan, steps, times, CoM errors, references)."""
+    ctl.reset()
+    t0 = CLOCK()
+    t = ws.targets(pr, pl)
+    plan = ctl.set_targets(t.p_right, t.R_right, t.p_left, t.R_left)
+    t_plan = CLOCK() - t0
+    refs = [ctl.reference_at(k) for k in range(1, plan.n_steps + 1)]
+    times, steps, com_err = [], [], []
+    PLAN_MS.append(t_plan * 1e3)
+    if plan.feasible:
+        while ctl.busy:
+            t0 = CLOCK()
+            st = ctl.step(measure=False)
+            times.append(CLOCK() - t0)
+            steps.append(st)
+            com_err.append(measure_errors(ctl.robot, DATA[0], st.q, st.hands, ctl.leg_targets(st.com_ref))[1])
+        STEP_MS.extend(1e3 * np.array(times))
+        times[0] += t_plan
+    return plan, steps, np.array(times), com_err, refs
+
+
+def run_baseline(lm: FullBodyLMIK, ctl: DualArmReachController, refs):
+    q = ctl.q_init.copy()
+    out, times, com_err = [], [], []
+    for hands, com_ref, _ in refs:
+        legs = ctl.leg_targets(com_ref)
+        t0 = CLOCK()
+        res = lm.step(q, hands, legs, ctl.sole_support, measure=False)
+        times.append(CLOCK() - t0)
+        q = res.q
+        out.append(res)
+        com_err.append(measure_errors(ctl.robot, DATA[0], q, hands, legs)[1])
+    return out, np.array(times), com_err
+
+
+def final_hand_errors(robot, q, pr, pl):
+    d = robot.model.createData()
+    pin.framesForwardKinematics(robot.model, d, q)
+    return (float(np.linalg.norm(d.oMf[robot.frame_id("r_hand_ee")].translation - pr)),
+            float(np.linalg.norm(d.oMf[robot.frame_id("l_hand_ee")].translation - pl)))
+
+
+def balance(robot, q0, qs, dt, poly, margin):
+    traj = np.vstack([q0[None], qs, qs[-1:]])          # at rest before and after
+    zmp = zmp_trajectory(robot, traj, dt)
+    com = com_projection(robot, traj)
+    mz, mc = polygon_margin(poly, zmp), polygon_margin(poly, com)
+    return float(mz.min()), float(mc.min()), bool(mz.min() >= margin and mc.min() >= margin)
+
+
+def summarize(errs, com_errs, times, succ, n_steps):
+    e = np.array(errs)
+    return {
+        "pairs": len(succ),
+        "successful_pairs": int(np.sum(succ)),
+        "mean_hand_error_mm": round(float(e.mean()) * 1e3, 4),
+        "mean_com_error_mm": round(float(np.mean(com_errs)) * 1e3, 4),
+        "mean_step_ms": round(float(np.mean(times)) * 1e3, 4),
+        "max_step_ms": round(float(np.max(times)) * 1e3, 3),
+        "success_rate": round(float(np.mean(succ)), 4),
+        "control_steps": int(n_steps),
+    }
+
+
+def fig14(robot, ctl, out_dir: Path, dt: float) -> dict:
+    """Weighted vs standard pinv (Algorithm 1) on one two-hand motion, legs fixed."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ik = UpperBodyIK(robot)
+    q0 = ctl.q_init
+    d = robot.model.createData()
+    pin.framesForwardKinematics(robot.model, d, q0)
+    r0, l0 = d.oMf[robot.frame_id("r_hand_ee")].copy(), d.oMf[robot.frame_id("l_hand_ee")].copy()
+    # a forward, high target pair made reachable by construction: FK of a posture with
+    # the chest pitched 0.25 rad and both arms raised forward
+    qt = q0.copy()
+    ji = robot.joint_index
+    for name, v in (("CHEST_JOINT1", 0.25), ("RARM_JOINT0", -1.0), ("LARM_JOINT0", -1.0),
+                    ("RARM_JOINT3", -0.6), ("LARM_JOINT3", -0.6)):
+        qt[7 + ji[name]] = v
+    pin.framesForwardKinematics(robot.model, d, qt)
+    tr, tl = d.oMf[robot.frame_id("r_hand_ee")].copy(), d.oMf[robot.frame_id("l_hand_ee")].copy()
+    pin.framesForwardKinematics(robot.model, d, q0)
+    pr, pl = tr.translation, tl.translation
+    tgt = HandTargets(pr, tr.rotation, pl, tl.rotation)
+    n = int(round(3.0 / dt))
+    res = {}
+    for name, weighted in (("standard", False), ("weighted", True)):
+        q = q0.copy()
+        qs, pitch = [], []
+        for k in range(1, n + 1):
+            s = min_jerk(k / (0.7 * n))          # reach in 2.1 s (minimum jerk), then hold
+            t = HandTargets(r0.translation + s * (pr - r0.translation), rodrigues_interpolate(r0.rotation, tgt.R_right, s),
+                            l0.translation + s * (pl - l0.translation), rodrigues_interpolate(l0.rotation, tgt.R_left, s))
+            q = ik.solve_pinv(q, t, weighted=weighted, tol=1e-8, max_iter=50).q
+            qs.append(q)
+            pitch.append(q[7 + robot.joint_index["CHEST_JOINT1"]])
+        qs = np.array(qs)
+        zmp = zmp_trajectory(robot, np.vstack([q0[None], qs]), dt)[1:]
+        res[name] = (np.array(pitch), zmp[:, 0], final_hand_errors(robot, qs[-1], pr, pl))
+    tt = np.arange(1, n + 1) * dt
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for fname, idx, ylabel, title in (("fig14_chest_pitch.png", 0, "chest pitch [deg]", "(a) chest pitch joint angle"),
+                                      ("fig14_zmp.png", 1, "ZMP x (frontal) [m]", "(b) ZMP in the frontal direction (RNEA)")):
+        fig, ax = plt.subplots(figsize=(6.4, 3.6))
+        for name, style in (("standard", "r-"), ("weighted", "b-")):
+            y = res[name][idx]
+            ax.plot(tt, np.degrees(y) if idx == 0 else y, style,
+                    label=f"{name} pseudo-inverse" + (" (chest mobility 0.1)" if name == "weighted" else ""))
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel(ylabel)
+        ax.set_title(f"Fig. 14 {title}")
+        ax.grid(True, alpha=0.3)
+        ax.legend()
+        fig.tight_layout()
+        fig.savefig(out_dir / fname, dpi=110)
+        plt.close(fig)
+    return {name: {"chest_pitch_final_deg": round(float(np.degrees(v[0][-1])), 3),
+                   "chest_pitch_max_abs_deg": round(float(np.degrees(np.abs(v[0]).max())), 3),
+                   "zmp_x_range_m": [round(float(v[1].min()), 5), round(float(v[1].max()), 5)],
+                   "final_hand_error_mm": [round(e * 1e3, 4) for e in v[2]]} for name, v in res.items()}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description="Table 2 + Fig. 14 of the dissertation")
+    ap.add_argument("--pairs-per-hand", type=int, default=27)
+    ap.add_argument("--seed", type=int, default=2018)
+    ap.add_argument("--baseline-pairs", type=int, default=None, help="conventional method on the first N pairs only")
+    ap.add_argument("--lm-max-iter", type=int, default=100)
+    ap.add_argument("--margin-m", type=float, default=0.02)
+    ap.add_argument("--fig-dir", default=str(REPO / "doc"))
+    ap.add_argument("--no-fig", action="store_true")
+    ap.add_argument("--model", default=None, help="regression stem under config/ (default: the shipped one)")
+    a = ap.parse_args(argv)
+    if a.pairs_per_hand < 1:
+        ap.error("--pairs-per-hand must be >= 1")
+    ctl = DualArmReachController(regression=None if a.model is None else TorsoRegression.load(a.model))
+    robot, ws = ctl.robot, ctl.ws
+    dt = ctl.config.period_s
+    DATA.append(robot.model.createData())
+    poly = support_polygon(robot)
+    rng = np.random.default_rng(a.seed)
+    PR, PL = ws.sample(rng, a.pairs_per_hand)
+    pairs = [(pr, pl) for pr in PR for pl in PL]
+    n_base = len(pairs) if a.baseline_pairs is None else max(1, min(a.baseline_pairs, len(pairs)))
+    base_idx = set(np.linspace(0, len(pairs) - 1, n_base).round().astype(int).tolist())   # spread evenly
+    lm = FullBodyLMIK(robot, max_iter=a.lm_max_iter)
+
+    P = {"err": [], "com": [], "t": [], "succ": [], "n": 0, "bal": [], "mz": [], "mc": [], "labels": {},
+         "feasible": []}
+    B = {"err": [], "com": [], "t": [], "succ": [], "n": 0, "bal": [], "mz": [], "mc": []}
+    Pt_sub, Bt_sub = [], []
+    t_start = time.time()
+    for i, (pr, pl) in enumerate(pairs):
+        plan, steps, times, cerr, refs = run_proposed(ctl, pr, pl, ws)
+        lab = plan.com.label
+        P["labels"][lab] = P["labels"].get(lab, 0) + 1
+        P["feasible"].append(plan.feasible)
+        ok_p = False
+        if plan.feasible:
+            qs = np.array([s.q for s in steps])
+            er = final_hand_errors(robot, qs[-1], pr, pl)
+            mz, mc, bal = balance(robot, ctl.q_init, qs, dt, poly, a.margin_m)
+            ok_p = all(s.ok for s in steps) and max(er) <= 1e-3 and bal
+            P["err"] += er
+            P["com"] += cerr
+            P["t"] += list(times)
+            P["bal"].append(bal)
+            P["mz"].append(mz)
+            P["mc"].append(mc)
+            P["n"] += len(steps)
+        P["succ"].append(ok_p)
+        if i in base_idx:
+            res, bt, cerrb = run_baseline(lm, ctl, refs)
+            qb = np.array([r.q for r in res])
+            erb = final_hand_errors(robot, qb[-1], pr, pl)
+            mzb, mcb, balb = balance(robot, ctl.q_init, qb, dt, poly, a.margin_m)
+            B["err"] += erb
+            B["com"] += cerrb
+            B["t"] += list(bt)
+            B["succ"].append(all(r.ok for r in res) and max(erb) <= 1e-3 and balb)
+            B["bal"].append(balb)
+            B["mz"].append(mzb)
+            B["mc"].append(mcb)
+            B["n"] += len(res)
+            if plan.feasible:
+                Pt_sub += list(times)
+                Bt_sub += list(bt)
+        if (i + 1) % 27 == 0:
+            print(f"{i + 1}/{len(pairs)} pairs, {time.time() - t_start:.0f} s", file=sys.stderr, flush=True)
+
+    prop = summarize(P["err"], P["com"], P["t"], P["succ"], P["n"])
+    prop.update({"feasible_pairs": int(np.sum(P["feasible"])),
+                 "success_rate_of_feasible": round(float(np.sum(P["succ"]) / max(1, np.sum(P["feasible"]))), 4),
+                 "balanced_every_step_rate": round(float(np.mean(P["bal"])), 4),
+                 "min_zmp_margin_m": round(float(np.min(P["mz"])), 4),
+                 "min_com_margin_m": round(float(np.min(P["mc"])), 4),
+                 "com_candidates": P["labels"],
+                 "step_ms_without_planning": {"mean": round(float(np.mean(STEP_MS)), 4),
+                                              "p99": round(float(np.percentile(STEP_MS, 99)), 3),
+                                              "max": round(float(np.max(STEP_MS)), 3)},
+                 "planning_ms_per_pair": {"mean": round(float(np.mean(PLAN_MS)), 3),
+                                          "max": round(float(np.max(PLAN_MS)), 3)}})
+    base = summarize(B["err"], B["com"], B["t"], B["succ"], B["n"])
+    base.update({"balanced_every_step_rate": round(float(np.mean(B["bal"])), 4),
+                 "min_zmp_margin_m": round(float(np.min(B["mz"])), 4),
+                 "min_com_margin_m": round(float(np.min(B["mc"])), 4),
+                 "lm_max_iter": a.lm_max_iter})
+    ratio = float(np.mean(Bt_sub) / np.mean(Pt_sub)) if Pt_sub else float("nan")
+    out = {
+        "bench": "dual_arm_table2",
+        "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+                    "python": platform.python_version(), "load_avg_1m": round(os.getloadavg()[0], 2)},
+        "timing": "CPU time of the calling thread per control step (time.thread_time)",
+        "pairs": len(pairs), "pairs_per_hand": a.pairs_per_hand, "baseline_pairs": n_base,
+        "period_s": dt, "max_speed_mps": ctl.config.max_speed_mps, "margin_m": a.margin_m,
+        "proposed": prop, "conventional": base,
+        "speed_ratio_mean_step_same_pairs": round(ratio, 2),
+        "targets": {"error_mm_le_1": prop["mean_hand_error_mm"] <= 1.0, "ratio_ge_8": ratio >= 8.0},
+        "wall_s": round(time.time() - t_start, 1),
+    }
+    if not a.no_fig:
+        out["fig14"] = fig14(robot, ctl, Path(a.fig_dir), dt)
+    print(json.dumps(out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,49 @@
+#!/usr/bin/env python3
+"""Regenerate config/torso_regression/hrp2_torso_svr.{npz,yaml} (dissertation Sec. 4.1).
+
+Algorithm 2 dataset over the workspace of config/torso_regression/workspace.yaml from the
+initial posture (half-sitting lowered by initial_com_drop_m), then one RBF SVR per chest
+angle with the Table 1 parameters. Usage:
+
+    python tools/train_torso_regression.py [--samples N] [--seed S] [--out STEM]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from humanoid_reach_ros.reach.torso_regression import DEFAULT_MODEL, ReachWorkspace, TorsoRegression, generate_dataset
+from humanoid_reach_ros.reach.whole_body_ik import lowered_initial_posture
+from humanoid_reach_ros.robot.model import RobotModel
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--samples", type=int, default=None, help="target pairs tried (default: workspace.yaml)")
+    ap.add_argument("--seed", type=int, default=None)
+    ap.add_argument("--out", default=DEFAULT_MODEL, help="output stem under config/")
+    a = ap.parse_args(argv)
+    ws = ReachWorkspace.load()
+    n = int(ws.dataset["n_samples"]) if a.samples is None else a.samples
+    seed = int(ws.dataset["seed"]) if a.seed is None else a.seed
+    if n < 10:
+        ap.error("--samples must be >= 10")
+    robot = RobotModel()
+    q0 = lowered_initial_posture(robot, ws.initial_com_drop_m)
+    t = time.perf_counter()
+    X, Y, tried = generate_dataset(robot, ws, q0, n, seed)
+    t_data = time.perf_counter() - t
+    if len(X) < 10:
+        print(f"only {len(X)} of {tried} pairs solvable: check the workspace", file=sys.stderr)
+        return 1
+    reg = TorsoRegression.fit(X, Y, **{k: float(ws.svr[k]) for k in ("kernel_width_m", "C", "epsilon")})
+    reg.meta.update({"n_tried": tried, "seed": seed, "dataset_seconds": round(t_data, 1)})
+    npz, yml = reg.save(a.out)
+    print(f"{len(X)}/{tried} pairs solvable ({t_data:.1f} s); wrote {npz} and {yml}; "
+          f"train RMSE {reg.meta['train_rmse_rad']}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
