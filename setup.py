@@ -20,6 +20,13 @@ def tree(src: str) -> list[tuple[str, list[str]]]:
 EXECUTABLES = {
     "joint_driver": "humanoid_reach_ros.nodes.joint_driver:main",
     "reach_planner": "humanoid_reach_ros.nodes.reach_planner:main",
+    "reach_executor": "humanoid_reach_ros.nodes.reach_executor:main",
+    "scene_sim": "humanoid_reach_ros.nodes.scene_sim:main",
+    "voxel_mapper": "humanoid_reach_ros.nodes.voxel_mapper:main",
+    "marker_localizer": "humanoid_reach_ros.nodes.marker_localizer:main",
+    "reach_operator": "humanoid_reach_ros.nodes.reach_operator:main",
+    "hr_record": "humanoid_reach_ros.nodes.bag_record:main",
+    "hr_play": "humanoid_reach_ros.nodes.bag_play:main",
     "hr_demo": "humanoid_reach_ros.demo:main",
 }
 

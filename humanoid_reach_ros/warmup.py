@@ -29,6 +29,27 @@ def warm_up_all() -> dict[str, float]:
     t = time.perf_counter()
     ReachPlanner().warm_up()
     times["planner_and_collision"] = time.perf_counter() - t
+    t = time.perf_counter()
+    from humanoid_reach_ros.control import limits
+
+    limits.warm_up()
+    times["velocity_dampers"] = time.perf_counter() - t
+    t = time.perf_counter()
+    from humanoid_reach_ros.sim import camera
+
+    cam = camera.PinholeCamera.from_fov(16, 12, 1.0)
+    T = camera.look_at(np.array([0.0, 0.0, 1.4]), np.array([0.71, 0.03, 0.9]))
+    hits = camera.cast(scene, cam, T, max_range_m=5.0)
+    camera.render_image(scene, hits, camera.marker_print_from_scene(scene))
+    camera.depth_points(hits, camera.DepthNoise(stride=1), np.random.default_rng(0))
+    times["camera"] = time.perf_counter() - t
+    t = time.perf_counter()
+    from humanoid_reach_ros.perception.voxel_map import VoxelMap
+
+    vm = VoxelMap()
+    vm.integrate(np.array([[0.0, 0.0, 1.0]]), np.eye(4))
+    vm.occupied_centers()
+    times["voxel_map"] = time.perf_counter() - t
     return times
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from humanoid_reach_ros.control.hqp import HierarchicalQP, Level, solve_dense_reference
+from humanoid_reach_ros.control.hqp import HierarchicalQP, Level, SaturatedNullSpaceHQP, solve_dense_reference
 
 E = np.eye(4)
 
@@ -120,3 +120,86 @@ def test_variable_row_counts():
         setups.append(res.setups)
     # re-setup only when a capacity grows
     assert setups[0] > 0 and setups[1] == 0 and setups[3] == 0 and setups[5] == 0 and setups[6] == 0
+
+
+# ---------------------------------------------------------------- SaturatedNullSpaceHQP (executor fast path)
+def _eq_levels(rng, n, sizes):
+    return [(rng.normal(size=(m, n)), rng.normal(size=m)) for m in sizes]
+
+
+def test_saturated_conflicting_equalities_keep_priority():
+    s = SaturatedNullSpaceHQP(damping=0.0)
+    # level 2: x0 = 1; level 3: x0 = -1, x1 = 2 (conflict on x0: level 2 wins)
+    r = s.solve(None, None, [(E[[0]], np.array([1.0])), (E[[0, 1]], np.array([-1.0, 2.0]))])
+    assert r.x[0] == pytest.approx(1.0, abs=1e-12)
+    assert r.x[1] == pytest.approx(2.0, abs=1e-12)
+    assert r.slacks[1] == pytest.approx(0.0, abs=1e-12)
+    assert r.slacks[2] == pytest.approx(2.0, abs=1e-12)
+    assert np.allclose(r.x[2:], 0.0)
+    assert not r.fallback
+
+
+def test_saturated_inequality_beats_equalities():
+    s = SaturatedNullSpaceHQP(damping=0.0)
+    G, h = E[[0]], np.array([0.5])
+    r = s.solve(G, h, [(E[[0]], np.array([1.0])), (E[[1, 2]], np.array([3.0, -1.0]))])
+    assert r.x[0] == pytest.approx(0.5, abs=1e-12)
+    assert r.x[1:3] == pytest.approx([3.0, -1.0], abs=1e-12)
+    assert r.slacks == pytest.approx((0.0, 0.5, 0.0, ), abs=1e-12)
+    assert r.n_active == 1 and r.saturated == 1
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_saturated_equalities_match_dense_reference(seed):
+    rng = np.random.default_rng(100 + seed)
+    n = int(rng.integers(4, 8))
+    eq = _eq_levels(rng, n, rng.integers(1, 4, size=3))
+    _, ref = solve_dense_reference([Level(A=A, b=b) for A, b in eq], n)
+    r = SaturatedNullSpaceHQP(damping=0.0).solve(np.zeros((0, n)), np.zeros(0), eq)
+    assert np.allclose(r.slacks[1:], ref, rtol=1e-6, atol=1e-6), (r.slacks, ref)  # ref: damping 1e-10
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_saturated_single_inequality_is_exact(seed):
+    # one inequality row: saturating it when violated is the exact lexicographic optimum
+    rng = np.random.default_rng(200 + seed)
+    n = int(rng.integers(4, 7))
+    eq = _eq_levels(rng, n, rng.integers(1, 3, size=2))
+    G = rng.normal(size=(1, n))
+    h = np.array([rng.normal()])
+    levels = [Level(C=G, d=h)] + [Level(A=A, b=b) for A, b in eq]
+    _, ref = solve_dense_reference(levels, n)
+    r = SaturatedNullSpaceHQP(damping=0.0).solve(G, h, eq)
+    assert float(G[0] @ r.x - h[0]) <= 1e-9
+    assert np.allclose(r.slacks, ref, rtol=1e-6, atol=1e-7), (r.slacks, ref)
+
+
+@pytest.mark.parametrize("seed", range(15))
+def test_saturated_feasible_level_one_is_never_violated(seed):
+    # box rows (joint-limit like, group -1) + random rows with x = 0 strictly feasible
+    rng = np.random.default_rng(300 + seed)
+    n = 8
+    box = 0.2
+    G = np.vstack([np.eye(n), -np.eye(n), rng.normal(size=(6, n))])
+    h = np.concatenate([np.full(2 * n, box), rng.uniform(0.05, 0.3, 6)])
+    groups = np.concatenate([np.full(2 * n, -1), rng.integers(0, 2, 6)])
+    eq = [(rng.normal(size=(3, n)), 3 * rng.normal(size=3)), (np.eye(n), 3 * rng.normal(size=n))]
+    r = SaturatedNullSpaceHQP().solve(G, h, eq, fallback=HierarchicalQP(polish=False), groups=groups)
+    assert np.all(G @ r.x <= h + 1e-9)
+    assert r.slacks[0] <= 1e-9
+    # the OSQP cascade's level-2 slack is a lower bound (up to its tolerance): the closed
+    # form may be sub-optimal (no release of saturated rows) but never "better"
+    ref = HierarchicalQP(polish=False).solve([Level(C=G, d=h)] + [Level(A=A, b=b) for A, b in eq], n=n)
+    assert r.slacks[1] >= ref.slacks[1] - 1e-4
+
+
+def test_saturated_inconsistent_level_one_uses_fallback_least_violation():
+    # x0 <= -1 and x0 >= 1 cannot both hold: the result is the least-violation point
+    s = SaturatedNullSpaceHQP()
+    G = np.vstack([E[0], -E[0]])
+    h = np.array([-1.0, -1.0])
+    r = s.solve(G, h, [(E[[1]], np.array([1.0]))], fallback=HierarchicalQP(polish=False))
+    assert r.fallback
+    assert abs(r.x[0]) <= 1e-3
+    assert r.x[1] == pytest.approx(1.0, abs=1e-6)
+    assert s.fallbacks == 1

@@ -221,3 +221,56 @@ def test_measure_four_level_solve_time(robot, cm):
           f"HQP median {np.median(s):.2f} p99 {np.percentile(s, 99):.2f}; "
           f"per level median {np.round(np.median(pl, axis=0), 3)} p99 {np.round(np.percentile(pl, 99, axis=0), 3)}")
     assert res.ok
+
+
+# ---------------------------------------------------------------- executor fast path (numba geometry, WORLD rows)
+def test_world_point_rows_match_point_normal_rows(robot, cm):
+    from humanoid_reach_ros.control.limits import point_normal_rows, support_masks, world_point_rows
+    rng = np.random.default_rng(5)
+    m, data = robot.model, robot.model.createData()
+    q = _random_q(robot, rng)
+    compute_kinematics(m, data, q)
+    links = rng.integers(0, len(cm.frame_ids), size=12)
+    fids = np.asarray(cm.frame_ids)[links]
+    pts = rng.normal(size=(12, 3))
+    nrm = rng.normal(size=(12, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    masks = support_masks(m, cm.frame_ids)[links]
+    assert np.allclose(world_point_rows(data.J, masks, pts, nrm), point_normal_rows(m, data, fids, pts, nrm),
+                       atol=1e-12)
+
+
+def test_self_pair_geometry_matches_numpy(robot, cm):
+    from humanoid_reach_ros.control.limits import self_pair_geometry
+    from humanoid_reach_ros.robot.shapes import segment_segment_distance
+    rng = np.random.default_rng(6)
+    q = _random_q(robot, rng)
+    P0, P1, R = cm.world_shapes(q)
+    pi = np.ascontiguousarray(cm.pair_index[:, 0], dtype=np.int64)
+    pj = np.ascontiguousarray(cm.pair_index[:, 1], dtype=np.int64)
+    k, pa, pb, n, d, dmin = self_pair_geometry(np.ascontiguousarray(P0), np.ascontiguousarray(P1),
+                                               np.ascontiguousarray(R), pi, pj, 10.0)
+    ref, _, _ = segment_segment_distance(P0[pi], P1[pi], P0[pj], P1[pj])
+    ref = ref - R[pi] - R[pj]
+    assert len(k) == len(pi)
+    assert np.allclose(d, ref, atol=1e-12) and dmin == pytest.approx(ref.min())
+    assert np.allclose(np.linalg.norm(pb - pa, axis=1) - R[pi] - R[pj], d, atol=1e-12)
+    assert np.allclose(np.linalg.norm(n, axis=1), 1.0)
+    k2, *_ = self_pair_geometry(np.ascontiguousarray(P0), np.ascontiguousarray(P1), np.ascontiguousarray(R),
+                                pi, pj, 0.05)
+    assert set(k2) == set(np.flatnonzero(ref <= 0.05))
+
+
+def test_env_pair_geometry_matches_numpy():
+    from humanoid_reach_ros.control.limits import env_pair_geometry
+    from humanoid_reach_ros.robot.shapes import point_segment_distance
+    rng = np.random.default_rng(7)
+    P0, P1 = rng.normal(size=(4, 3)), rng.normal(size=(4, 3))
+    P1[2] = P0[2]                                   # a sphere shape
+    s = rng.integers(0, 4, size=20).astype(np.int64)
+    c = rng.normal(size=(20, 3))
+    pts, nrm = env_pair_geometry(P0, P1, s, c)
+    dist, u = point_segment_distance(c, P0[s], P1[s])
+    assert np.allclose(pts, P0[s] + u[:, None] * (P1[s] - P0[s]), atol=1e-12)
+    assert np.allclose(np.linalg.norm(c - pts, axis=1), dist, atol=1e-12)
+    assert np.allclose(nrm * dist[:, None], c - pts, atol=1e-12)

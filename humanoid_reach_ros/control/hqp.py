@@ -395,4 +395,251 @@ def _eq_lsq(M, r, E, e, damping, tol):
     return y0 + Z @ z
 
 
-__all__ = ["Level", "LevelReport", "HQPResult", "HierarchicalQP", "solve_dense_reference"]
+# ---------------------------------------------------------------- closed-form fast path
+@dataclass(frozen=True)
+class SaturatedResult:
+    """Outcome of :meth:`SaturatedNullSpaceHQP.solve`.
+
+    ``slacks``: level 1 ``|max(G x - h, 0)|`` then ``|A_k x - b_k|`` per equality level;
+    ``n_active``: level-1 rows at their bound; ``iterations``: saturation passes;
+    ``fallback``: the OSQP cascade produced ``x``.
+    """
+
+    x: np.ndarray
+    slacks: tuple[float, ...]
+    n_active: int
+    iterations: int
+    saturated: int
+    fallback: bool
+
+
+class SaturatedNullSpaceHQP:
+    """Fast prioritized solver for the executor's structure: one *inequality* level on
+    top (``G x <= h``: joint/velocity limits, velocity dampers) and equality levels
+    below (``A_k x = b_k``, k = 2..p).
+
+    Method (an active-set variant of the lexicographic QP of Kanoun et al., in the
+    spirit of the *Saturation in the Null Space* scheme of Flacco, De Luca, Khatib
+    2012):
+
+    1. solve the equality levels in closed form by successive null-space projections,
+       ``x_k = x_{k-1} + (A_k N_{k-1})^# (b_k - A_k x_{k-1})``,
+       ``N_k = N_{k-1} - (A_k N_{k-1})^# (A_k N_{k-1})`` (rank-revealing SVD, tiny
+       damping ``damping`` on the kept singular values);
+    2. if ``G x <= h + tol`` the result *is* the lexicographic optimum (the level-1
+       inequalities are inactive, so levels 2..p are plain equality tasks);
+    3. otherwise the levels are added one at a time and every row violated by the
+       solution so far is *saturated*: held at its bound as an equality placed just
+       above the level that pushed it (rows already violated at ``x = 0``, ``h < 0``,
+       above all tasks), and the stage is repeated until nothing new is violated (at
+       most ``max_iter`` passes per level); a row pushed by the hand task thus never
+       takes freedom from the feet; at most ``max_add`` rows (the most violated) are
+       saturated per pass, so rows whose violation disappears once others are held are
+       not saturated needlessly;
+    4. if rows are still violated (inconsistent saturated set), the OSQP cascade
+       :class:`HierarchicalQP` (``fallback``) is solved on the level-1 rows within
+       ``fallback_margin`` of activity, level 1 tightened by ``fallback_tighten`` so its
+       tolerance cannot leave a row violated; its active set seeds more exact
+       saturation passes and the candidate of least violation is kept (without a
+       fallback: the least-violation iterate);
+    5. if a row with ``h >= 0`` is still violated, the step is scaled down,
+       ``x <- alpha x`` with the largest ``alpha`` in [0, 1] satisfying those rows
+       (task scaling: ``x = 0`` is feasible for them), so joint limits and dampers
+       outside ``d_s`` hold even then.
+
+    Simplifications with respect to Kanoun's lexicographic QP (named as required):
+    rows are only ever *added* to the saturated set within a step (no release test on
+    the sign of the multipliers), so when a saturated row would be inactive at the
+    exact optimum the result is feasible and respects the priorities of levels 2..p
+    among themselves but may be slightly sub-optimal for them; all violated joint rows
+    are saturated at once (only the most violated damper row per robot shape); an
+    inconsistent saturated set goes to the OSQP fallback rather than being solved in
+    closed form, and step 5 (scaling) trades the lower levels' progress for level 1
+    when nothing else satisfies it.
+    """
+
+    def __init__(self, max_iter: int = 30, tol: float = 1e-9, rank_tol: float = 1e-8,
+                 damping: float = 1e-6, active_tol: float = 1e-7, saturated_rank_tol: float = 1e-2,
+                 fallback_margin: float = 0.01, fallback_tighten: float = 1e-5, max_add: int = 3) -> None:
+        self.max_iter = int(max_iter)
+        self.saturated_rank_tol = float(saturated_rank_tol)
+        self.fallback_margin = float(fallback_margin)
+        self.fallback_tighten = float(fallback_tighten)
+        self.max_add = int(max_add)
+        self.tol = float(tol)
+        self.rank_tol = float(rank_tol)
+        self.damping = float(damping)
+        self.active_tol = float(active_tol)
+        self.fallbacks = 0
+
+    def equality_cascade(self, levels: Sequence[tuple[np.ndarray, np.ndarray]], n: int,
+                         exact_first: bool = False, prefixes: list | None = None) -> np.ndarray:
+        """Closed-form hierarchy of equality levels ``[(A_k, b_k)]`` (first = highest).
+
+        Works on an orthonormal basis ``Z_k`` of the null space of the levels above
+        (``x = x_{k-1} + Z_{k-1} y``), so every SVD is of the reduced ``A_k Z_{k-1}``
+        (``m_k x dim``) and the dimension shrinks level by level; equivalent to the
+        projector form ``N_k = N_{k-1} - (A_k N_{k-1})^+ A_k N_{k-1}`` with ``N = Z Z^T``.
+        Singular values below ``rank_tol * max(s_1, 1)`` are dropped (their directions
+        stay free for the lower levels), the kept ones are inverted with the damping
+        ``s / (s^2 + damping^2)`` (``exact_first``: the first level without damping).
+        """
+        x = np.zeros(n)
+        Z = None
+        last = len(levels) - 1
+        lam2 = self.damping * self.damping
+        for k, (A, b) in enumerate(levels):
+            if A is None or len(A) == 0:
+                continue
+            M = A if Z is None else A @ Z
+            if M.shape[1] == 0:
+                break
+            U, S, Vt = np.linalg.svd(M, full_matrices=k < last)
+            tol = self.saturated_rank_tol if (exact_first and k == 0) else self.rank_tol
+            r = int(np.count_nonzero(S > tol * max(S[0], 1.0))) if len(S) else 0
+            if r:
+                Sr = S[:r]
+                inv = 1.0 / Sr if (exact_first and k == 0) else Sr / (Sr * Sr + lam2)
+                y = Vt[:r].T @ (inv * (U[:, :r].T @ (b - A @ x)))
+                x = x + (y if Z is None else Z @ y)
+            if prefixes is not None:
+                prefixes.append(x)
+            if k < last:
+                Zk = Vt[r:].T
+                Z = Zk if Z is None else Z @ Zk
+        return x
+
+    def _cascade_staged(self, G, h, S, levels, n):
+        """Cascade ``[S_0, L_1, S_1, L_2, ...]``: the rows saturated because of level ``k``
+        (``S[k]`` boolean masks) sit right above level ``k``, below the higher levels."""
+        stack = []
+        if np.any(S[0]):
+            stack.append((G[S[0]], h[S[0]]))
+        for k, lv in enumerate(levels):
+            if np.any(S[k + 1]):
+                stack.append((G[S[k + 1]], h[S[k + 1]]))
+            stack.append(lv)
+        return self.equality_cascade(stack, n, exact_first=bool(np.any(S[0])))
+
+    def _new_rows(self, viol, W, groups):
+        new = (viol > self.tol) & ~W
+        if groups is not None and np.any(new):
+            cand = np.flatnonzero(new)
+            g = groups[cand]
+            grouped = cand[g >= 0]
+            if len(grouped):
+                order = grouped[np.argsort(-viol[grouped], kind="stable")]
+                _, first = np.unique(groups[order], return_index=True)
+                new = np.zeros(len(viol), dtype=bool)
+                new[cand[g < 0]] = True
+                new[order[first]] = True
+        if self.max_add and np.count_nonzero(new) > self.max_add:
+            idx = np.flatnonzero(new)
+            keep = idx[np.argsort(-viol[idx], kind="stable")[: self.max_add]]
+            new = np.zeros(len(viol), dtype=bool)
+            new[keep] = True
+        return new
+
+    def _saturate(self, G, h, levels, n, W0, groups, prefixes=None):
+        """Staged saturation: (best x, its max violation, passes, saturated mask).
+
+        Rows violated at ``x = 0`` (``h < 0``) and those of ``W0`` are saturated above
+        every task; then the levels are added one by one and the rows their solution
+        violates are saturated *just above that level* (a row pushed by the hand task
+        never constrains the feet), each stage repeated until no new row is violated."""
+        m = len(h)
+        S = [np.zeros(m, dtype=bool) for _ in range(len(levels) + 1)]
+        S[0] = W0 | (h < -self.tol)
+        W = S[0].copy()
+        best_x, best_v = None, np.inf
+        it = 0
+        for k in range(len(levels)):
+            if (prefixes is not None and k < len(levels) - 1 and not np.any(W)
+                    and float((G @ prefixes[k] - h).max(initial=0.0)) <= self.tol):
+                continue       # levels <= k alone violate nothing: no stage needed yet
+            for _ in range(self.max_iter):
+                it += 1
+                x = self._cascade_staged(G, h, S, levels[: k + 1], n)
+                viol = G @ x - h
+                vmax = float(viol.max()) if m else 0.0
+                if k == len(levels) - 1 and vmax < best_v:
+                    best_x, best_v = x, vmax
+                new = self._new_rows(viol, W, groups)
+                if not np.any(new):
+                    break
+                S[k + 1] |= new
+                W |= new
+        return best_x, best_v, it, W
+
+    def solve(self, G: np.ndarray, h: np.ndarray, levels: Sequence[tuple[np.ndarray, np.ndarray]],
+              fallback: HierarchicalQP | None = None, groups: np.ndarray | None = None) -> SaturatedResult:
+        """Level 1 ``G x <= h`` above the equality ``levels`` (see the class docstring).
+
+        ``groups`` (len(h),) ints: violated rows of the same group ``>= 0`` are saturated
+        one per pass (the most violated first: e.g. the dampers of one robot shape, whose
+        rows are nearly parallel), rows of group ``-1`` all at once (joint limits, which
+        never conflict with each other)."""
+        n = G.shape[1] if G is not None and G.ndim == 2 and G.shape[1] else next(A.shape[1] for A, _ in levels)
+        G = np.zeros((0, n)) if G is None else G
+        h = np.zeros(0) if h is None else h
+        prefixes: list = []
+        x = self.equality_cascade(levels, n, prefixes=prefixes)
+        v0 = float((G @ x - h).max()) if len(h) else 0.0
+        if v0 <= self.tol:       # no level-1 row active: the unconstrained hierarchy is the optimum
+            best_x, best_v, it, W = x, v0, 1, np.zeros(len(h), dtype=bool)
+        else:
+            ok = len(prefixes) == len(levels)     # one prefix per (non-empty) level
+            best_x, best_v, it, W = self._saturate(G, h, levels, n, np.zeros(len(h), dtype=bool), groups,
+                                                   prefixes if ok else None)
+        used_fallback = False
+        if best_v > self.tol and fallback is not None:
+            # the saturated set is inconsistent (e.g. nearly parallel damper rows): the OSQP
+            # cascade on the rows near activity (the others cannot become active within
+            # ``fallback_margin``), with level 1 tightened by ``fallback_tighten`` so that
+            # OSQP's tolerance cannot leave a row violated; its active rows also seed more
+            # exact saturation passes. The best candidate (least violation) is kept.
+            self.fallbacks += 1
+            used_fallback = True
+            near_mask = G @ best_x - h > -self.fallback_margin
+            for _ in range(4):
+                near = np.flatnonzero(near_mask)
+                Gn, hn = G[near], h[near]
+                res = fallback.solve([Level(C=Gn, d=hn - self.fallback_tighten)]
+                                     + [Level(A=A, b=b) for A, b in levels], n=n)
+                grow = (G @ res.x - h > -self.fallback_margin) & ~near_mask
+                if not np.any(grow):
+                    break
+                near_mask |= grow      # rows left out came near activity: solve again with them
+            Wf = np.zeros(len(h), dtype=bool)
+            Wf[near[Gn @ res.x - hn >= -2.0 * self.fallback_tighten]] = True
+            x_f, v_f, it_f, W_f = self._saturate(G, h, levels, n, Wf, groups)
+            it += it_f
+            v_o = float((G @ res.x - h).max(initial=-np.inf))
+            if v_f <= self.tol or v_f <= v_o:
+                if v_f < best_v:
+                    best_x, best_v, W = x_f, v_f, W_f
+            elif v_o < best_v:
+                best_x, best_v = res.x, v_o
+        if best_v > self.tol and len(h):
+            # last resort, task scaling: x = 0 satisfies every row with h >= 0, so the
+            # largest alpha in [0, 1] keeping those rows gives a point of level 1 (rows
+            # with h < 0, e.g. a damper already inside d_s, keep their least violation)
+            g = G @ best_x
+            over = (g > h + self.tol) & (h >= -self.tol)
+            if np.any(over):
+                alpha = float(np.min(np.maximum(h[over], 0.0) / g[over]))
+                x_s = max(alpha, 0.0) * best_x
+                # rows with h >= 0 (joint limits, dampers outside d_s) are kept exactly; a
+                # damper already inside d_s may miss its push-away for this step
+                best_x, best_v = x_s, float((G @ x_s - h).max())
+                used_fallback = True
+        x = best_x
+        viol = G @ x - h
+        slacks = [float(np.linalg.norm(np.maximum(viol, 0.0)))]
+        slacks += [float(np.linalg.norm(A @ x - b)) for A, b in levels]
+        n_active = int(np.count_nonzero(viol >= -self.active_tol))
+        return SaturatedResult(x, tuple(slacks), n_active, it, int(np.count_nonzero(W)), used_fallback)
+
+
+__all__ = ["Level", "LevelReport", "HQPResult", "HierarchicalQP", "solve_dense_reference",
+           "SaturatedResult", "SaturatedNullSpaceHQP"]

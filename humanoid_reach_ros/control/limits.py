@@ -28,8 +28,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 from typing import TYPE_CHECKING, Sequence
 
+import numba as nb
 import numpy as np
 import pinocchio as pin
 
@@ -161,5 +163,166 @@ def velocity_damper_rows(model: pin.Model, data: pin.Data, cm: "CollisionModel",
                      np.concatenate([p.distance for p in parts]))
 
 
+# ---------------------------------------------------------------- fast path (executor)
+_JIT = dict(cache=True, nogil=True, fastmath=False)
+
+
+@nb.njit(**_JIT)
+def _closest_seg_seg(P0, P1, i, j):
+    """Parameters (s, t) of the closest points of segments i and j (Ericson 5.1.9)."""
+    d1x = P1[i, 0] - P0[i, 0]
+    d1y = P1[i, 1] - P0[i, 1]
+    d1z = P1[i, 2] - P0[i, 2]
+    d2x = P1[j, 0] - P0[j, 0]
+    d2y = P1[j, 1] - P0[j, 1]
+    d2z = P1[j, 2] - P0[j, 2]
+    rx = P0[i, 0] - P0[j, 0]
+    ry = P0[i, 1] - P0[j, 1]
+    rz = P0[i, 2] - P0[j, 2]
+    a = d1x * d1x + d1y * d1y + d1z * d1z
+    e = d2x * d2x + d2y * d2y + d2z * d2z
+    f = d2x * rx + d2y * ry + d2z * rz
+    eps = 1e-18
+    if a <= eps and e <= eps:
+        return 0.0, 0.0
+    if a <= eps:
+        return 0.0, min(max(f / e, 0.0), 1.0)
+    c = d1x * rx + d1y * ry + d1z * rz
+    if e <= eps:
+        return min(max(-c / a, 0.0), 1.0), 0.0
+    b = d1x * d2x + d1y * d2y + d1z * d2z
+    den = a * e - b * b
+    s = min(max((b * f - c * e) / den, 0.0), 1.0) if den > 1e-14 * a * e else 0.0
+    t = (b * s + f) / e
+    if t < 0.0:
+        t = 0.0
+        s = min(max(-c / a, 0.0), 1.0)
+    elif t > 1.0:
+        t = 1.0
+        s = min(max((b - c) / a, 0.0), 1.0)
+    return s, t
+
+
+@nb.njit(**_JIT)
+def self_pair_geometry(P0, P1, R, pi, pj, bound):
+    """Self-collision pairs (pi[k], pj[k]) of capsules P0, P1 (S, 3), R (S,).
+
+    Returns (index (M,) of the pairs with signed distance <= bound, their closest
+    points pa, pb (M, 3) on the segments, unit normals n (M, 3) from a to b, signed
+    distances d (M,)) and the smallest signed distance over all pairs."""
+    K = pi.shape[0]
+    idx = np.empty(K, np.int64)
+    pa = np.empty((K, 3))
+    pb = np.empty((K, 3))
+    nrm = np.empty((K, 3))
+    dist = np.empty(K)
+    m = 0
+    dmin = np.inf
+    for k in range(K):
+        i = pi[k]
+        j = pj[k]
+        s, t = _closest_seg_seg(P0, P1, i, j)
+        ax = P0[i, 0] + s * (P1[i, 0] - P0[i, 0])
+        ay = P0[i, 1] + s * (P1[i, 1] - P0[i, 1])
+        az = P0[i, 2] + s * (P1[i, 2] - P0[i, 2])
+        bx = P0[j, 0] + t * (P1[j, 0] - P0[j, 0])
+        by = P0[j, 1] + t * (P1[j, 1] - P0[j, 1])
+        bz = P0[j, 2] + t * (P1[j, 2] - P0[j, 2])
+        dx = bx - ax
+        dy = by - ay
+        dz = bz - az
+        ln = math.sqrt(dx * dx + dy * dy + dz * dz)
+        d = ln - R[i] - R[j]
+        if d < dmin:
+            dmin = d
+        if d <= bound:
+            idx[m] = k
+            pa[m, 0] = ax
+            pa[m, 1] = ay
+            pa[m, 2] = az
+            pb[m, 0] = bx
+            pb[m, 1] = by
+            pb[m, 2] = bz
+            if ln > 1e-12:
+                nrm[m, 0] = dx / ln
+                nrm[m, 1] = dy / ln
+                nrm[m, 2] = dz / ln
+            else:
+                nrm[m, 0] = 0.0
+                nrm[m, 1] = 0.0
+                nrm[m, 2] = 1.0
+            dist[m] = d
+            m += 1
+    return idx[:m].copy(), pa[:m].copy(), pb[:m].copy(), nrm[:m].copy(), dist[:m].copy(), dmin
+
+
+@nb.njit(**_JIT)
+def env_pair_geometry(P0, P1, s_idx, centers):
+    """Closest points p (K, 3) on the segments ``s_idx`` to the sphere centres ``centers``
+    (K, 3) and unit normals n (K, 3) from p to the centre."""
+    K = s_idx.shape[0]
+    pts = np.empty((K, 3))
+    nrm = np.empty((K, 3))
+    for k in range(K):
+        s = s_idx[k]
+        dx = P1[s, 0] - P0[s, 0]
+        dy = P1[s, 1] - P0[s, 1]
+        dz = P1[s, 2] - P0[s, 2]
+        cx = centers[k, 0] - P0[s, 0]
+        cy = centers[k, 1] - P0[s, 1]
+        cz = centers[k, 2] - P0[s, 2]
+        dd = dx * dx + dy * dy + dz * dz
+        u = 0.0
+        if dd > 1e-18:
+            u = min(max((cx * dx + cy * dy + cz * dz) / dd, 0.0), 1.0)
+        px = P0[s, 0] + u * dx
+        py = P0[s, 1] + u * dy
+        pz = P0[s, 2] + u * dz
+        pts[k, 0] = px
+        pts[k, 1] = py
+        pts[k, 2] = pz
+        nx = centers[k, 0] - px
+        ny = centers[k, 1] - py
+        nz = centers[k, 2] - pz
+        ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if ln > 1e-12:
+            nrm[k, 0] = nx / ln
+            nrm[k, 1] = ny / ln
+            nrm[k, 2] = nz / ln
+        else:
+            nrm[k, 0] = 0.0
+            nrm[k, 1] = 0.0
+            nrm[k, 2] = 1.0
+    return pts, nrm
+
+
+def support_masks(model: pin.Model, frame_ids: Sequence[int]) -> np.ndarray:
+    """(F, nv) 0/1 masks of the velocity columns that move each frame (its joint's support)."""
+    masks = np.zeros((len(frame_ids), model.nv))
+    for r, f in enumerate(frame_ids):
+        for j in model.supports[model.frames[int(f)].parentJoint]:
+            if j > 0:
+                masks[r, model.idx_vs[j]: model.idx_vs[j] + model.nvs[j]] = 1.0
+    return masks
+
+
+def world_point_rows(J_world: np.ndarray, masks: np.ndarray, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """``n_k^T J_{p_k}`` (K, nv) from the WORLD joint Jacobian stack ``data.J`` (6, nv)
+    filled by ``computeJointJacobians``: ``n^T J_v + (p x n)^T J_w``, restricted to the
+    supporting columns ``masks`` (K, nv) of each point's link (the spatial velocity of
+    the world-origin point, ``v_p = v_O + w x p``). Same rows as :func:`point_normal_rows`
+    without one ``getFrameJacobian`` per link."""
+    return (normals @ J_world[:3] + np.cross(points, normals) @ J_world[3:]) * masks
+
+
+def warm_up() -> None:
+    """Compile (or load from the on-disk cache) the numba kernels of this module."""
+    P = np.zeros((2, 3))
+    P[1, 0] = 1.0
+    self_pair_geometry(P, P + 0.5, np.full(2, 0.1), np.zeros(1, np.int64), np.ones(1, np.int64), 0.1)
+    env_pair_geometry(P, P + 0.5, np.zeros(1, np.int64), np.zeros((1, 3)))
+
+
 __all__ = ["LimitRows", "joint_limit_rows", "point_normal_rows", "environment_damper_rows",
-           "self_collision_damper_rows", "velocity_damper_rows"]
+           "self_collision_damper_rows", "velocity_damper_rows", "self_pair_geometry", "env_pair_geometry",
+           "support_masks", "world_point_rows", "warm_up"]

@@ -1,0 +1,520 @@
+"""Whole-body reach executor: the 5 ms prioritized IK loop of Kanehiro et al., Sec. IV-V.
+
+Every control step of ``dt = period_s`` the reference trajectory (30 joints, from the
+planner) is evaluated at ``t``; the unknown is the configuration displacement ``dq``
+of the floating-base model (tangent space, 6 base + 30 joints, the two gripper joints
+excluded: ``n = 34`` unknowns, :class:`~humanoid_reach_ros.control.tasks.DofSelection`).
+The priority levels are those of the paper:
+
+1. joint position limits over one step, joint velocity limits (``velocity_scale`` of
+   the URDF limits) and Faverjon-Tournassoud velocity dampers
+   ``delta_d >= -xi (d - d_s)`` between every environment sphere within the distance
+   bound ``d_i`` of a robot shape (sphere-tree query ``spheres_within_batch``) and
+   between the self-collision pairs closer than ``d_i`` (inequalities
+   ``G dq <= h``, :mod:`humanoid_reach_ros.control.limits`);
+2. both soles 6D fixed at their pose at :meth:`WholeBodyExecutor.start` and the
+   horizontal position of the *exact* COG (``J_com``, all link masses) held at its
+   value at ``start``;
+3. the hand 6D pose of the reference: forward kinematics of the reference joints at
+   ``t`` with the waist of :meth:`RobotModel.base_on_feet`, expressed relative to the
+   right sole so it stays consistent with the real stance;
+4. the posture: the reference joints (residual redundancy).
+
+The solver is :class:`humanoid_reach_ros.control.hqp.SaturatedNullSpaceHQP` (closed-form
+null-space projections with saturation of violated level-1 rows, OSQP lexicographic QP
+as the fallback); its docstring names the simplifications of Kanoun's lexicographic QP.
+With ``solver="osqp"`` every step runs the full OSQP cascade
+(:class:`~humanoid_reach_ros.control.hqp.HierarchicalQP`), the reference implementation.
+
+Speed (bench/execution.py): one ``computeJointJacobians`` + ``updateFramePlacements``
+per step; the capsules from the numba forward kinematics of :class:`RobotCollision`;
+only environment spheres within ``d_i`` make damper rows, their closest points and
+normals in numba and their rows ``n^T J_v + (p x n)^T J_w`` straight from the WORLD
+joint Jacobians (no per-link Jacobian calls); the closed-form solver needs no QP in the
+common case. The executor limits BLAS to ``blas_threads`` (default 1, process-wide):
+on these small matrices BLAS threads only add synchronisation (a 34x34 product took
+0.29 ms with threads on a loaded machine, 8 us without). ``smooth_reshaping`` runs
+:class:`~humanoid_reach_ros.planning.reshape.SmoothReshaper` inside :meth:`start`
+(seconds): a node should rather reshape outside its control loop and pass the result.
+
+Continuity: ``start`` begins from the given (last commanded) configuration; when the
+reference's first point differs from it, the joint reference is blended in with a
+quintic smoothstep over ``blend_s`` seconds (at least ``blend_min_s``, long enough for
+the largest difference at half the velocity limit), and the hand reference follows
+from the blended joints. :meth:`WholeBodyExecutor.hold` keeps the last commanded
+configuration as a constant reference; every step is bounded by the level-1 velocity
+rows, so a command never jumps.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pinocchio as pin
+from threadpoolctl import threadpool_limits
+
+from humanoid_reach_ros.control.hqp import HierarchicalQP, Level, SaturatedNullSpaceHQP
+from humanoid_reach_ros.control.limits import env_pair_geometry, self_pair_geometry, support_masks, world_point_rows
+from humanoid_reach_ros.control.tasks import DofSelection
+from humanoid_reach_ros.geometry.distance import RobotCollision
+from humanoid_reach_ros.geometry.sphere_tree import SphereTree
+from humanoid_reach_ros.planning.trajectory import SplineTrajectory
+from humanoid_reach_ros.robot.model import N_BASE_Q, N_BASE_V, RobotModel
+from humanoid_reach_ros.robot.shapes import CollisionModel
+
+LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+HAND_FRAMES = {"right": "r_hand_ee", "left": "l_hand_ee"}
+SOLE_FRAMES = ("r_sole", "l_sole")
+SOLVERS = ("nullspace", "osqp")
+
+
+@dataclass(frozen=True)
+class ExecutorParams:
+    """Parameters of :class:`WholeBodyExecutor` (units in the names)."""
+
+    period_s: float = 0.005                 # control step dt
+    distance_bound_m: float = 0.10          # d_i: spheres / self pairs closer than this enter level 1
+    security_distance_m: float = 0.01       # d_s of the velocity damper
+    damper_xi: float = 0.5                  # xi of the damper (per-step fraction, see control/limits.py)
+    collision_avoidance: bool = True        # level-1 velocity dampers on/off (Fig. 8 "without")
+    self_collision: bool = True             # self-collision pairs among the dampers
+    com_compensation: bool = True           # level-2 exact COG xy task on/off (Fig. 7 "without")
+    hand_gain: float = 1.0
+    com_gain: float = 1.0
+    feet_gain: float = 1.0
+    posture_gain: float = 0.2
+    velocity_scale: float = 1.0             # fraction of URDF joint velocity limits allowed
+    blend_min_s: float = 0.2                # shortest blend of a reference that starts elsewhere
+    converge_position_m: float = 1e-3       # done: hand position error below this after the end
+    converge_rotation_rad: float = 1e-2     # ... and orientation error below this
+    settle_timeout_s: float = 2.0           # done anyway this long after the end of the reference
+    limit_margin_rad: float = 1e-9          # joint rows keep q this far inside the URDF range
+    solver: str = "nullspace"               # "nullspace" (closed form + saturation) or "osqp" (reference)
+    max_saturation_iter: int = 30           # active-set iterations of the closed-form solver
+    feasibility_tol: float = 1e-9           # level-1 rows count as satisfied within this
+    osqp_eps: float = 1e-6
+    osqp_max_iter: int = 400
+    blas_threads: int = 1                   # process-wide BLAS thread limit set by the executor (0: leave)
+    smooth_reshaping: bool = False          # reshape the reference (planning/reshape.py) in start()
+
+    def validate(self) -> "ExecutorParams":
+        checks = [
+            ("period_s", self.period_s > 0), ("distance_bound_m", self.distance_bound_m > 0),
+            ("security_distance_m", 0 <= self.security_distance_m < self.distance_bound_m),
+            ("damper_xi", 0 < self.damper_xi <= 1), ("hand_gain", 0 < self.hand_gain <= 1),
+            ("com_gain", 0 < self.com_gain <= 1), ("feet_gain", 0 < self.feet_gain <= 1),
+            ("posture_gain", 0 < self.posture_gain <= 1), ("velocity_scale", 0 < self.velocity_scale <= 1),
+            ("blend_min_s", self.blend_min_s >= 0), ("settle_timeout_s", self.settle_timeout_s >= 0),
+            ("max_saturation_iter", self.max_saturation_iter >= 1), ("blas_threads", self.blas_threads >= 0), ("osqp_max_iter", self.osqp_max_iter >= 1),
+        ]
+        for name, ok in checks:
+            v = getattr(self, name)
+            if not (ok and (isinstance(v, bool) or np.isfinite(v))):
+                raise ValueError(f"ExecutorParams.{name}={v!r} is out of range")
+        if self.solver not in SOLVERS:
+            raise ValueError(f"ExecutorParams.solver={self.solver!r}: expected one of {SOLVERS}")
+        return self
+
+
+@dataclass(frozen=True)
+class StepMetrics:
+    """Per-step figures (msg/ExecutorMetrics, Figs. 7-10)."""
+
+    t: float                    # reference time [s]
+    progress: float             # t / duration in [0, 1]
+    solve_time_s: float         # whole step wall time
+    distance_time_s: float      # sphere-tree query part
+    ik_time_s: float            # prioritized QP part
+    spheres_in_bound: int       # environment spheres within distance_bound_m (Fig. 9)
+    active_constraints: int     # inequality rows active at the solution
+    active_levels: int          # number of priority levels solved
+    com_error_m: float          # horizontal distance of the EXACT COG from its value at start()
+    min_distance_m: float       # robot-environment minimum distance (inf without a map)
+    hand_error_m: float         # position error of the hand vs the reference at t
+    hand_error_rad: float
+    level_slack: tuple[float, ...]
+    self_distance_m: float = math.inf   # smallest self-collision pair distance
+    damper_rows: int = 0                # velocity-damper rows in level 1 (environment + self)
+    fallback: bool = False              # the closed-form solver fell back to OSQP
+
+
+@dataclass(frozen=True)
+class StepResult:
+    q: np.ndarray               # full pinocchio configuration (7 base + 30 joints) after the step
+    joints: np.ndarray          # the 30 joint positions to command (model.joint_names order)
+    metrics: StepMetrics
+    done: bool                  # reference finished and the hand has converged (or hold mode)
+
+
+def _smoothstep5(s: float) -> float:
+    s = min(max(s, 0.0), 1.0)
+    return s * s * s * (10.0 + s * (-15.0 + 6.0 * s))
+
+
+class WholeBodyExecutor:
+    """Stateful 5 ms whole-body executor (see the module docstring for the levels)."""
+
+    def __init__(self, robot: RobotModel, collision: CollisionModel, params: ExecutorParams = ExecutorParams()) -> None:
+        self.robot = robot
+        self.cm = collision
+        self.model = robot.model
+        self.data = self.model.createData()
+        self._ref_data = self.model.createData()
+        self.sel = DofSelection.without_grippers(robot)
+        self.params = params.validate()
+        self._tree: SphereTree | None = None
+        self._q: np.ndarray | None = None
+        self._ref: SplineTrajectory | None = None
+        self._arm = "right"
+        self._t = 0.0
+        self._active = False
+        self._holding = False
+        self._end_t = 0.0
+        self._blend_offset = np.zeros(robot.n_joints)
+        self._blend_s = 0.0
+        self._sole_targets: tuple[pin.SE3, pin.SE3] | None = None
+        self._com_target = np.zeros(2)
+        self._stance_r_inv = robot.stance_soles[0].inverse()
+        self._sole_ids = tuple(robot.frame_id(f) for f in SOLE_FRAMES)
+        self._hand_ids = {a: robot.frame_id(f) for a, f in HAND_FRAMES.items()}
+        # joint rows: the selected joints (grippers excluded)
+        grip = {robot.joint_index[j] for j in robot.semantic.get("gripper_joints", [])}
+        self._joint_sel = np.array([j for j in range(robot.n_joints) if j not in grip], dtype=np.intp)
+        self._joint_cols = np.searchsorted(self.sel.index, N_BASE_V + self._joint_sel)
+        self._joint_groups = np.full(2 * len(self._joint_sel), -1, dtype=np.int64)
+        self._pi = np.ascontiguousarray(collision.pair_index[:, 0], dtype=np.int64)
+        self._pj = np.ascontiguousarray(collision.pair_index[:, 1], dtype=np.int64)
+        self._radii = np.ascontiguousarray(collision.radii, dtype=float)
+        self._shape_masks = support_masks(self.model, collision.frame_ids)[collision.shape_link]
+        self._fk = RobotCollision(robot, collision, SphereTree.build(np.zeros((0, 3)), 0.0))
+        if self.params.blas_threads > 0:
+            # small dense algebra: BLAS threads only cost synchronisation (process-wide)
+            threadpool_limits(self.params.blas_threads, user_api="blas")
+        self._make_solvers()
+
+    def _make_solvers(self) -> None:
+        p = self.params
+        self._ns = SaturatedNullSpaceHQP(max_iter=p.max_saturation_iter, tol=p.feasibility_tol)
+        self._osqp = HierarchicalQP(eps=p.osqp_eps, max_iter=p.osqp_max_iter, polish=False)
+        self._ns_fallback = None if p.solver == "osqp" else self._osqp
+
+    # ------------------------------------------------------------ state
+    @property
+    def active(self) -> bool:
+        """True while a reference is executed or held."""
+        return self._active
+
+    @property
+    def holding(self) -> bool:
+        return self._holding
+
+    @property
+    def t(self) -> float:
+        return self._t
+
+    @property
+    def duration(self) -> float:
+        return 0.0 if self._ref is None else self._ref.duration
+
+    @property
+    def q(self) -> np.ndarray:
+        if self._q is None:
+            raise ValueError("executor has no configuration yet: call start() or hold(q)")
+        return self._q.copy()
+
+    @property
+    def arm(self) -> str:
+        return self._arm
+
+    def set_environment(self, tree: SphereTree | None) -> None:
+        """New environment map (``None``: no environment, dampers on self pairs only)."""
+        if tree is not None and not isinstance(tree, SphereTree):
+            raise ValueError(f"set_environment expects a SphereTree or None, got {type(tree).__name__}")
+        self._tree = tree if tree is not None and tree.n_spheres else None
+
+    # ------------------------------------------------------------ validation
+    def _check_q(self, q, what: str = "q") -> np.ndarray:
+        q = np.array(q, dtype=float).reshape(-1) if q is not None else None
+        if q is None or q.shape != (self.model.nq,):
+            raise ValueError(f"{what} must be a full configuration of {self.model.nq} values "
+                             f"(7 base + {self.robot.n_joints} joints), got shape {None if q is None else q.shape}")
+        if not np.all(np.isfinite(q)):
+            raise ValueError(f"{what} contains NaN or inf")
+        nrm = np.linalg.norm(q[3:7])
+        if abs(nrm - 1.0) > 1e-3:
+            raise ValueError(f"{what}: base quaternion is not unit (norm {nrm:.4f})")
+        q[3:7] /= nrm
+        return q
+
+    def _check_reference(self, reference) -> SplineTrajectory:
+        if not isinstance(reference, SplineTrajectory):
+            raise ValueError(f"reference must be a SplineTrajectory, got {type(reference).__name__}")
+        if reference.n_joints != self.robot.n_joints:
+            raise ValueError(f"reference has {reference.n_joints} joints, expected {self.robot.n_joints}")
+        if not (np.all(np.isfinite(reference.waypoints)) and np.all(np.isfinite(reference.times))):
+            raise ValueError("reference contains NaN or inf")
+        if abs(reference.times[0]) > 1e-9:
+            raise ValueError(f"reference times must start at 0, got {reference.times[0]}")
+        return reference
+
+    # ------------------------------------------------------------ commands
+    def start(self, q: np.ndarray, reference: SplineTrajectory, arm: str,
+              params: ExecutorParams | None = None) -> None:
+        """Execute ``reference`` from configuration ``q`` with the ``arm`` hand ('right'|'left').
+
+        Fixes both sole poses and the exact COG xy at their values in ``q``.
+        """
+        if arm not in HAND_FRAMES:
+            raise ValueError(f"unknown arm {arm!r}: expected 'right' or 'left'")
+        q = self._check_q(q)
+        reference = self._check_reference(reference)
+        if params is not None:
+            p_new = params.validate()
+            if (p_new.max_saturation_iter, p_new.feasibility_tol, p_new.osqp_eps, p_new.osqp_max_iter) != (
+                    self.params.max_saturation_iter, self.params.feasibility_tol, self.params.osqp_eps,
+                    self.params.osqp_max_iter):
+                self.params = p_new
+                self._make_solvers()
+            self.params = p_new
+        if self.params.smooth_reshaping and self._tree is not None:
+            from humanoid_reach_ros.planning.reshape import SmoothReshaper
+            reference = SmoothReshaper(self.robot, self.cm).reshape(reference, self._tree, arm).trajectory
+        self._fix_stance(q)
+        self._q = q
+        self._ref = reference
+        self._arm = arm
+        self._t = 0.0
+        self._end_t = reference.duration
+        self._holding = False
+        self._active = True
+        self._set_blend(reference.position(0.0))
+
+    def hold(self, q: np.ndarray | None = None) -> None:
+        """Stop: track the current hand pose and posture with feet and COG fixed.
+
+        ``q`` (optional) is used only when the executor has no configuration yet (it
+        becomes the state); otherwise the last commanded configuration is held, so a
+        hold never jumps.
+        """
+        if q is not None:
+            q = self._check_q(q)
+        if self._q is None:
+            if q is None:
+                raise ValueError("hold() needs q before the first start()")
+            self._q = q
+        if self._sole_targets is None or q is not None and not self._active:
+            self._fix_stance(self._q)
+        joints = self._q[N_BASE_Q:].copy()
+        self._ref = SplineTrajectory(joints[None], np.zeros(1))
+        self._t = 0.0
+        self._end_t = 0.0
+        self._holding = True
+        self._active = True
+        self._blend_offset[:] = 0.0
+        self._blend_s = 0.0
+
+    def _fix_stance(self, q: np.ndarray) -> None:
+        pin.framesForwardKinematics(self.model, self.data, q)
+        self._sole_targets = tuple(self.data.oMf[i].copy() for i in self._sole_ids)
+        self._com_target = pin.centerOfMass(self.model, self.data, q)[:2].copy()
+
+    def _set_blend(self, ref0: np.ndarray) -> None:
+        diff = self._q[N_BASE_Q:] - ref0
+        v = self.robot.velocity_limit * self.params.velocity_scale
+        need = float(np.max(np.abs(diff) / (0.5 * v))) if len(v) else 0.0
+        self._blend_offset = diff
+        self._blend_s = max(self.params.blend_min_s, 2.0 * need) if np.any(np.abs(diff) > 1e-9) else 0.0
+
+    # ------------------------------------------------------------ references
+    def reference_joints(self, t: float) -> np.ndarray:
+        """Reference joints at ``t`` including the start blend."""
+        qr = self._ref.position(t)
+        if self._blend_s > 0.0 and t < self._blend_s:
+            qr = qr + (1.0 - _smoothstep5(t / self._blend_s)) * self._blend_offset
+        return qr
+
+    def reference_hand(self, joints_ref: np.ndarray) -> pin.SE3:
+        """Hand pose of the reference joints on the feet, relative to the real right sole."""
+        d = self._ref_data
+        q0 = self.robot.config(joints_ref)
+        pin.framesForwardKinematics(self.model, d, q0)
+        sole = d.oMf[self._sole_ids[0]]
+        hand_in_sole = sole.actInv(d.oMf[self._hand_ids[self._arm]])
+        # base_on_feet: the right sole at its stance pose; the real right sole replaces it
+        return self._sole_targets[0].act(hand_in_sole)
+
+    # ------------------------------------------------------------ step
+    def step(self) -> StepResult:
+        """One ``dt``: reference at ``t`` -> distances -> prioritized solve -> integrate."""
+        if not self._active or self._q is None:
+            raise ValueError("executor is not active: call start() or hold(q) first")
+        p = self.params
+        t0 = time.perf_counter()
+        model, data, q = self.model, self.data, self._q
+        t_next = self._t + p.period_s
+        # ---- kinematics (one pass: joint Jacobians + frames)
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        # ---- distances (level 1 dampers)
+        td = time.perf_counter()
+        G_d, h_d, groups_d, n_env, dmin_env, dmin_self = self._damper_rows()
+        distance_time = time.perf_counter() - td
+        # ---- tasks
+        ti = time.perf_counter()
+        jr = self.reference_joints(t_next)
+        hand_target = self.reference_hand(jr)
+        levels = self._levels(q, jr, hand_target, G_d, h_d)
+        if p.solver == "osqp":
+            res = self._osqp.solve([Level(None, None, levels[0][2], levels[0][3])]
+                                   + [Level(A, b) for A, b, _, _ in levels[1:]], n=self.sel.n)
+            x, slacks, n_act, fallback = res.x, res.slacks, res.n_active_inequalities, False
+        else:
+            r = self._ns.solve(levels[0][2], levels[0][3], [(A, b) for A, b, _, _ in levels[1:]],
+                               fallback=self._osqp, groups=np.concatenate([self._joint_groups, groups_d]))
+            x, slacks, n_act, fallback = r.x, r.slacks, r.n_active, r.fallback
+        dq = self.sel.expand(x)
+        q_new = pin.integrate(model, q, dq)
+        ik_time = time.perf_counter() - ti
+        # ---- metrics at the new configuration (position errors only: cheap FK)
+        self._q = q_new
+        self._t = t_next
+        pin.framesForwardKinematics(model, data, q_new)
+        H = data.oMf[self._hand_ids[self._arm]]
+        e_pos = float(np.linalg.norm(H.translation - hand_target.translation))
+        e_rot = float(np.linalg.norm(pin.log3(hand_target.rotation.T @ H.rotation)))
+        com = pin.centerOfMass(model, data, q_new, False)
+        com_err = float(np.linalg.norm(com[:2] - self._com_target))
+        dur = self.duration
+        progress = 1.0 if dur <= 0 else min(t_next / dur, 1.0)
+        done = self._holding or (t_next >= self._end_t and (
+            (e_pos <= p.converge_position_m and e_rot <= p.converge_rotation_rad)
+            or t_next >= self._end_t + p.settle_timeout_s))
+        solve_time = time.perf_counter() - t0
+        m = StepMetrics(t_next, progress, solve_time, distance_time, ik_time, n_env, n_act, len(levels),
+                        com_err, dmin_env, e_pos, e_rot, tuple(float(s) for s in slacks), dmin_self,
+                        len(h_d), fallback)
+        return StepResult(q_new.copy(), q_new[N_BASE_Q:].copy(), m, bool(done))
+
+    # ------------------------------------------------------------ rows
+    def _levels(self, q, jr, hand_target, G_d, h_d):
+        """[(None, None, G, h) level 1, (A, b, ...) levels 2-4] on the selected unknowns."""
+        p = self.params
+        model, data, sel = self.model, self.data, self.sel.index
+        # level 1: joint limits + velocity limits (selected joints) and dampers
+        js = self._joint_sel
+        qj = q[N_BASE_Q + js]
+        vdt = self.robot.velocity_limit[js] * p.velocity_scale * p.period_s
+        up = np.maximum(np.minimum(self.robot.upper[js] - p.limit_margin_rad - qj, vdt), -vdt)
+        lo = np.maximum(np.minimum(qj - self.robot.lower[js] - p.limit_margin_rad, vdt), -vdt)
+        k = len(js)
+        nx = len(sel)
+        G = np.zeros((2 * k + len(h_d), nx))
+        G[np.arange(k), self._joint_cols] = 1.0
+        G[k + np.arange(k), self._joint_cols] = -1.0
+        if len(h_d):
+            G[2 * k:] = G_d[:, sel]
+        h = np.concatenate([up, lo, h_d])
+        # level 2: soles 6D + COG xy
+        A2, b2 = [], []
+        for fid, target in zip(self._sole_ids, self._sole_targets):
+            J = pin.getFrameJacobian(model, data, fid, LWA)
+            M = data.oMf[fid]
+            e_p = M.translation - target.translation
+            Rt = target.rotation
+            e_r = Rt @ pin.log3(Rt.T @ M.rotation)
+            Jr = Rt @ pin.Jlog3(Rt.T @ M.rotation) @ M.rotation.T @ J[3:]
+            A2 += [J[:3], Jr]
+            b2 += [-p.feet_gain * e_p, -p.feet_gain * e_r]
+        if p.com_compensation:
+            Jc = pin.jacobianCenterOfMass(model, data, q, False)
+            e_c = data.com[0][:2] - self._com_target
+            A2.append(Jc[:2])
+            b2.append(-p.com_gain * e_c)
+        A2 = np.vstack(A2)[:, sel]
+        b2 = np.concatenate(b2)
+        # level 3: hand 6D
+        fid = self._hand_ids[self._arm]
+        J = pin.getFrameJacobian(model, data, fid, LWA)
+        M = data.oMf[fid]
+        Rt = hand_target.rotation
+        e_p = M.translation - hand_target.translation
+        e_r = Rt @ pin.log3(Rt.T @ M.rotation)
+        Jr = Rt @ pin.Jlog3(Rt.T @ M.rotation) @ M.rotation.T @ J[3:]
+        A3 = np.vstack([J[:3], Jr])[:, sel]
+        b3 = -p.hand_gain * np.concatenate([e_p, e_r])
+        # level 4: posture on the selected joints
+        A4 = np.zeros((k, nx))
+        A4[np.arange(k), self._joint_cols] = 1.0
+        b4 = -p.posture_gain * (qj - jr[js])
+        return [(None, None, G, h), (A2, b2, None, None), (A3, b3, None, None), (A4, b4, None, None)]
+
+    def _damper_rows(self):
+        """Velocity-damper rows ``n^T J_p dq <= xi (d - d_s)`` (all nv columns), the number of
+        environment spheres in the bound, and the environment / self minimum distances.
+
+        Capsules from the numba forward kinematics of :class:`RobotCollision`, the
+        environment pairs from ``SphereTree.spheres_within_batch`` (only spheres within
+        ``d_i`` make rows), closest points and normals in numba, the rows from the WORLD
+        joint Jacobians already computed for the step (:func:`world_point_rows`)."""
+        p = self.params
+        P0, P1 = self._fk.world_shapes(self._q)
+        R = self._radii
+        J = self.data.J
+        rows_G, rows_h, rows_g = [], [], []
+        n_env = 0
+        dmin_env = math.inf
+        tree = self._tree
+        if tree is not None:
+            s_idx, k_idx, dist = tree.spheres_within_batch(P0, P1, R, p.distance_bound_m)
+            if len(s_idx):
+                n_env = len(np.unique(k_idx))
+                dmin_env = float(dist.min())
+                if p.collision_avoidance:
+                    pts, nrm = env_pair_geometry(P0, P1, s_idx, tree.centers[k_idx])
+                    rows_G.append(world_point_rows(J, self._shape_masks[s_idx], pts, nrm))
+                    rows_h.append(p.damper_xi * (dist - p.security_distance_m))
+                    rows_g.append(np.asarray(s_idx, dtype=np.int64))
+            else:
+                dmin_env = float(tree.min_distance_batch(P0, P1, R).min())
+        dmin_self = math.inf
+        if len(self._pi):
+            k, pa, pb, nrm, d, dmin_self = self_pair_geometry(P0, P1, R, self._pi, self._pj, p.distance_bound_m)
+            if p.collision_avoidance and p.self_collision and len(k):
+                Ga = world_point_rows(J, self._shape_masks[self._pi[k]], pa, nrm)
+                Gb = world_point_rows(J, self._shape_masks[self._pj[k]], pb, nrm)
+                rows_G.append(Ga - Gb)
+                rows_h.append(p.damper_xi * (d - p.security_distance_m))
+                rows_g.append(self.cm.n_shapes + k)
+        if rows_G:
+            G = rows_G[0] if len(rows_G) == 1 else np.vstack(rows_G)
+            h = rows_h[0] if len(rows_h) == 1 else np.concatenate(rows_h)
+            g = rows_g[0] if len(rows_g) == 1 else np.concatenate(rows_g)
+            return G, h, g, n_env, dmin_env, float(dmin_self)
+        return np.zeros((0, self.model.nv)), np.zeros(0), np.zeros(0, np.int64), n_env, dmin_env, float(dmin_self)
+
+    def warm_up(self) -> None:
+        """Compile / load the numba kernels and touch every code path once (a few steps on
+        a throw-away state); call before the control loop starts. The state is reset."""
+        from humanoid_reach_ros.control.limits import warm_up as limits_warm_up
+        limits_warm_up()
+        saved = (self._tree, self._q, self._ref, self._arm, self._t, self._active, self._holding, self._end_t,
+                 self._blend_offset, self._blend_s, self._sole_targets, self._com_target)
+        try:
+            q = self.robot.half_sitting()
+            hand = self.robot.frame_pose(q, HAND_FRAMES["right"]).translation
+            self._tree = SphereTree.build((hand + [0.05, 0.0, 0.0])[None], 0.01)
+            self.start(q, SplineTrajectory(q[N_BASE_Q:][None], np.zeros(1)), "right")
+            for _ in range(3):
+                self.step()
+        finally:
+            (self._tree, self._q, self._ref, self._arm, self._t, self._active, self._holding, self._end_t,
+             self._blend_offset, self._blend_s, self._sole_targets, self._com_target) = saved
+
+    def with_params(self, **changes) -> ExecutorParams:
+        """A copy of the current parameters with ``changes`` (for ``start(..., params=)``)."""
+        return replace(self.params, **changes)
+
+
+__all__ = ["ExecutorParams", "StepMetrics", "StepResult", "WholeBodyExecutor", "HAND_FRAMES"]

@@ -1,0 +1,344 @@
+"""Execution messages <-> numpy: the ``reach_executor``'s side of ``io/msgs.py``.
+
+* :func:`reference_from_trajectory` validates a ``trajectory_msgs/JointTrajectory`` (from
+  ``/reach_trajectory`` or an ``ExecuteReach`` goal) and turns it into the executor's
+  reference: the 30 joints in model order as a clamped cubic ``SplineTrajectory``
+  (``planning/trajectory.py``) through the points at their ``time_from_start``, shifted so
+  that the first point is at ``t = 0``. Simplification: the paper's executor evaluates the
+  planner's spline itself; here the reference is rebuilt from the transmitted samples
+  (every ``output_period_s``, 50 ms), so between samples it differs from the planner's
+  spline by the interpolation error of a cubic through its samples. Every defect is an
+  :class:`ExecInputError` whose message says what is wrong (empty or single point, unknown
+  / missing / duplicate joints, point sizes, NaN/inf, times not strictly increasing,
+  positions outside the joint limits).
+* :func:`arm_motion` / :func:`resolve_arm`: which arm a trajectory moves (its hand is the
+  task of level 3), and the check that a requested arm is the one the trajectory moves.
+* :func:`model_joints`: the 30 measured joints of a ``/joint_states`` message in model order
+  (the same rules as ``reach_planner``'s start posture).
+* :func:`executor_metrics` / :func:`execute_feedback` fill ``ExecutorMetrics`` and the
+  ``ExecuteReach`` feedback from the executor's ``StepMetrics`` (or a
+  :class:`DualArmMetrics`, the same fields for a step of the dual-arm controller).
+* :func:`hand_target` / :func:`goal_hand_targets` / :func:`array_hand_targets` validate the
+  two hand targets of a ``MODE_DUAL_ARM`` goal (``PoseStamped`` each) or of a
+  ``/dual_arm/targets`` ``geometry_msgs/PoseArray`` (exactly 2 poses, right then left):
+  frame ``world`` or ``base_link`` (explicit), finite values, unit quaternion;
+  :func:`targets_in_world` maps base_link targets through the waist pose.
+
+Imports message types only (never ``rclpy.node``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Pose, PoseArray, PoseStamped
+from humanoid_reach_interfaces.action import ExecuteReach
+from humanoid_reach_interfaces.msg import ExecutorMetrics
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectory
+
+from humanoid_reach_ros.io import msgs
+from humanoid_reach_ros.planning.trajectory import SplineTrajectory
+from humanoid_reach_ros.robot.model import RobotModel
+
+ARM_AUTO, ARM_RIGHT, ARM_LEFT = 0, 1, 2        # PlanReach.Request ARM_* (ExecuteReach.arm uses them)
+ARM_NAMES = {ARM_RIGHT: "right", ARM_LEFT: "left"}
+HAND_LIMBS = {"right": "right_arm", "left": "left_arm"}
+# A requested arm whose joints travel less than this fraction of the other arm's, while the other
+# arm's travel more than WRONG_ARM_MIN_TRAVEL_RAD, is the wrong arm for the trajectory.
+WRONG_ARM_RATIO = 0.1
+WRONG_ARM_MIN_TRAVEL_RAD = 0.05
+
+
+class ExecInputError(ValueError):
+    """An execution input that cannot be executed; ``code`` is an ``ExecuteReach.Result`` code."""
+
+    def __init__(self, code: int, message: str) -> None:
+        super().__init__(message)
+        self.code = int(code)
+
+
+@dataclass(frozen=True, eq=False)
+class Reference:
+    """A validated trajectory: model-order ``positions`` (K, 30) at ``times`` (K,) from 0,
+    the clamped cubic spline through them, and the input's original first time [s]."""
+
+    times: np.ndarray
+    positions: np.ndarray
+    spline: SplineTrajectory
+    time_offset_s: float
+
+    @property
+    def duration(self) -> float:
+        return float(self.times[-1])
+
+
+def reference_from_trajectory(msg: JointTrajectory, robot: RobotModel, limit_tol_rad: float = 1e-6,
+                              what: str = "trajectory") -> Reference:
+    """Validate ``msg`` and build the executor reference (see the module docstring).
+
+    Raises :class:`ExecInputError` (``INVALID_GOAL``) with a message naming the defect.
+    Velocities / accelerations, when present, are checked for NaN/inf but not used: the
+    spline through the positions is the reference (clamped: at rest at both ends).
+    """
+    bad = ExecuteReach.Result.INVALID_GOAL
+    names = list(msg.joint_names)
+    if not msg.points:
+        raise ExecInputError(bad, f"{what} is empty (no points)")
+    if len(msg.points) < 2:
+        raise ExecInputError(bad, f"{what} has a single point; a reference needs at least 2 points")
+    if len(set(names)) != len(names):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise ExecInputError(bad, f"{what} has duplicate joint names: {', '.join(dup)}")
+    unknown = [n for n in names if n not in robot.joint_index]
+    if unknown:
+        raise ExecInputError(bad, f"{what} has unknown joint(s): {', '.join(unknown)}")
+    missing = [n for n in robot.joint_names if n not in set(names)]
+    if missing:
+        raise ExecInputError(bad, f"{what} lacks {len(missing)} of the {robot.n_joints} robot joints "
+                                  f"(all are required): {', '.join(missing)}")
+    try:
+        arrays = msgs.parse_joint_trajectory(msg)
+    except ValueError as exc:
+        raise ExecInputError(bad, f"{what}: {exc}") from None
+    t = arrays.times
+    for field, a in (("time_from_start", t), ("positions", arrays.positions), ("velocities", arrays.velocities),
+                     ("accelerations", arrays.accelerations)):
+        if a is not None and not np.all(np.isfinite(a)):
+            raise ExecInputError(bad, f"{what} has NaN/inf in {field}")
+    if t[0] < 0.0:
+        raise ExecInputError(bad, f"{what} starts at a negative time_from_start ({t[0]:g} s)")
+    steps = np.diff(t)
+    if np.any(steps <= 0.0):
+        i = int(np.argmax(steps <= 0.0))
+        raise ExecInputError(bad, f"{what} times are not strictly increasing: point {i + 1} at {t[i + 1]:g} s "
+                                  f"follows point {i} at {t[i]:g} s")
+    order = np.array([names.index(n) for n in robot.joint_names])
+    pos = arrays.positions[:, order]
+    low = pos < robot.lower - limit_tol_rad
+    high = pos > robot.upper + limit_tol_rad
+    if np.any(low | high):
+        j = int(np.argmax(np.any(low | high, axis=0)))
+        k = int(np.argmax(low[:, j] | high[:, j]))
+        raise ExecInputError(bad, f"{what} leaves the joint limits: {robot.joint_names[j]} = {pos[k, j]:.4f} rad "
+                                  f"at point {k} (limits [{robot.lower[j]:.4f}, {robot.upper[j]:.4f}])")
+    pos = np.clip(pos, robot.lower, robot.upper)
+    times = t - t[0]
+    return Reference(times, pos, SplineTrajectory(pos, times), float(t[0]))
+
+
+@dataclass(frozen=True)
+class ArmMotion:
+    """How much one arm moves along a trajectory: the summed |delta q| of its joints [rad]
+    and the length of its hand's path [m] (standing on the feet)."""
+
+    joint_travel_rad: float
+    hand_travel_m: float
+
+
+def arm_motion(robot: RobotModel, positions: np.ndarray, samples: int = 12) -> dict[str, ArmMotion]:
+    """:class:`ArmMotion` of the right and left arm over ``positions`` (K, 30); the hand
+    path is measured at up to ``samples`` evenly spaced points."""
+    P = np.asarray(positions, dtype=float)
+    idx = np.unique(np.linspace(0, len(P) - 1, min(len(P), samples)).round().astype(int))
+    out = {}
+    for arm, limb in HAND_LIMBS.items():
+        spec = robot.limbs[limb]
+        joint = float(np.abs(np.diff(P[:, list(spec.joint_index)], axis=0)).sum())
+        pts = np.array([robot.frame_pose(robot.config(j, robot.base_on_feet(j)), spec.tip).translation
+                        for j in P[idx]])
+        out[arm] = ArmMotion(joint, float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum()))
+    return out
+
+
+def resolve_arm(code: int, motion: dict[str, ArmMotion]) -> str:
+    """The executor arm ('right' | 'left') of an ``ExecuteReach.arm`` code given each arm's
+    motion (:func:`arm_motion`). 0 = the arm whose joints move more (the planner moves only
+    the reaching arm; a tie, e.g. a trunk-only motion, goes to the hand that travels further).
+    1 / 2 = right / left, refused as the wrong arm when that arm's joints stay (almost) still
+    while the other arm's joints move (less than ``WRONG_ARM_RATIO`` of its travel, which
+    exceeds ``WRONG_ARM_MIN_TRAVEL_RAD``)."""
+    bad = ExecuteReach.Result.INVALID_GOAL
+    if code == ARM_AUTO:
+        return max(("right", "left"), key=lambda a: (round(motion[a].joint_travel_rad, 6), motion[a].hand_travel_m))
+    if code not in ARM_NAMES:
+        raise ExecInputError(bad, f"arm {code} is unknown; use 0 (from the trajectory), 1 (right) or 2 (left)")
+    arm = ARM_NAMES[code]
+    other = "left" if arm == "right" else "right"
+    mine, theirs = motion[arm].joint_travel_rad, motion[other].joint_travel_rad
+    if theirs > WRONG_ARM_MIN_TRAVEL_RAD and mine < WRONG_ARM_RATIO * theirs:
+        raise ExecInputError(bad, f"wrong arm: the trajectory moves the {other} arm's joints ({theirs:.2f} rad in "
+                                  f"all) while the requested {arm} arm's move {mine:.2f} rad")
+    return arm
+
+
+def model_joints(msg: JointState, robot: RobotModel) -> tuple[np.ndarray | None, str]:
+    """The 30 joint angles of a ``sensor_msgs/JointState`` in model order, or ``None`` and
+    why not (mismatched arrays, unknown joint, a robot joint missing or NaN/inf)."""
+    js = msgs.parse_joint_state(msg)
+    if len(js.names) != len(js.positions):
+        return None, "/joint_states has mismatched name/position arrays"
+    try:
+        joints = robot.joints_from_dict(dict(zip(js.names, js.positions)), np.full(robot.n_joints, np.nan))
+    except KeyError as exc:
+        return None, f"/joint_states: {exc}"
+    if not np.all(np.isfinite(joints)):
+        missing = [n for n, v in zip(robot.joint_names, joints) if not math.isfinite(v)]
+        return None, f"/joint_states lacks (or has NaN for) {len(missing)} joint(s), e.g. {missing[0]}"
+    return joints, ""
+
+
+# ---------------------------------------------------------------- metrics and feedback
+def _finite_or(v: float, default: float) -> float:
+    return float(v) if math.isfinite(v) else default
+
+
+def executor_metrics(m, overruns: int, stamp: Time | None = None, frame_id: str = "world",
+                     slack_tol: float = 1e-6) -> ExecutorMetrics:
+    """``ExecutorMetrics`` of one executor step (``StepMetrics`` ``m``).
+
+    ``active_levels`` lists the priority levels (1..n) solved exactly: those whose
+    least-squares slack is at most ``slack_tol`` (all ``m.active_levels`` levels when the
+    step reports no slacks). A minimum distance of ``inf`` (no map) is sent as ``inf``.
+    """
+    out = ExecutorMetrics(header=msgs.header(frame_id, stamp))
+    out.time_from_start_s = float(m.t)
+    out.progress = float(min(max(m.progress, 0.0), 1.0))
+    out.step_time_s = float(m.solve_time_s)
+    out.distance_query_time_s = float(m.distance_time_s)
+    out.ik_time_s = float(m.ik_time_s)
+    out.overruns = int(overruns)
+    out.spheres_in_bound = int(m.spheres_in_bound)
+    out.active_constraints = int(m.active_constraints)
+    slack = tuple(m.level_slack)
+    if slack:
+        levels = [i + 1 for i, s in enumerate(slack[:int(m.active_levels)] or slack) if abs(s) <= slack_tol]
+    else:
+        levels = list(range(1, int(m.active_levels) + 1))
+    out.active_levels = bytes(levels)
+    out.com_error_m = float(m.com_error_m)
+    out.min_distance_m = float(m.min_distance_m)
+    out.hand_error_m = float(m.hand_error_m)
+    out.hand_error_rad = float(m.hand_error_rad)
+    return out
+
+
+def execute_feedback(m) -> ExecuteReach.Feedback:
+    """``ExecuteReach`` feedback from a ``StepMetrics``."""
+    return ExecuteReach.Feedback(progress=float(min(max(m.progress, 0.0), 1.0)), time_from_start_s=float(m.t),
+                                 min_distance_m=float(m.min_distance_m), com_error_m=float(m.com_error_m),
+                                 hand_error_m=float(m.hand_error_m))
+
+
+def result_message(code: int, message: str, summary: dict[str, float] | None = None) -> ExecuteReach.Result:
+    """``ExecuteReach.Result`` with ``code``/``message`` and the figures of ``summary``
+    (keys: the result's float/int fields; missing ones stay 0)."""
+    r = ExecuteReach.Result(success=code == ExecuteReach.Result.SUCCESS, error_code=int(code), message=message)
+    for key, value in (summary or {}).items():
+        if key in ("steps", "overruns"):
+            setattr(r, key, int(value))
+        else:
+            setattr(r, key, float(value))
+    return r
+
+
+def result_names() -> dict[int, str]:
+    """``ExecuteReach.Result`` code -> constant name."""
+    R = ExecuteReach.Result
+    return {getattr(R, n): n for n in dir(R)
+            if n.isupper() and not n.startswith("_") and isinstance(getattr(R, n), int)}
+
+
+
+# ---------------------------------------------------------------- dual-arm targets
+TARGET_FRAMES = ("world", "base_link")     # explicit: an empty header is a goal whose targets were never set
+
+
+@dataclass(frozen=True, eq=False)
+class HandTarget:
+    """One validated hand target: its pose in ``frame`` ('world' or 'base_link')."""
+
+    frame: str
+    pose: pin.SE3
+
+
+def hand_target(pose: Pose, frame_id: str, what: str) -> HandTarget:
+    """Validate one hand target: frame 'world' or 'base_link' (explicit: "" is refused, an
+    unset header means the targets were never filled in), finite position and
+    orientation, unit quaternion (|norm - 1| <= 1e-3, then normalised). ``ExecInputError``
+    (``INVALID_GOAL``) naming ``what`` and the defect otherwise."""
+    bad = ExecuteReach.Result.INVALID_GOAL
+    if frame_id not in TARGET_FRAMES:
+        raise ExecInputError(bad, f"{what} frame_id {frame_id!r} is unknown; use 'world' or 'base_link'")
+    try:
+        se3 = msgs.se3_from_pose(pose)
+    except ValueError as exc:
+        msg = str(exc).replace("non-finite values", "NaN/inf values")
+        raise ExecInputError(bad, f"{what}: {msg}") from None
+    return HandTarget(frame_id, se3)
+
+
+def goal_hand_targets(right: PoseStamped, left: PoseStamped) -> tuple[HandTarget, HandTarget]:
+    """The (right, left) targets of a ``MODE_DUAL_ARM`` goal (see :func:`hand_target`)."""
+    return (hand_target(right.pose, right.header.frame_id, "right_hand_target"),
+            hand_target(left.pose, left.header.frame_id, "left_hand_target"))
+
+
+def array_hand_targets(msg: PoseArray) -> tuple[HandTarget, HandTarget]:
+    """The (right, left) targets of a ``/dual_arm/targets`` ``PoseArray``: exactly 2 poses,
+    right then left, both in ``msg.header.frame_id``."""
+    if len(msg.poses) != 2:
+        raise ExecInputError(ExecuteReach.Result.INVALID_GOAL,
+                             f"PoseArray has {len(msg.poses)} poses; exactly 2 are required (right hand, left hand)")
+    frame = msg.header.frame_id
+    return (hand_target(msg.poses[0], frame, "poses[0] (right hand)"),
+            hand_target(msg.poses[1], frame, "poses[1] (left hand)"))
+
+
+def needs_waist(targets: tuple[HandTarget, ...]) -> bool:
+    return any(t.frame == "base_link" for t in targets)
+
+
+def targets_in_world(targets: tuple[HandTarget, HandTarget], waist: pin.SE3 | None) -> tuple[pin.SE3, pin.SE3]:
+    """World poses of the targets; ``waist`` = the waist pose in world (``base_on_feet`` of
+    the measured joints) for base_link targets (``NO_JOINT_STATES`` when it is missing)."""
+    out = []
+    for t in targets:
+        if t.frame == "base_link":
+            if waist is None:
+                raise ExecInputError(ExecuteReach.Result.NO_JOINT_STATES,
+                                     "a base_link hand target needs a recent /joint_states to place the waist")
+            out.append(waist * t.pose)
+        else:
+            out.append(t.pose)
+    return out[0], out[1]
+
+
+@dataclass(frozen=True)
+class DualArmMetrics:
+    """One step of the dual-arm controller in the fields :func:`executor_metrics` and
+    :func:`execute_feedback` read (the whole-body executor's ``StepMetrics`` names).
+
+    ``com_error_m``: horizontal distance of the commanded CoM from the controller's CoM
+    reference of that step (the interpolation towards the eq. 6 target);
+    ``hand_error_m`` / ``hand_error_rad``: the larger of the two hands' position /
+    orientation errors w.r.t. the step's interpolated hand references; no environment
+    (``min_distance_m = inf``, no spheres, no levels: the controller has no collision
+    avoidance)."""
+
+    t: float
+    progress: float
+    solve_time_s: float
+    com_error_m: float
+    hand_error_m: float
+    hand_error_rad: float
+    ik_time_s: float = 0.0
+    distance_time_s: float = 0.0
+    spheres_in_bound: int = 0
+    active_constraints: int = 0
+    active_levels: int = 0
+    level_slack: tuple[float, ...] = ()
+    min_distance_m: float = math.inf

@@ -1,0 +1,490 @@
+"""``reach_operator``: the operator's command line (client of ``/plan_reach`` and ``/execute_reach``).
+
+Plans a reaching motion to a Workspace Goal Region (Kanehiro et al. eq. 3: the hand pose
+``T_target * Trans(dx, dy, dz) * RPY(droll, dpitch, dyaw)`` with the offsets in
+``[lower, upper]``) around either the AR marker's ``/target_pose`` (``--marker``, the
+default: ``PlanReach.use_marker_target``) or a pose given on the command line
+(``--target x y z [--rpy r p y] [--frame world|base_link]``), and with ``--execute`` sends
+the returned trajectory as an ``/execute_reach`` action goal, drawing a progress bar from
+its feedback (Ctrl-C cancels the goal and waits for the executor to hold the robot).
+
+The region bounds default to the valve WGR of eq. 3 (``planning.wgr.valve_region``:
+position fixed at the target, roll and pitch in [-pi/2, pi/2], yaw free); ``--wgr`` gives
+6 lower + 6 upper bounds (x y z [m], roll pitch yaw [rad]).
+
+Usage::
+
+    python -m humanoid_reach_ros.nodes.reach_operator --target 0.71 0.03 0.90 --execute
+    python -m humanoid_reach_ros.nodes.reach_operator --marker --arm left --json
+
+Every ``PlanReach`` error code and every ``ExecuteReach`` result code is printed by name
+with the server's message and a hint (``PLAN_HINTS``, ``EXECUTE_HINTS``). Exit codes by
+failure class (``EXIT``): 0 success; 1 internal error of a node; 2 bad command line
+(argparse); 3 a server is not available or did not answer within ``--timeout``; 4 the
+request was refused as invalid; 5 no motion exists (out of reach, start in collision, no
+path, timed out); 6 the planner lacks an input or is busy (no map, no marker target, no
+joint states, busy); 7 execution failed (goal rejected, invalid, aborted, preempted);
+130 canceled with Ctrl-C. ``--json`` prints one JSON object (the plan, the execution and
+the exit code) as the only line on stdout; messages and progress then go to stderr.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, TextIO
+
+import numpy as np
+
+EXIT = {"success": 0, "internal": 1, "usage": 2, "unavailable": 3, "invalid": 4, "no_motion": 5,
+        "no_input": 6, "execution": 7, "canceled": 130}
+
+ARMS = {"auto": 0, "right": 1, "left": 2}  # PlanReach.Request.ARM_*
+ARM_LABELS = {0: "auto", 1: "right", 2: "left"}
+
+# PlanReach.Response codes: (name, exit class, hint). Names are checked against the
+# generated constants by the tests.
+PLAN_CODES: dict[int, tuple[str, str, str]] = {
+    0: ("SUCCESS", "success", "planned"),
+    1: ("INVALID_REQUEST", "invalid", "a NaN/inf value, or an unknown arm or planner: check the arguments"),
+    2: ("INVALID_BOUNDS", "invalid", "WGR lower > upper, or rotation bounds outside [-pi, pi]: check --wgr"),
+    3: ("UNKNOWN_FRAME", "invalid", "the target frame is not known to the planner: use --frame world or base_link"),
+    4: ("TARGET_OUT_OF_REACH", "no_motion", "no balanced, collision-free goal posture: move the target closer, "
+        "widen the WGR (--wgr) or try the other arm (--arm)"),
+    5: ("START_IN_COLLISION", "no_motion", "the robot's current posture collides with the map: check /voxel_map "
+        "or move the robot"),
+    6: ("NO_MAP", "no_input", "the planner has no environment model: start voxel_mapper (or give reach_planner "
+        "a scene_file)"),
+    7: ("TIMED_OUT", "no_motion", "the time budget ran out: raise --budget"),
+    8: ("NO_PATH", "no_motion", "goal postures were found but no path to them: raise --budget or --goals"),
+    9: ("NO_TARGET", "no_input", "no recent /target_pose from the marker: is marker_localizer running and the "
+        "marker in view? Or give --target"),
+    10: ("NO_JOINT_STATES", "no_input", "no recent /joint_states: is joint_driver running?"),
+    11: ("BUSY", "no_input", "another request is being planned: try again"),
+    99: ("INTERNAL_ERROR", "internal", "the planner failed internally: see its log"),
+}
+
+# ExecuteReach.Result codes
+EXECUTE_CODES: dict[int, tuple[str, str, str]] = {
+    0: ("SUCCESS", "success", "executed"),
+    1: ("INVALID_GOAL", "execution", "the executor refused the trajectory or targets"),
+    2: ("NO_JOINT_STATES", "execution", "the executor has no current /joint_states: is joint_driver running?"),
+    3: ("PREEMPTED", "execution", "replaced by a newer goal or /reach_trajectory"),
+    4: ("CANCELED", "canceled", "the executor holds the robot at the last command"),
+    5: ("ABORTED", "execution", "the executor stopped the motion and holds the robot (e.g. stale joint states)"),
+}
+
+
+def code_text(codes: dict[int, tuple[str, str, str]], code: int, message: str) -> str:
+    """``NAME (code): server message -- hint``."""
+    name, _, hint = codes.get(code, (f"UNKNOWN_CODE_{code}", "internal", "a code this client does not know"))
+    text = f"{name} ({code})"
+    if message:
+        text += f": {message}"
+    return text if code == 0 else f"{text} -- {hint}"
+
+
+def exit_class(codes: dict[int, tuple[str, str, str]], code: int) -> int:
+    return EXIT[codes.get(code, ("", "internal", ""))[1]]
+
+
+# ---------------------------------------------------------------- progress
+@dataclass(frozen=True)
+class Progress:
+    """One ``ExecuteReach`` feedback in the operator's terms."""
+
+    progress: float
+    time_from_start_s: float
+    min_distance_m: float
+    com_error_m: float
+    hand_error_m: float
+
+    @classmethod
+    def from_feedback(cls, fb: Any) -> "Progress":
+        return cls(float(fb.progress), float(fb.time_from_start_s), float(fb.min_distance_m),
+                   float(fb.com_error_m), float(fb.hand_error_m))
+
+
+def progress_bar(p: Progress, width: int = 30) -> str:
+    """``[##########..........]  50%  t 1.20 s  min dist 52.0 mm  COG 0.30 mm  hand 12.0 mm``;
+    progress outside [0, 1] or NaN is clamped (a bar never overflows)."""
+    frac = p.progress if math.isfinite(p.progress) else 0.0
+    frac = min(1.0, max(0.0, frac))
+    filled = int(round(frac * width))
+
+    def mm(v: float) -> str:
+        return f"{v * 1e3:.1f} mm" if math.isfinite(v) else "-"
+
+    return (f"[{'#' * filled}{'.' * (width - filled)}] {frac * 100:3.0f}%  t {p.time_from_start_s:5.2f} s  "
+            f"min dist {mm(p.min_distance_m)}  COG {mm(p.com_error_m)}  hand {mm(p.hand_error_m)}")
+
+
+class ProgressPrinter:
+    """Draws the bar in place on a terminal (carriage return); elsewhere (logs, pipes) one
+    line per ``step`` of progress so that a log stays short."""
+
+    def __init__(self, out: TextIO, step: float = 0.1) -> None:
+        self.out, self.step = out, step
+        self.tty = bool(getattr(out, "isatty", lambda: False)())
+        self.next_level = 0  # the next multiple of ``step`` that gets a line
+        self.drawn = False
+
+    def update(self, p: Progress) -> None:
+        if self.tty:
+            self.out.write("\r" + progress_bar(p))
+            self.drawn = True
+        else:
+            frac = min(1.0, max(0.0, p.progress)) if math.isfinite(p.progress) else 0.0
+            level = math.floor(frac / self.step + 1e-9)
+            if level >= self.next_level:
+                self.out.write(progress_bar(p) + "\n")
+                self.next_level = level + 1
+        self.out.flush()
+
+    def close(self) -> None:
+        if self.tty and self.drawn:
+            self.out.write("\n")
+            self.out.flush()
+        self.drawn = False
+
+
+# ---------------------------------------------------------------- command line
+def _finite(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return v
+
+
+def _positive(text: str) -> float:
+    v = _finite(text)
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be > 0")
+    return v
+
+
+def _int_in(lo: int, hi: int, hi_text: str) -> Callable[[str], int]:
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"{text!r} must be in {lo}..{hi_text}")
+        return v
+    return parse
+
+
+_count = _int_in(1, 2**32 - 1, "4294967295")
+_seed = _int_in(0, 2**63 - 1, "2^63-1")
+
+
+def planner_names() -> list[str]:
+    from humanoid_reach_ros.io.msgs import PLANNERS
+    return list(PLANNERS)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="reach_operator",
+        description="Plan (and with --execute, execute) a whole-body reaching motion to the AR marker or a "
+                    "given pose through /plan_reach and /execute_reach.",
+        epilog="Exit codes: 0 success, 1 internal error, 2 bad arguments, 3 server unavailable / no answer, "
+               "4 invalid request, 5 no motion found, 6 planner input missing or busy, 7 execution failed, "
+               "130 canceled.")
+    tgt = p.add_mutually_exclusive_group()
+    tgt.add_argument("--marker", action="store_true", help="reach the AR marker's /target_pose (default)")
+    tgt.add_argument("--target", nargs=3, type=_finite, metavar=("X", "Y", "Z"), help="target position [m]")
+    p.add_argument("--rpy", nargs=3, type=_finite, metavar=("R", "P", "Y"),
+                   help="target orientation, fixed-axis roll pitch yaw [rad] (with --target; default 0 0 0)")
+    p.add_argument("--frame", choices=("world", "base_link"), help="frame of --target (default world)")
+    p.add_argument("--arm", choices=tuple(ARMS), default="auto", help="arm to reach with (default auto: right, "
+                   "then left)")
+    p.add_argument("--planner", choices=planner_names(), help="path planner (default: the node's)")
+    p.add_argument("--goals", type=_count, help="goal postures to sample (default: the node's)")
+    p.add_argument("--budget", type=_positive, help="planning time budget [s] (default: the node's)")
+    p.add_argument("--seed", type=_seed, help="random seed (default: the node's)")
+    p.add_argument("--wgr", nargs=12, type=_finite, metavar="B",
+                   help="region bounds: 6 lower then 6 upper (x y z [m] roll pitch yaw [rad]); default the valve "
+                        "WGR of eq. 3: 0 0 0 -pi/2 -pi/2 -pi  0 0 0 pi/2 pi/2 pi")
+    p.add_argument("--execute", action="store_true", help="execute the plan through /execute_reach")
+    p.add_argument("--no-collision-avoidance", action="store_true", help="execute without velocity dampers")
+    p.add_argument("--no-com-compensation", action="store_true", help="execute without the exact-COG task")
+    p.add_argument("--smooth-reshaping", action="store_true", help="reshape colliding segments before executing")
+    p.add_argument("--timeout", type=_positive, default=60.0,
+                   help="wait at most this long [s] for each server and for the plan (default 60)")
+    p.add_argument("--json", action="store_true", help="print a machine-readable JSON summary on stdout")
+    return p
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    p = build_parser()
+    a = p.parse_args(argv)
+    if a.target is None and (a.rpy is not None or a.frame is not None):
+        p.error("--rpy and --frame need --target (the marker's pose comes with its own frame)")
+    if a.target is None:
+        a.marker = True
+    if not a.execute and (a.no_collision_avoidance or a.no_com_compensation or a.smooth_reshaping):
+        p.error("--no-collision-avoidance, --no-com-compensation and --smooth-reshaping need --execute")
+    return a
+
+
+def region_bounds(wgr: list[float] | None) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) of the WGR: ``--wgr`` or the valve WGR of eq. 3."""
+    if wgr is None:
+        from humanoid_reach_ros.planning.wgr import valve_region
+        v = valve_region()
+        return np.asarray(v.lower, float), np.asarray(v.upper, float)
+    return np.asarray(wgr[:6], float), np.asarray(wgr[6:], float)
+
+
+def plan_request(args: argparse.Namespace) -> Any:
+    """The ``PlanReach`` request of the command line (not validated beyond argparse: the
+    planner answers bad bounds with ``INVALID_BOUNDS``)."""
+    import pinocchio as pin
+
+    from humanoid_reach_interfaces.srv import PlanReach
+    from humanoid_reach_ros.io import msgs
+    from humanoid_reach_ros.planning.wgr import rpy_matrix
+
+    req = PlanReach.Request(arm=ARMS[args.arm], goal_count=args.goals or 0, planner=args.planner or "",
+                            time_budget_s=float(args.budget or 0.0), use_marker_target=bool(args.marker),
+                            execute=False, seed=-1 if args.seed is None else args.seed)
+    if args.target is not None:
+        R = rpy_matrix(np.asarray(args.rpy or (0.0, 0.0, 0.0), float))
+        req.region.target = msgs.pose_stamped(pin.SE3(R, np.asarray(args.target, float)), args.frame or "world")
+    lower, upper = region_bounds(args.wgr)
+    req.region.lower, req.region.upper = lower, upper
+    return req
+
+
+# ---------------------------------------------------------------- the client
+class Canceled(Exception):
+    pass
+
+
+class Operator:
+    """The rclpy side: one node, service + action clients, waits that honour Ctrl-C."""
+
+    def __init__(self, timeout_s: float, err: TextIO) -> None:
+        import rclpy
+        from rclpy.action import ActionClient
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.signals import SignalHandlerOptions
+
+        from humanoid_reach_interfaces.action import ExecuteReach
+        from humanoid_reach_interfaces.srv import PlanReach
+
+        self.rclpy = rclpy
+        self.timeout_s = timeout_s
+        self.err = err
+        self.interrupted = False
+        rclpy.init(args=sys.argv, signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node(f"reach_operator_{int(time.time() * 1e3) % 10**9}")
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(self.node)
+        self.plan_client = self.node.create_client(PlanReach, "/plan_reach")
+        self.exec_client = ActionClient(self.node, ExecuteReach, "/execute_reach")
+        self.ExecuteReach = ExecuteReach
+
+    def close(self) -> None:
+        self.exec_client.destroy()
+        self.node.destroy_node()
+        self.rclpy.try_shutdown()
+
+    def spin_until(self, done: Callable[[], bool], timeout_s: float | None, cancelable: bool = True) -> bool:
+        """Spin until ``done()``; False on timeout; ``Canceled`` on Ctrl-C when ``cancelable``."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while not done():
+            if cancelable and self.interrupted:
+                raise Canceled()
+            if deadline is not None and time.monotonic() > deadline:
+                return False
+            self.executor.spin_once(timeout_sec=0.02)
+        return True
+
+    def plan(self, req: Any) -> Any | None:
+        """The response, or None if the service is missing / does not answer."""
+        if not self.spin_until(self.plan_client.service_is_ready, self.timeout_s):
+            self.err.write(f"reach_operator: /plan_reach not available after {self.timeout_s:g} s: is reach_planner "
+                           "running (same ROS_DOMAIN_ID)?\n")
+            return None
+        future = self.plan_client.call_async(req)
+        budget = float(req.time_budget_s)
+        if not self.spin_until(future.done, self.timeout_s + budget):
+            self.err.write(f"reach_operator: no /plan_reach response within {self.timeout_s + budget:g} s\n")
+            return None
+        return future.result()
+
+    def execute(self, trajectory: Any, arm: int, args: argparse.Namespace,
+                on_feedback: Callable[[Progress], None]) -> tuple[str, Any]:
+        """("done", result) | ("unavailable" | "rejected" | "timeout", None) | ("canceled", result or None)."""
+        if not self.spin_until(self.exec_client.server_is_ready, self.timeout_s):
+            self.err.write(f"reach_operator: /execute_reach not available after {self.timeout_s:g} s: is "
+                           "reach_executor running?\n")
+            return "unavailable", None
+        goal = self.ExecuteReach.Goal(mode=self.ExecuteReach.Goal.MODE_TRAJECTORY, trajectory=trajectory, arm=arm,
+                                      disable_collision_avoidance=args.no_collision_avoidance,
+                                      disable_com_compensation=args.no_com_compensation,
+                                      smooth_reshaping=args.smooth_reshaping)
+        send = self.exec_client.send_goal_async(goal, feedback_callback=lambda m: on_feedback(
+            Progress.from_feedback(m.feedback)))
+        try:
+            if not self.spin_until(send.done, self.timeout_s):
+                return "timeout", None
+            handle = send.result()
+            if not handle.accepted:
+                return "rejected", None
+            result_future = handle.get_result_async()
+            pts = trajectory.points
+            duration = pts[-1].time_from_start.sec + pts[-1].time_from_start.nanosec * 1e-9 if pts else 0.0
+            if not self.spin_until(result_future.done, duration + self.timeout_s):
+                return "timeout", None
+            return "done", result_future.result().result
+        except Canceled:
+            handle = send.result() if send.done() else None
+            if handle is None or not handle.accepted:
+                return "canceled", None
+            self.err.write("\nreach_operator: Ctrl-C: canceling the goal ...\n")
+            cancel = handle.cancel_goal_async()
+            self.spin_until(cancel.done, self.timeout_s, cancelable=False)
+            result_future = handle.get_result_async()
+            self.spin_until(result_future.done, self.timeout_s, cancelable=False)
+            return "canceled", result_future.result().result if result_future.done() else None
+
+
+def trajectory_summary(traj: Any) -> dict[str, Any]:
+    pts = traj.points
+    end = pts[-1].time_from_start.sec + pts[-1].time_from_start.nanosec * 1e-9 if pts else 0.0
+    return {"points": len(pts), "duration_s": end, "joints": len(traj.joint_names)}
+
+
+def plan_summary(resp: Any) -> dict[str, Any]:
+    from humanoid_reach_ros.io.msgs import statistics_dict
+
+    name = PLAN_CODES.get(resp.error_code, (f"UNKNOWN_CODE_{resp.error_code}",))[0]
+    return {"success": bool(resp.success), "error_code": int(resp.error_code), "error_name": name,
+            "message": resp.message, "arm": ARM_LABELS.get(resp.arm, str(resp.arm)),
+            "trajectory": trajectory_summary(resp.trajectory), "statistics": statistics_dict(resp.statistics)}
+
+
+RESULT_FIELDS = ("duration_s", "steps", "overruns", "max_com_error_m", "min_distance_m", "final_hand_error_m",
+                 "final_hand_error_rad")
+
+
+def execution_summary(outcome: str, result: Any) -> dict[str, Any]:
+    out: dict[str, Any] = {"outcome": outcome}
+    if result is not None:
+        name = EXECUTE_CODES.get(result.error_code, (f"UNKNOWN_CODE_{result.error_code}",))[0]
+        out.update({"success": bool(result.success), "error_code": int(result.error_code), "error_name": name,
+                    "message": result.message})
+        out.update({k: getattr(result, k) for k in RESULT_FIELDS})
+        out = {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in out.items()}
+    return out
+
+
+def plan_report(s: dict[str, Any]) -> str:
+    st, tr = s["statistics"], s["trajectory"]
+    return (f"plan: {s['arm']} arm, {tr['points']} points, {tr['duration_s']:.2f} s of motion\n"
+            f"  goal sampling {st['goal_sampling_time_s'] * 1e3:.0f} ms ({st['goals_found']}/{st['goals_requested']}"
+            f" goals), path {st['path_planning_time_s'] * 1e3:.0f} ms ({st['path_waypoints']} waypoints, "
+            f"{st['tree_nodes']} tree nodes), total {st['total_time_s'] * 1e3:.0f} ms\n"
+            f"  {st['collision_checks']} collision checks in {st['collision_time_s'] * 1e3:.0f} ms, "
+            f"map {st['map_voxels']} voxels\n  {s['message']}")
+
+
+def execution_report(e: dict[str, Any]) -> str:
+    def f(k: str, scale: float, unit: str, nd: int) -> str:
+        v = e.get(k)
+        return "-" if v is None else f"{v * scale:.{nd}f} {unit}"
+
+    return (f"execution: {e['duration_s']:.2f} s, {e['steps']} steps ({e['overruns']} overruns); max COG drift "
+            f"{f('max_com_error_m', 1e3, 'mm', 2)}, min distance {f('min_distance_m', 1e3, 'mm', 1)}, final hand "
+            f"error {f('final_hand_error_m', 1e3, 'mm', 1)} / {f('final_hand_error_rad', 1.0, 'rad', 3)}")
+
+
+def run(args: argparse.Namespace, out: TextIO = sys.stdout, err: TextIO = sys.stderr) -> int:
+    text = err if args.json else out  # with --json, stdout holds only the JSON line
+    summary: dict[str, Any] = {"plan": None, "execution": None}
+
+    def finish(code: int) -> int:
+        summary["exit_code"] = code
+        if args.json:
+            out.write(json.dumps(summary) + "\n")
+            out.flush()
+        return code
+
+    req = plan_request(args)
+    op = Operator(args.timeout, err)
+    old = {s: signal.signal(s, lambda *_: setattr(op, "interrupted", True)) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        target = "the marker's /target_pose" if args.marker else \
+            f"({', '.join(f'{v:g}' for v in args.target)}) in {args.frame or 'world'}"
+        text.write(f"planning to {target}, arm {args.arm} ...\n")
+        text.flush()
+        try:
+            resp = op.plan(req)
+        except Canceled:
+            err.write("reach_operator: canceled while planning\n")
+            return finish(EXIT["canceled"])
+        if resp is None:
+            return finish(EXIT["unavailable"])
+        summary["plan"] = plan_summary(resp)
+        if not resp.success or resp.error_code != 0:
+            err.write(f"plan failed: {code_text(PLAN_CODES, resp.error_code, resp.message)}\n")
+            return finish(exit_class(PLAN_CODES, resp.error_code) or EXIT["internal"])
+        text.write(plan_report(summary["plan"]) + "\n")
+        if not args.execute:
+            return finish(EXIT["success"])
+
+        text.write("executing ...\n")
+        printer = ProgressPrinter(text)
+        try:
+            outcome, result = op.execute(resp.trajectory, resp.arm, args, printer.update)
+        finally:
+            printer.close()
+        summary["execution"] = execution_summary(outcome, result)
+        if outcome == "unavailable":
+            return finish(EXIT["unavailable"])
+        if outcome == "timeout":
+            err.write(f"execution: no answer from /execute_reach within the trajectory duration + {args.timeout:g} s\n")
+            return finish(EXIT["unavailable"])
+        if outcome == "rejected":
+            err.write("execution failed: the goal was rejected by /execute_reach\n")
+            return finish(EXIT["execution"])
+        if result is not None:
+            e = summary["execution"]
+            if result.error_code == 0 and result.success:
+                text.write(execution_report(e) + "\n")
+            else:
+                err.write(f"execution {'canceled' if outcome == 'canceled' else 'failed'}: "
+                          f"{code_text(EXECUTE_CODES, result.error_code, result.message)}\n")
+                if result.steps:
+                    err.write(execution_report(e) + "\n")
+        if outcome == "canceled":
+            return finish(EXIT["canceled"])
+        return finish(exit_class(EXECUTE_CODES, result.error_code) if result.success or result.error_code
+                      else EXIT["execution"])
+    finally:
+        op.close()
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from rclpy.utilities import remove_ros_args
+
+    argv = sys.argv if argv is None else argv
+    args = parse_args(remove_ros_args(argv)[1:])
+    return run(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,62 @@
+"""The whole reaching graph: simulated robot and head sensors, mapping, marker localization,
+planning and execution, each node with its parameter file from share/humanoid_reach_ros/config.
+
+    ros2 launch humanoid_reach_ros reach.launch.py
+    ros2 launch humanoid_reach_ros reach.launch.py scene:=/path/to/scene.yaml use_sim_sensors:=false
+
+Arguments:
+    scene              scene file of scene_sim (and of the planner's/executor's map until /voxel_map
+                       arrives); default: the plant of the Kanehiro paper (config/scenes/plant.yaml)
+    use_sim_sensors    start joint_driver and scene_sim (true) or use the real robot's drivers (false)
+
+Then, from another shell, reach the valve the marker shows (see README):
+
+    ros2 service call /plan_reach humanoid_reach_interfaces/srv/PlanReach "{use_marker_target: true, execute: true, ...}"
+    ros2 run humanoid_reach_ros reach_operator --marker --execute
+
+(For ROS 2 installs that have `launch`; here `make demo` starts the same processes.)
+"""
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument
+from launch.conditions import IfCondition
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+PACKAGE = "humanoid_reach_ros"
+# (executable, started only with simulated sensors)
+NODES = [
+    ("joint_driver", True),
+    ("scene_sim", True),
+    ("voxel_mapper", False),
+    ("marker_localizer", False),
+    ("reach_planner", False),
+    ("reach_executor", False),
+]
+
+
+def generate_launch_description() -> LaunchDescription:
+    config = os.path.join(get_package_share_directory(PACKAGE), "config")
+    scene = LaunchConfiguration("scene")
+    sim = LaunchConfiguration("use_sim_sensors")
+    actions = [
+        DeclareLaunchArgument("scene", default_value=os.path.join(config, "scenes", "plant.yaml"),
+                              description="scene file (primitives, valve, marker)"),
+        DeclareLaunchArgument("use_sim_sensors", default_value="true",
+                              description="start the simulated joint driver and head sensors"),
+    ]
+    for exe, sim_only in NODES:
+        params = [os.path.join(config, f"{exe}.yaml")]
+        if exe in ("scene_sim", "reach_planner", "reach_executor"):
+            params.append({"scene_file": scene})
+        actions.append(Node(
+            package=PACKAGE,
+            executable=exe,
+            name=exe,
+            parameters=params,
+            output="screen",
+            condition=IfCondition(sim) if sim_only else None,
+        ))
+    return LaunchDescription(actions)

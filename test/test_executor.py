@@ -1,0 +1,285 @@
+"""Tests of humanoid_reach_ros.control.executor (whole-body 5 ms executor, Kanehiro Sec. IV).
+
+No timing assertions (speed figures come from bench/execution.py)."""
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from humanoid_reach_ros.control.executor import ExecutorParams, StepResult, WholeBodyExecutor
+from humanoid_reach_ros.geometry.sphere_tree import SphereTree
+from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner
+from humanoid_reach_ros.planning.trajectory import SplineTrajectory
+from humanoid_reach_ros.planning.wgr import valve_region
+from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
+from humanoid_reach_ros.robot.shapes import load_collision_model
+from humanoid_reach_ros.sim.scene import load_scene
+
+DT = 0.005
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return RobotModel()
+
+
+@pytest.fixture(scope="module")
+def cm(robot):
+    return load_collision_model(None, robot)
+
+
+@pytest.fixture(scope="module")
+def plant():
+    """Plant scene (2 cm voxels, valve excluded), its sphere tree and the planned right-arm reach."""
+    scene = load_scene("scenes/plant.yaml")
+    voxels = scene.voxelize(0.02, exclude_groups=("valve",))
+    planner = ReachPlanner(params=PlannerParams(time_budget_s=5.0))
+    planner.set_map(voxels)
+    out = planner.plan(planner.robot.half_sitting_joints, PlanRequest(valve_region(scene.target.pose), arm="right",
+                                                                       seed=3))
+    assert out.success, out.message
+    return SphereTree.from_voxels(voxels, 0.02), out.trajectory
+
+
+def _arm_reference(robot, delta: dict[str, float], duration: float = 1.0) -> SplineTrajectory:
+    j0 = robot.half_sitting_joints
+    j1 = j0.copy()
+    for name, d in delta.items():
+        j1[robot.joint_index[name]] += d
+    return SplineTrajectory(np.vstack([j0, j1]), np.array([0.0, duration]))
+
+
+def _run(ex: WholeBodyExecutor, steps: int) -> list[StepResult]:
+    return [ex.step() for _ in range(steps)]
+
+
+def _sole_poses(robot, q):
+    return [robot.frame_pose(q, f) for f in ("r_sole", "l_sole")]
+
+
+# ---------------------------------------------------------------- priorities
+def test_priority_ordering_unreachable_hand(robot, cm):
+    """Hand (level 3) asked far beyond reach: feet and COG (level 2) do not yield, the hand
+    gets as close as it can, joint limits (level 1) hold."""
+    ex = WholeBodyExecutor(robot, cm, ExecutorParams())
+    q0 = robot.half_sitting()
+    ex.start(q0, SplineTrajectory(robot.half_sitting_joints[None], np.zeros(1)), "right")
+    far = ex.reference_hand(robot.half_sitting_joints)
+    target = pin.SE3(far.rotation, far.translation + np.array([1.5, -0.5, 0.3]))
+    ex.reference_hand = lambda joints: target          # conflicting level-3 task
+    soles0 = _sole_poses(robot, q0)
+    com0 = robot.com(q0)[:2]
+    d0 = np.linalg.norm(robot.frame_pose(q0, "r_hand_ee").translation - target.translation)
+    for r in _run(ex, 200):
+        j = r.joints
+        assert np.all(j >= robot.lower) and np.all(j <= robot.upper)
+    q = ex.q
+    for s0, s in zip(soles0, _sole_poses(robot, q)):
+        assert np.linalg.norm(s.translation - s0.translation) < 1e-4
+        assert np.linalg.norm(pin.log3(s0.rotation.T @ s.rotation)) < 1e-4
+    assert np.linalg.norm(robot.com(q)[:2] - com0) < 1e-4
+    d = np.linalg.norm(robot.frame_pose(q, "r_hand_ee").translation - target.translation)
+    assert d < d0 - 0.1                          # it did reach toward the target
+    assert r.metrics.level_slack[1] < 1e-3       # level 2 held (to the fallback tolerance when saturated)
+    assert r.metrics.level_slack[2] > 0.1        # level 3 infeasible, least squares
+
+
+def test_priority_ordering_collision_beats_hand(robot, cm):
+    """A sphere on the straight hand path: level 1 (damper) stops the hand at d_s; level 3 yields."""
+    ex = WholeBodyExecutor(robot, cm, ExecutorParams(security_distance_m=0.01))
+    q0 = robot.half_sitting()
+    hand0 = robot.frame_pose(q0, "r_hand_ee")
+    target = pin.SE3(hand0.rotation, hand0.translation + np.array([0.3, 0.0, 0.0]))
+    # a wall of spheres across the straight path, 15 cm in front of the hand
+    yz = np.mgrid[-0.25:0.25:0.03, -0.25:0.25:0.03].reshape(2, -1).T
+    wall = np.column_stack([np.full(len(yz), 0.15), yz]) + hand0.translation
+    ex.set_environment(SphereTree.build(wall, 0.02))
+    ex.start(q0, SplineTrajectory(robot.half_sitting_joints[None], np.zeros(1)), "right")
+    ex.reference_hand = lambda joints: target
+    dmin = min(r.metrics.min_distance_m for r in _run(ex, 300))
+    assert dmin >= 0.005        # held near d_s (first-order dampers: a few mm of linearisation error)
+    assert ex.step().metrics.hand_error_m > 0.05    # the hand did not get through
+
+
+# ---------------------------------------------------------------- limits
+def test_joint_limits_never_exceeded_when_pushed(robot, cm):
+    """The reference drives several joints beyond their limits: the level-1 rows keep every
+    commanded joint inside [lower, upper] at every step (nothing is clipped afterwards)."""
+    names = ("RARM_JOINT0", "RARM_JOINT3", "CHEST_JOINT1", "LARM_JOINT1")
+    hs = robot.half_sitting_joints
+    j1 = hs.copy()
+    for n in names:
+        i = robot.joint_index[n]
+        j1[i] = robot.upper[i] + 0.5 if n != "RARM_JOINT3" else robot.lower[i] - 0.5
+    ref = SplineTrajectory(np.vstack([hs, j1]), np.array([0.0, 1.0]))
+    ex = WholeBodyExecutor(robot, cm, ExecutorParams())
+    ex.start(robot.half_sitting(), ref, "right")
+    at_limit = set()
+    for r in _run(ex, 300):
+        assert np.all(r.joints >= robot.lower) and np.all(r.joints <= robot.upper)
+        for n in names:
+            i = robot.joint_index[n]
+            if min(r.joints[i] - robot.lower[i], robot.upper[i] - r.joints[i]) < 1e-6:
+                at_limit.add(n)
+    assert len(at_limit) >= 3                   # the run really pushed against the limits
+
+
+def test_velocity_limits_and_no_jump_on_start_from_elsewhere(robot, cm):
+    """start() from a configuration far from the reference's first point: the command
+    moves at most velocity_limit * dt per step (blend + level-1 rows), from q itself."""
+    params = ExecutorParams(velocity_scale=0.5)
+    ex = WholeBodyExecutor(robot, cm, params)
+    hs = robot.half_sitting_joints
+    j_other = hs.copy()
+    for n, d in (("RARM_JOINT0", -0.8), ("RARM_JOINT3", -0.6), ("LARM_JOINT0", -0.4)):
+        j_other[robot.joint_index[n]] += d
+    q_other = robot.config(j_other, robot.base_on_feet(j_other))
+    ref = _arm_reference(robot, {"RARM_JOINT1": -0.3})
+    ex.start(q_other, ref, "right")
+    vmax = robot.velocity_limit * params.velocity_scale * DT + 1e-12
+    prev = q_other[N_BASE_Q:]
+    for r in _run(ex, 300):
+        assert np.all(np.abs(r.joints - prev) <= vmax)
+        prev = r.joints
+    # it converged onto the reference's hand pose
+    assert r.metrics.hand_error_m < 1e-3 and r.done
+
+
+def test_hold_is_smooth_and_stops(robot, cm):
+    params = ExecutorParams()
+    ex = WholeBodyExecutor(robot, cm, params)
+    ref = _arm_reference(robot, {"RARM_JOINT0": -1.0, "RARM_JOINT3": -0.5}, duration=1.0)
+    ex.start(robot.half_sitting(), ref, "right")
+    prev = robot.half_sitting_joints
+    vmax = robot.velocity_limit * DT + 1e-12
+    for r in _run(ex, 100):                     # mid-motion
+        prev = r.joints
+    ex.hold()
+    assert ex.holding and ex.active
+    steps = _run(ex, 200)
+    for r in steps:
+        assert np.all(np.abs(r.joints - prev) <= vmax)
+        assert r.done
+        prev = r.joints
+    assert np.max(np.abs(steps[-1].joints - steps[-2].joints)) < 1e-6     # at rest
+    # hold(q) on a running executor keeps the commanded configuration (no jump)
+    q_far = robot.half_sitting()
+    ex.hold(q_far)
+    r = ex.step()
+    assert np.all(np.abs(r.joints - prev) <= vmax)
+
+
+def test_hold_before_start_needs_q(robot, cm):
+    ex = WholeBodyExecutor(robot, cm)
+    with pytest.raises(ValueError, match="hold"):
+        ex.hold()
+    ex.hold(robot.half_sitting())
+    r = ex.step()
+    assert np.allclose(r.joints, robot.half_sitting_joints, atol=1e-9)
+
+
+# ---------------------------------------------------------------- plant reach
+def test_plant_right_reach_feet_cog_distance(robot, cm, plant):
+    tree, ref = plant
+    ex = WholeBodyExecutor(robot, cm, ExecutorParams())
+    ex.set_environment(tree)
+    j0 = ref.position(0.0)
+    q0 = robot.config(j0, robot.base_on_feet(j0))
+    soles0 = _sole_poses(robot, q0)
+    ex.start(q0, ref, "right")
+    n = int(np.ceil(ref.duration / DT)) + 60
+    results = _run(ex, n)
+    m = [r.metrics for r in results]
+    assert min(x.min_distance_m for x in m) >= 0.0
+    assert min(x.min_distance_m for x in m) >= ExecutorParams().security_distance_m - 2e-3
+    assert max(x.com_error_m for x in m) < 1e-3
+    assert min(x.self_distance_m for x in m) >= 0.0
+    assert max(x.spheres_in_bound for x in m) > 0              # the map matters on this reach
+    for r in results[:: 25] + [results[-1]]:
+        for s0, s in zip(soles0, _sole_poses(robot, r.q)):
+            assert np.linalg.norm(s.translation - s0.translation) < 1e-4
+    assert results[-1].done
+    assert m[-1].hand_error_m < 1e-3 and m[-1].progress == 1.0
+    assert all(len(x.level_slack) == 4 for x in m)
+
+
+def test_without_com_compensation_the_cog_moves(robot, cm):
+    ref = _arm_reference(robot, {"RARM_JOINT0": -1.2, "LARM_JOINT0": -1.2}, duration=1.0)
+    drift = {}
+    for on in (True, False):
+        ex = WholeBodyExecutor(robot, cm, ExecutorParams(com_compensation=on))
+        ex.start(robot.half_sitting(), ref, "right")
+        drift[on] = max(r.metrics.com_error_m for r in _run(ex, 260))
+    assert drift[True] < 1e-4
+    assert drift[False] > 5e-3
+
+
+def test_done_and_metrics_fields(robot, cm):
+    ex = WholeBodyExecutor(robot, cm)
+    ref = _arm_reference(robot, {"RARM_JOINT0": -0.2}, duration=0.2)
+    ex.start(robot.half_sitting(), ref, "right")
+    assert ex.duration == pytest.approx(0.2)
+    results = _run(ex, 100)
+    assert results[0].metrics.t == pytest.approx(DT)
+    assert results[-1].done and not results[0].done
+    assert results[-1].metrics.min_distance_m == np.inf        # no map
+    assert results[-1].metrics.active_levels == 4
+    assert results[-1].q.shape == (robot.model.nq,) and results[-1].joints.shape == (robot.n_joints,)
+
+
+# ---------------------------------------------------------------- bad input
+def test_bad_inputs_raise_clear_errors(robot, cm):
+    ex = WholeBodyExecutor(robot, cm)
+    ref = _arm_reference(robot, {"RARM_JOINT0": -0.2})
+    q = robot.half_sitting()
+    with pytest.raises(ValueError, match="not active"):
+        ex.step()
+    bad = q.copy()
+    bad[10] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        ex.start(bad, ref, "right")
+    with pytest.raises(ValueError, match="37"):
+        ex.start(q[:-1], ref, "right")
+    with pytest.raises(ValueError, match="unknown arm"):
+        ex.start(q, ref, "middle")
+    with pytest.raises(ValueError, match="joints"):
+        ex.start(q, SplineTrajectory(np.zeros((2, 5)), np.array([0.0, 1.0])), "right")
+    bad_ref = SplineTrajectory(np.vstack([robot.half_sitting_joints] * 2), np.array([0.0, 1.0]))
+    bad_ref.waypoints[1, 3] = np.inf
+    with pytest.raises(ValueError, match="NaN or inf"):
+        ex.start(q, bad_ref, "right")
+    with pytest.raises(ValueError, match="quaternion"):
+        q2 = q.copy()
+        q2[3:7] = [0.0, 0.0, 0.0, 2.0]
+        ex.start(q2, ref, "right")
+    with pytest.raises(ValueError, match="SphereTree"):
+        ex.set_environment("map")
+    with pytest.raises(ValueError, match="damper_xi"):
+        ExecutorParams(damper_xi=2.0).validate()
+    with pytest.raises(ValueError, match="solver"):
+        WholeBodyExecutor(robot, cm, ExecutorParams(solver="magic"))
+    with pytest.raises(ValueError, match="NaN"):
+        ex.hold(bad)
+    # still usable after the errors
+    ex.start(q, ref, "right")
+    assert ex.step().metrics.t == pytest.approx(DT)
+
+
+def test_osqp_solver_gives_the_same_motion(robot, cm):
+    """The closed-form solver and the OSQP cascade agree when no inequality is active."""
+    ref = _arm_reference(robot, {"RARM_JOINT0": -0.4, "RARM_JOINT3": -0.3}, duration=1.0)
+    out = {}
+    for solver in ("nullspace", "osqp"):
+        ex = WholeBodyExecutor(robot, cm, ExecutorParams(solver=solver))
+        ex.start(robot.half_sitting(), ref, "right")
+        out[solver] = np.array([r.joints for r in _run(ex, 60)])
+    assert np.allclose(out["nullspace"], out["osqp"], atol=1e-4)
+
+
+def test_warm_up_leaves_no_state(robot, cm):
+    ex = WholeBodyExecutor(robot, cm)
+    ex.warm_up()
+    assert not ex.active
+    with pytest.raises(ValueError, match="not active"):
+        ex.step()

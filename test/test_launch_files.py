@@ -1,0 +1,61 @@
+"""The launch files name real executables and parameter files (``launch`` itself is not installable
+here, so they are checked statically: what ``ros2 launch`` would resolve must exist)."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+import yaml
+
+from nodetools import REPO_ROOT
+
+LAUNCH_FILES = sorted((REPO_ROOT / "launch").glob("*.launch.py"))
+
+
+def executables() -> dict[str, str]:
+    tree = ast.parse((REPO_ROOT / "setup.py").read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "EXECUTABLES" for t in node.targets):
+            return ast.literal_eval(node.value)
+    raise AssertionError("setup.py has no EXECUTABLES dict")
+
+
+def launched(path: Path) -> list[str]:
+    """Executables a launch file starts: Node(executable="...") literals and the NODES table."""
+    tree = ast.parse(path.read_text())
+    names = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "Node":
+            for kw in node.keywords:
+                if kw.arg == "executable" and isinstance(kw.value, ast.Constant):
+                    names.append(kw.value.value)
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "NODES" for t in node.targets):
+            names += [row[0] for row in ast.literal_eval(node.value)]
+    return names
+
+
+def test_there_are_launch_files() -> None:
+    assert {p.name for p in LAUNCH_FILES} >= {"reach.launch.py", "joint_driver.launch.py"}
+
+
+@pytest.mark.parametrize("path", LAUNCH_FILES, ids=lambda p: p.name)
+def test_launch_file_names_installed_executables_and_params(path: Path) -> None:
+    compile(path.read_text(), str(path), "exec")
+    exes = executables()
+    names = launched(path)
+    assert names, f"{path.name} starts nothing"
+    for exe in names:
+        assert exe in exes, f"{path.name}: {exe} is not an executable in setup.py"
+        module = exes[exe].split(":")[0]
+        assert (REPO_ROOT / (module.replace(".", "/") + ".py")).is_file(), module
+        params = REPO_ROOT / "config" / f"{exe}.yaml"
+        assert params.is_file(), f"{path.name}: {params} missing"
+        doc = yaml.safe_load(params.read_text())
+        assert "ros__parameters" in doc["/**"], params
+
+
+def test_full_graph_launch_starts_the_design_nodes() -> None:
+    names = launched(REPO_ROOT / "launch" / "reach.launch.py")
+    assert set(names) == {"joint_driver", "scene_sim", "voxel_mapper", "marker_localizer", "reach_planner",
+                          "reach_executor"}

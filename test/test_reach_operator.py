@@ -1,0 +1,221 @@
+"""reach_operator CLI: argument handling, messages and progress as units; planning (and,
+when the reach_executor node is present, execution and Ctrl-C cancel) against real nodes."""
+from __future__ import annotations
+
+import io
+import json
+import math
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from humanoid_reach_interfaces.action import ExecuteReach
+from humanoid_reach_interfaces.srv import PlanReach
+
+from humanoid_reach_ros.io import msgs
+from humanoid_reach_ros.nodes import reach_operator as op
+from humanoid_reach_ros.planning.wgr import matrix_rpy, valve_region
+from nodetools import REPO_ROOT, wait_for
+
+MODULE = "humanoid_reach_ros.nodes.reach_operator"
+
+
+def constants(cls) -> dict[int, str]:
+    return {getattr(cls, n): n for n in dir(cls) if n.isupper() and not n.startswith("_")
+            and isinstance(getattr(cls, n), int) and not n.startswith(("ARM_", "MODE_"))}
+
+
+# ---------------------------------------------------------------- units
+def test_every_error_code_has_a_name_class_and_hint() -> None:
+    plan = constants(PlanReach.Response)
+    assert {k: v[0] for k, v in op.PLAN_CODES.items()} == plan
+    execute = constants(ExecuteReach.Result)
+    assert {k: v[0] for k, v in op.EXECUTE_CODES.items()} == execute
+    for codes in (op.PLAN_CODES, op.EXECUTE_CODES):
+        for code, (name, cls, hint) in codes.items():
+            assert cls in op.EXIT and hint
+            text = op.code_text(codes, code, "server says why")
+            assert text.startswith(f"{name} ({code}): server says why")
+            assert (op.exit_class(codes, code) == 0) == (code == 0)
+    # failure classes are told apart by the exit code
+    assert op.exit_class(op.PLAN_CODES, PlanReach.Response.INVALID_BOUNDS) == 4
+    assert op.exit_class(op.PLAN_CODES, PlanReach.Response.NO_PATH) == 5
+    assert op.exit_class(op.PLAN_CODES, PlanReach.Response.NO_TARGET) == 6
+    assert op.exit_class(op.PLAN_CODES, PlanReach.Response.INTERNAL_ERROR) == 1
+    assert op.exit_class(op.EXECUTE_CODES, ExecuteReach.Result.ABORTED) == 7
+    assert op.exit_class(op.EXECUTE_CODES, ExecuteReach.Result.CANCELED) == 130
+    assert "UNKNOWN_CODE_42" in op.code_text(op.PLAN_CODES, 42, "") and op.exit_class(op.PLAN_CODES, 42) == 1
+
+
+def test_progress_bar_and_printer() -> None:
+    p = op.Progress(0.5, 1.234, 0.0521, 0.0003, 0.012)
+    assert op.progress_bar(p, width=10) == ("[#####.....]  50%  t  1.23 s  min dist 52.1 mm  COG 0.3 mm  "
+                                            "hand 12.0 mm")
+    assert op.progress_bar(op.Progress(1.7, 0, 0, 0, 0), width=4).startswith("[####] 100%")
+    assert op.progress_bar(op.Progress(-1.0, 0, math.inf, 0, 0), width=4).startswith("[....]   0%")
+    assert "min dist -" in op.progress_bar(op.Progress(math.nan, 0, math.nan, 0, 0), width=4)
+    fb = ExecuteReach.Feedback(progress=0.25, time_from_start_s=0.5, min_distance_m=0.1, com_error_m=0.0,
+                               hand_error_m=0.002)
+    assert op.Progress.from_feedback(fb) == op.Progress(0.25, 0.5, 0.1, 0.0, 0.002)
+
+    out = io.StringIO()  # not a terminal: a line per 10 %
+    printer = op.ProgressPrinter(out)
+    for k in range(101):
+        printer.update(op.Progress(k / 100, k / 100, 0.1, 0.0, 0.0))
+    printer.close()
+    lines = out.getvalue().splitlines()
+    assert [line.split("]")[1].split("%")[0].strip() for line in lines] == [str(10 * i) for i in range(11)]
+
+    class Tty(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    tty = Tty()
+    printer = op.ProgressPrinter(tty)
+    for k in range(5):
+        printer.update(op.Progress(k / 4, 0, 0, 0, 0))
+    printer.close()
+    assert tty.getvalue().count("\r") == 5 and tty.getvalue().endswith("\n") and tty.getvalue().count("\n") == 1
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--rpy", "0", "0", "1"], "--rpy and --frame need --target"),
+    (["--frame", "base_link"], "--rpy and --frame need --target"),
+    (["--target", "1", "2", "nan"], "'nan' is not a finite number"),
+    (["--target", "1", "2"], "expected 3 arguments"),
+    (["--target", "1", "2", "3", "--marker"], "not allowed with argument"),
+    (["--wgr", "0", "0", "0"], "expected 12 arguments"),
+    (["--arm", "both"], "invalid choice: 'both'"),
+    (["--planner", "astar"], "invalid choice: 'astar'"),
+    (["--goals", "0"], "must be in 1..4294967295"),
+    (["--budget", "-1"], "must be > 0"),
+    (["--seed", "x"], "'x' is not an integer"),
+    (["--timeout", "0"], "must be > 0"),
+    (["--no-com-compensation"], "need --execute"),
+])
+def test_bad_arguments(argv, message, capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        op.parse_args(argv)
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_requests_from_the_command_line() -> None:
+    req = op.plan_request(op.parse_args([]))
+    assert req.use_marker_target and not req.execute and req.arm == 0 and req.seed == -1
+    v = valve_region()
+    np.testing.assert_array_equal(req.region.lower, v.lower)  # eq. 3
+    np.testing.assert_array_equal(req.region.upper, v.upper)
+    assert req.time_budget_s == 0.0 and req.goal_count == 0 and req.planner == ""
+
+    req = op.plan_request(op.parse_args(["--target", "0.5", "-0.2", "1.0", "--rpy", "0.1", "-0.2", "0.3", "--frame",
+                                         "base_link", "--arm", "left", "--planner", "prm", "--goals", "4",
+                                         "--budget", "2.5", "--seed", "7", "--execute",
+                                         "--wgr", *map(str, range(-6, 0)), *map(str, range(1, 7))]))
+    assert not req.use_marker_target and not req.execute  # --execute goes through the action, not the planner
+    assert req.region.target.header.frame_id == "base_link"
+    pose = msgs.se3_from_pose(req.region.target)
+    np.testing.assert_allclose(pose.translation, [0.5, -0.2, 1.0])
+    np.testing.assert_allclose(matrix_rpy(pose.rotation), [0.1, -0.2, 0.3], atol=1e-12)
+    assert (req.arm, req.planner, req.goal_count, req.time_budget_s, req.seed) == (2, "prm", 4, 2.5, 7)
+    assert list(req.region.lower) == list(range(-6, 0)) and list(req.region.upper) == list(range(1, 7))
+
+
+def test_execution_summary_handles_non_finite() -> None:
+    r = ExecuteReach.Result(success=False, error_code=5, message="stale", duration_s=1.0, steps=3,
+                            min_distance_m=math.inf)
+    s = op.execution_summary("done", r)
+    assert s["error_name"] == "ABORTED" and s["min_distance_m"] is None
+    json.dumps(s, allow_nan=False)
+    assert "min distance -" in op.execution_report(s)
+
+
+# ---------------------------------------------------------------- real processes
+def run_operator(args: list[str], env, timeout: float = 120.0) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", MODULE, *args], env=dict(env), cwd=REPO_ROOT,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def test_no_planner_is_unavailable(ros_env) -> None:
+    r = run_operator(["--target", "0.71", "0.03", "0.9", "--timeout", "2"], ros_env)
+    assert r.returncode == 3, (r.stdout, r.stderr)
+    assert "/plan_reach not available after 2 s" in r.stderr
+
+
+@pytest.mark.node
+def test_plan_and_bad_requests_against_reach_planner(start_node, ros_env) -> None:
+    start_node("joint_driver", params_file="config/joint_driver.yaml", ready_log=r"simulated hrp2")
+    start_node("reach_planner", params_file="config/reach_planner.yaml", ready_log=r"reach planner ready")
+
+    def planned():  # the planner may not have /joint_states yet right after start
+        r = run_operator(["--target", "0.71", "0.03", "0.90", "--budget", "20", "--seed", "1"], ros_env)
+        return None if r.returncode == 6 and "NO_JOINT_STATES" in r.stderr else r
+
+    r = wait_for(planned, 60.0, "a plan from reach_planner")
+    assert r.returncode == 0, (r.stdout, r.stderr)
+    assert "plan: " in r.stdout and " arm, " in r.stdout and "goal sampling" in r.stdout and "total" in r.stdout
+
+    # bad bounds: the planner's code by name, with its message, exit class "invalid"
+    r = run_operator(["--target", "0.71", "0.03", "0.90", "--json", "--wgr", "0.1", *["0"] * 11], ros_env)
+    assert r.returncode == 4
+    assert "plan failed: INVALID_BOUNDS (2): " in r.stderr and "lower > upper" in r.stderr
+    summary = json.loads(r.stdout)
+    assert summary["exit_code"] == 4 and summary["plan"]["error_name"] == "INVALID_BOUNDS"
+    assert summary["plan"]["success"] is False and summary["execution"] is None
+
+    # the marker (default) without a /target_pose: an input is missing
+    r = run_operator(["--json"], ros_env)
+    assert r.returncode == 6 and "plan failed: NO_TARGET (9)" in r.stderr
+    assert json.loads(r.stdout)["plan"]["error_name"] == "NO_TARGET"
+
+
+EXECUTOR = REPO_ROOT / "humanoid_reach_ros" / "nodes" / "reach_executor.py"
+
+
+@pytest.mark.node
+@pytest.mark.skipif(not EXECUTOR.exists(), reason="the reach_executor node is not in this tree")
+def test_execute_with_progress_and_cancel(start_node, ros_env, tmp_path: Path) -> None:
+    start_node("joint_driver", params_file="config/joint_driver.yaml", ready_log=r"simulated hrp2")
+    start_node("reach_planner", params_file="config/reach_planner.yaml", ready_log=r"reach planner ready")
+    start_node("reach_executor", params_file="config/reach_executor.yaml", ready_log=r"reach executor ready",
+               timeout=60.0)
+    args = ["--target", "0.71", "0.03", "0.90", "--budget", "20", "--execute", "--json"]
+
+    def executed():
+        r = run_operator([*args, "--seed", "1"], ros_env)
+        return None if "NO_JOINT_STATES" in r.stderr else r
+
+    r = wait_for(executed, 90.0, "a plan executed")
+    summary = json.loads(r.stdout)
+    e = summary["execution"]
+    assert summary["plan"]["success"] and e["outcome"] == "done" and e["steps"] > 0, r.stderr
+    bars = [line for line in r.stderr.splitlines() if line.startswith("[") and "%" in line]
+    assert bars and "execution: " in r.stderr
+    if e["success"]:
+        assert r.returncode == 0 == summary["exit_code"] and e["error_name"] == "SUCCESS", r.stderr
+    else:  # the executor's verdict (e.g. ABORTED on an overloaded machine), reported by name and class
+        assert r.returncode == op.exit_class(op.EXECUTE_CODES, e["error_code"]) == summary["exit_code"] == 7
+        assert f"execution failed: {e['error_name']} ({e['error_code']}): {e['message']}" in r.stderr
+        print(f"\nNOTE: the executor did not succeed: {e['error_name']}: {e['message']}")
+    print(f"\n{bars[-1]}\nexecution: {e}")
+
+    # Ctrl-C while executing cancels the goal: CANCELED, exit 130
+    log = tmp_path / "operator.err"
+    with open(log, "w") as err, open(tmp_path / "operator.out", "w") as out:
+        proc = subprocess.Popen([sys.executable, "-m", MODULE, *args, "--seed", "2"], env=dict(ros_env),
+                                cwd=REPO_ROOT, stdout=out, stderr=err, text=True)
+    try:
+        wait_for(lambda: "%" in log.read_text() or proc.poll() is not None, 90.0, "execution progress",
+                 on_timeout=log.read_text)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(30.0) == 130, log.read_text()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = log.read_text()
+    assert "Ctrl-C: canceling the goal" in text and "execution canceled: CANCELED (4)" in text
+    summary = json.loads((tmp_path / "operator.out").read_text())
+    assert summary["exit_code"] == 130 and summary["execution"]["error_name"] == "CANCELED"
