@@ -109,6 +109,12 @@ def test_qos_yaml_and_schedule() -> None:
     assert replay_qos([]) == QosInfo()
     assert playback_schedule([10**9, 2 * 10**9, 4 * 10**9], 2.0) == [0.0, 0.5, 1.5]
     assert playback_schedule([], 1.0) == []
+    from humanoid_reach_ros.nodes.bag_play import restamp_ns
+    # rate 1: one constant shift (equal stamps stay equal); rate 2: spacing halved; 0 = unstamped stays 0
+    assert [restamp_ns(s, 10**9, 5 * 10**9, 1.0) for s in (10**9 - 3, 10**9, 10**9, 2 * 10**9)] == \
+        [5 * 10**9 - 3, 5 * 10**9, 5 * 10**9, 6 * 10**9]
+    assert restamp_ns(3 * 10**9, 10**9, 5 * 10**9, 2.0) == 6 * 10**9
+    assert restamp_ns(0, 10**9, 5 * 10**9, 1.0) == 0
     with pytest.raises(BagError, match="rate"):
         playback_schedule([1], 0.0)
 
@@ -326,6 +332,10 @@ def test_record_and_replay_round_trip(start_node, ros_probe, ros_env, tmp_path: 
     assert len(states) == n_late
     new = [msgs.nanoseconds_from_time(m.header.stamp) for m in states.messages]
     assert all(t >= before_ns for t in new) and new == sorted(new)
+    # one affine map for the whole pass (stamp' = t_pass + (stamp - log_time_first) / rate): the
+    # recorded spacing of the stamps, divided by the rate, is kept exactly (to rounding)
+    old = [msgs.nanoseconds_from_time(deserialize_message(m.data, JointState).header.stamp) for m in late]
+    assert all(abs((n - new[0]) - (o - old[0]) / 4.0) <= 1.0 for n, o in zip(new, old)), (new[:5], old[:5])
     assert [list(m.position) for m in states.messages] == [list(deserialize_message(m.data, JointState).position)
                                                             for m in late]
 

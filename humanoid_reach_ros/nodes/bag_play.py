@@ -17,10 +17,20 @@ Usage::
   starts (``playback_schedule``); ``--start-offset`` skips the bag's first seconds;
   ``--loop`` starts over (each pass keeps the recorded gaps); ``--topics`` plays a subset.
 * ``--stamps-now``: messages with a top-level ``std_msgs/Header header`` are decoded and
-  their ``header.stamp`` set to the replay time, so that nodes that reject stale input
-  (``joint_states_timeout_s`` of reach_planner, the executor's staleness check) accept
-  replayed ``/joint_states``. Without it stamps stay as recorded (the default of
-  ``ros2 bag play``). There is no ``/clock`` (simulated time is not used by this package).
+  their ``header.stamp`` moved to replay time by ONE map per pass,
+  ``stamp' = t_pass + (stamp - log_time_first) / rate`` (``restamp_ns``; ``t_pass`` = wall
+  clock when the pass starts, ``log_time_first`` = the first played message's receive
+  time): at rate 1 every stamp is shifted by the same constant, so stamps that were equal
+  stay equal and their order and spacing are kept -- an image and its point cloud still
+  carry the stamp of the ``/joint_states`` message that placed the camera, and nodes that
+  look the camera pose up by the image stamp (``voxel_mapper``, ``marker_localizer``) find
+  the same joint angles as live (setting each stamp to its own publish time would not:
+  an image is published one render time after the joint state it is stamped with).
+  Stamped replay time then matches the wall clock, so nodes that reject stale input
+  accept the replayed ``/joint_states``. Unstamped headers (stamp 0) stay 0. Each
+  ``--loop`` pass gets a new ``t_pass`` (stamps keep increasing). Without the flag stamps
+  stay as recorded (the default of ``ros2 bag play``). There is no ``/clock`` (simulated
+  time is not used by this package).
 * ``--wait-subscribers S``: before playing, wait up to S s until every played topic has a
   subscriber (so that the first messages are not lost to discovery).
 
@@ -53,6 +63,15 @@ def publisher_qos(q: QosInfo) -> QoSProfile:
                       durability=DurabilityPolicy.TRANSIENT_LOCAL if q.transient_local else DurabilityPolicy.VOLATILE)
 
 
+def restamp_ns(stamp_ns: int, first_log_ns: int, pass_start_ns: int, rate: float) -> int:
+    """``--stamps-now``: a recorded stamp [ns] on the replay clock, ``pass_start_ns +
+    (stamp_ns - first_log_ns) / rate`` (an affine map: equal stamps stay equal, order and
+    relative spacing are kept); a zero stamp (unstamped) stays zero."""
+    if stamp_ns == 0:
+        return 0
+    return pass_start_ns + int(round((stamp_ns - first_log_ns) / rate))
+
+
 def has_header(cls: type) -> bool:
     return cls.get_fields_and_field_types().get("header") == "std_msgs/Header"
 
@@ -70,6 +89,9 @@ class BagPlayerNode(Node):
                             for t in topics}
         self.restamp = {t for t in topics if stamps_now and has_header(self.classes[t])}
         self.published = 0
+        self._first_log_ns = 0
+        self._pass_start_ns = 0
+        self._rate = 1.0
 
     def wait_for_subscribers(self, timeout_s: float, stop: StopSignals) -> list[str]:
         """Topics still without a subscriber after ``timeout_s``."""
@@ -84,7 +106,10 @@ class BagPlayerNode(Node):
     def publish(self, topic: str, data: bytes) -> None:
         if topic in self.restamp:
             msg = deserialize_message(data, self.classes[topic])
-            msg.header.stamp = self.get_clock().now().to_msg()
+            stamp = msg.header.stamp
+            ns = restamp_ns(stamp.sec * 1_000_000_000 + stamp.nanosec, self._first_log_ns, self._pass_start_ns,
+                            self._rate)
+            stamp.sec, stamp.nanosec = divmod(max(ns, 0), 1_000_000_000)
             data = serialize_message(msg)
         self.publishers_[topic].publish(data)
         self.published += 1
@@ -93,6 +118,9 @@ class BagPlayerNode(Node):
         """One pass; False if stopped by a signal."""
         messages = list(self.reader.messages(self.topics, start_offset_s))
         due = playback_schedule([m.log_time_ns for m in messages], rate)
+        self._rate = rate
+        self._first_log_ns = messages[0].log_time_ns if messages else 0
+        self._pass_start_ns = time.time_ns()
         t0 = time.monotonic()
         for m, t in zip(messages, due):
             while stop.signal is None and (wait := t0 + t - time.monotonic()) > 0:
@@ -111,8 +139,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("-r", "--rate", type=float, default=1.0, help="rate factor (2 = twice as fast)")
     p.add_argument("-l", "--loop", action="store_true", help="play again and again until Ctrl-C")
     p.add_argument("--start-offset", type=float, default=0.0, help="skip the first S seconds of the bag")
-    p.add_argument("--stamps-now", action="store_true", help="set header.stamp of stamped messages to the "
-                   "replay time (for nodes that reject stale input)")
+    p.add_argument("--stamps-now", action="store_true", help="move header.stamp of stamped messages to the "
+                   "replay clock by one affine map per pass (keeps equal stamps equal; for nodes that "
+                   "reject stale input)")
     p.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
                    help="wait up to S s for a subscriber on every played topic before starting")
     p.add_argument("--info", action="store_true", help="print what the bag holds and exit")

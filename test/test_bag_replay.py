@@ -1,0 +1,259 @@
+"""Recorded sensor data, no simulator: ``bags/plant_head_scan.mcap`` replayed into the
+perception nodes and the planner (issue #6, item 5).
+
+The bag (written by ``tools/record_bags.py``; see ``bags/README.md``) holds the head scan of
+the plant: ``/joint_states``, ``/head_camera/image_raw`` + ``camera_info``,
+``/head_camera/points`` (optical frame) and ``/robot_description``; its side file
+``bags/plant_head_scan.yaml`` holds the ground truth (valve and marker poses from
+``config/scenes/plant.yaml``). ``bag_play --stamps-now`` replays it (one affine stamp map:
+each sensor frame keeps the stamp of the joint state that placed the camera) into real
+``voxel_mapper``, ``marker_localizer`` and ``reach_planner`` (``scene_file ""``: its map is
+the measured ``/voxel_map``) processes -- ``scene_sim`` and ``joint_driver`` are NOT running.
+Checks:
+
+* ``/voxel_map`` against the scene's own voxelization (``Scene.voxelize`` on the mapper's
+  grid): every occupied voxel lies within one voxel (26-neighbourhood) of a true surface
+  voxel, and the true surface voxels the sensor saw (noise-free ray cast of the scene from
+  each recorded camera pose, FK of the recorded joint states) are covered within one voxel;
+* every ``/target_pose`` within 1 cm (and 3 deg) of the ground-truth valve pose;
+* ``/plan_reach`` with ``use_marker_target`` succeeds on the measured map. The replay has
+  ended when the planner is asked, so its receipt-time staleness windows
+  (``joint_states_timeout_s``, ``target_timeout_s``) are opened for this test.
+"""
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+import yaml
+from geometry_msgs.msg import PoseStamped
+from humanoid_reach_interfaces.srv import PlanReach
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState, PointCloud2
+
+from humanoid_reach_ros.io import msgs
+from humanoid_reach_ros.io.mcap_bag import BagReader
+from nodetools import REPO_ROOT
+
+BAG = REPO_ROOT / "bags" / "plant_head_scan.mcap"
+SIDE = REPO_ROOT / "bags" / "plant_head_scan.yaml"
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+MAPPER_PARAMS = "config/voxel_mapper.yaml"
+SEEN_COVERAGE_MIN = 0.85  # fraction of the seen true surface voxels with a map voxel within one voxel
+SEEN_MAX_RANGE_M = 3.0    # seen = noise-free hits nearer than this (farther, the range noise exceeds a voxel)
+
+
+def voxel_keys(centres: np.ndarray, h: float) -> set[tuple[int, int, int]]:
+    return set(map(tuple, np.floor(np.asarray(centres) / h).astype(np.int64).tolist()))
+
+
+def dilate(keys: set[tuple[int, int, int]]) -> set[tuple[int, int, int]]:
+    """The 26-neighbourhood closure of a voxel set (within one voxel, Chebyshev)."""
+    offsets = [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)]
+    return {(x + a, y + b, z + c) for x, y, z in keys for a, b, c in offsets}
+
+
+def seen_surface_voxels(h: float, extent: tuple[np.ndarray, np.ndarray]) -> tuple[set, int]:
+    """Voxels of the scene's surfaces (floor excluded) hit by noise-free rays from every
+    recorded cloud's camera pose (the depth sensor's pixel grid, its range gate)."""
+    from humanoid_reach_ros.paths import config_path
+    from humanoid_reach_ros.perception.markers import JointStateBuffer, camera_pose, joint_vector
+    from humanoid_reach_ros.robot.model import RobotModel
+    from humanoid_reach_ros.sim import camera as cam
+    from humanoid_reach_ros.sim.scene import load_scene
+
+    model = RobotModel("robots/hrp2.yaml")
+    scene = load_scene(config_path("scenes/plant.yaml"))
+    floor = np.array([p.floor for p in scene.primitives])
+    buffer = JointStateBuffer(window_s=3600.0, max_items=100_000)
+    clouds = []
+    with BagReader(BAG) as r:
+        for m in r.messages(["/joint_states", "/head_camera/points"]):
+            if m.topic == "/joint_states":
+                js = deserialize_message(m.data, JointState)
+                joints, _ = joint_vector(model.joint_index, list(js.name), js.position)
+                buffer.push(msgs.seconds_from_time(js.header.stamp), joints)
+            else:
+                pc = deserialize_message(m.data, PointCloud2)
+                clouds.append((msgs.seconds_from_time(pc.header.stamp), pc.width * pc.height))
+    camera = cam.PinholeCamera.from_fov(320, 240, 1.0471975511965976)  # the depth sensor's grid (stride 2)
+    seen: set = set()
+    lo, hi = extent
+    for stamp, _ in clouds:
+        joints, reason = buffer.at(stamp, 0.05)
+        assert joints is not None, reason
+        hits = cam.cast(scene, camera, camera_pose(model, joints, "head_camera_optical_frame"), max_range_m=100.0)
+        ok = hits.hit & (hits.range_m >= 0.1) & (hits.range_m <= SEEN_MAX_RANGE_M)
+        ok &= ~floor[np.maximum(hits.primitive, 0)]
+        p = hits.points_world()[ok]
+        p = p[np.all((p >= lo) & (p < hi), axis=1)]
+        seen |= voxel_keys(p, h)
+    return seen, len(clouds)
+
+
+def test_side_file_matches_scene() -> None:
+    """The ground truth in the side file is the scene's (a regenerated scene needs new bags)."""
+    from humanoid_reach_ros.paths import config_path
+    from humanoid_reach_ros.sim.scene import load_scene
+
+    assert BAG.is_file() and SIDE.is_file(), "bags/ is missing: run tools/record_bags.py"
+    truth = yaml.safe_load(SIDE.read_text())["ground_truth"]
+    scene = load_scene(config_path("scenes/plant.yaml"))
+    assert np.allclose(truth["valve"]["position"], scene.target.pose[:3, 3])
+    assert np.allclose(truth["marker"]["position"], scene.target.marker_pose[:3, 3])
+    assert truth["marker"]["id"] == scene.target.aruco.marker_id
+    with BagReader(BAG) as r:
+        assert {"/joint_states", "/head_camera/image_raw", "/head_camera/camera_info", "/head_camera/points",
+                "/robot_description"} <= set(r.topics)
+        assert r.topics["/robot_description"].qos.transient_local
+    total = sum(f.stat().st_size for f in BAG.parent.iterdir() if f.is_file())
+    assert total < 30e6, f"bags/ holds {total / 1e6:.1f} MB (limit 30 MB)"
+
+
+def load_record_tool():
+    spec = importlib.util.spec_from_file_location("record_bags", REPO_ROOT / "tools" / "record_bags.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_joint_state_thinning() -> None:
+    """At most one state per period, plus every state a sensor frame is stamped with."""
+    thin = load_record_tool().thin_joint_states
+    stamps = list(range(0, 100, 5))  # 200 Hz in "ms"
+    assert thin(stamps, set(), 20) == [s % 20 == 0 for s in stamps]
+    keep = thin(stamps, {35, 55}, 20)
+    assert [s for s, k in zip(stamps, keep) if k] == [0, 20, 35, 40, 55, 60, 80]
+    assert thin([], {1}, 20) == []
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--sensor-period", "0"], "--sensor-period must be within"),
+    (["--frames-per-pose", "0"], "--frames-per-pose and --valve-frames"),
+    (["--joint-states-hz", "nan"], "--joint-states-hz must be within"),
+    (["--limit-mb", "-1"], "--limit-mb > 0"),
+])
+def test_record_tool_bad_arguments(args: list[str], message: str, capsys: pytest.CaptureFixture) -> None:
+    """Bad options exit 2 with a reason before anything is started or written."""
+    with pytest.raises(SystemExit) as exc:
+        load_record_tool().main(args + ["--out", "/nonexistent/never/created"])
+    assert exc.value.code == 2 and message in capsys.readouterr().err
+    assert not Path("/nonexistent/never/created").exists()
+
+
+def test_frames_carry_recorded_joint_state_stamps() -> None:
+    """Every image, camera_info and cloud in the bag is stamped with a joint state the bag
+    holds (what makes the replayed camera pose the recorded one)."""
+    from sensor_msgs.msg import CameraInfo, Image
+
+    stamps: dict[str, set[int]] = {}
+    types = {"/joint_states": JointState, "/head_camera/image_raw": Image, "/head_camera/camera_info": CameraInfo,
+             "/head_camera/points": PointCloud2}
+    with BagReader(BAG) as r:
+        for m in r.messages(list(types)):
+            h = deserialize_message(m.data, types[m.topic]).header.stamp
+            stamps.setdefault(m.topic, set()).add(h.sec * 1_000_000_000 + h.nanosec)
+    for topic in types:
+        assert len(stamps.get(topic, ())) >= 10, topic
+        if topic != "/joint_states":
+            assert stamps[topic] <= stamps["/joint_states"], topic
+
+
+@pytest.mark.node
+def test_replay_into_mapper_localizer_planner(start_node, ros_probe, ros_env, tmp_path: Path) -> None:
+    from humanoid_reach_ros.planning.wgr import valve_region
+
+    side = yaml.safe_load(SIDE.read_text())
+    truth = side["ground_truth"]["valve"]
+    mapper_cfg = yaml.safe_load((REPO_ROOT / MAPPER_PARAMS).read_text())["/**"]["ros__parameters"]
+    h = float(mapper_cfg["resolution_m"])
+
+    t0 = time.monotonic()
+    nodes = [  # started together, then waited for (the start-up overlaps)
+        (start_node("voxel_mapper", params_file=MAPPER_PARAMS, params={"publish_period_s": 0.25}),
+         r"voxel mapper ready"),
+        (start_node("marker_localizer", params_file="config/marker_localizer.yaml"), r"marker localizer ready"),
+        (start_node("reach_planner", params_file="config/reach_planner.yaml",
+                    params={"scene_file": "", "joint_states_timeout_s": 3600.0, "target_timeout_s": 3600.0}),
+         r"reach planner ready")]
+    for proc, ready in nodes:
+        proc.wait_for_log(ready, 120.0)
+    t_ready = time.monotonic()
+    maps = ros_probe.collect(PointCloud2, "/voxel_map", LATCHED)
+    targets = ros_probe.collect(PoseStamped, "/target_pose", qos_profile_sensor_data)
+
+    log = tmp_path / "play.log"
+    with open(log, "wb") as f:
+        play = subprocess.Popen([sys.executable, "-m", "humanoid_reach_ros.nodes.bag_play", str(BAG), "--stamps-now",
+                                 "--wait-subscribers", "20"], env=dict(ros_env), cwd=REPO_ROOT, stdout=f,
+                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+    try:
+        ros_probe.spin_until(lambda: play.poll() is not None, 90.0, "the replay to finish", on_timeout=log.read_text)
+    finally:
+        if play.poll() is None:
+            play.kill()
+    assert play.returncode == 0, log.read_text()
+    t_played = time.monotonic()
+    # the mapper is done when no new map came for a while (its mailbox is drained)
+    ros_probe.spin_until(lambda: len(maps) > 0 and time.monotonic() - maps.times[-1] > 3.0, 60.0,
+                         "the last /voxel_map")
+
+    # ---- the map against the scene's voxelization, where seen
+    from humanoid_reach_ros.paths import config_path
+    from humanoid_reach_ros.sim.scene import load_scene
+
+    extent = (np.array(mapper_cfg["extent_min_m"], float), np.array(mapper_cfg["extent_max_m"], float))
+    scene = load_scene(config_path("scenes/plant.yaml"))
+    true_keys = voxel_keys(scene.voxelize(h, extent), h)
+    # false occupancy is judged against every surface, the floor's included: the mapper drops points
+    # below floor_z_m, but range noise lifts a few floor points into the first voxel layer above it
+    near_truth = dilate(true_keys | voxel_keys(scene.voxelize(h, extent, include_floor=True), h))
+    map_keys = voxel_keys(msgs.points_from_cloud(maps.last).points, h)
+    assert len(map_keys) > 1000, f"only {len(map_keys)} voxels mapped"
+    false = [k for k in map_keys if k not in near_truth]
+    assert not false, (f"{len(false)} of {len(map_keys)} map voxels are more than one voxel from the scene's "
+                       f"surfaces, e.g. {[tuple(np.multiply(k, h) + h / 2) for k in false[:5]]}")
+    seen, n_clouds = seen_surface_voxels(h, extent)
+    covered = len(seen & dilate(map_keys)) / max(1, len(seen))
+    print(f"\n/voxel_map: {len(map_keys)} voxels; {len(seen)} true surface voxels seen from {n_clouds} recorded "
+          f"clouds, {covered:.1%} covered within one voxel; no false voxel")
+    assert len(seen & true_keys) >= 0.99 * len(seen)  # the seen set is made of true surface voxels
+    assert covered >= SEEN_COVERAGE_MIN, f"only {covered:.1%} of the seen surface voxels are mapped"
+
+    # ---- the marker target within 1 cm of the ground truth
+    assert len(targets) >= 1, "no /target_pose from the replayed images:\n" + nodes[1][0].log_tail(30)
+
+    q = truth["quaternion_xyzw"]
+    R_true = pin.Quaternion(q[3], q[0], q[1], q[2]).toRotationMatrix()
+    errors = []
+    for t in targets.messages:
+        assert t.header.frame_id == "world"
+        T = msgs.se3_from_pose(t.pose)
+        dp = float(np.linalg.norm(T.translation - np.asarray(truth["position"])))
+        da = float(np.degrees(np.linalg.norm(pin.log3(R_true.T @ T.rotation))))
+        errors.append((dp, da))
+    worst_p, worst_a = max(e[0] for e in errors), max(e[1] for e in errors)
+    print("\n".join(nodes[1][0].log_lines("skip")[:5]))
+    print(f"/target_pose: {len(errors)} poses, worst error {worst_p * 1e3:.1f} mm, {worst_a:.2f} deg")
+    assert worst_p <= 0.01 and worst_a <= 3.0, errors
+
+    # ---- a plan on the measured map towards the marker target
+    client = ros_probe.node.create_client(PlanReach, "/plan_reach")
+    ros_probe.spin_until(client.service_is_ready, 30.0, "/plan_reach")
+    req = msgs.plan_reach_request(valve_region(), "world", use_marker_target=True, time_budget_s=10.0)
+    future = client.call_async(req)
+    ros_probe.spin_until(future.done, 90.0, "the /plan_reach response")
+    resp = future.result()
+    assert resp.success, f"error {resp.error_code}: {resp.message}"
+    print(f"nodes ready in {t_ready - t0:.1f} s, replay {t_played - t_ready:.1f} s, checks and plan "
+          f"{time.monotonic() - t_played:.1f} s")
+    assert len(resp.trajectory.points) > 1 and resp.arm in (1, 2)
+    target_used = msgs.se3_from_pose(targets.last.pose).translation
+    assert np.linalg.norm(target_used - np.asarray(truth["position"])) <= 0.01
