@@ -195,11 +195,58 @@ def test_joint_state_buffer_lookup() -> None:
         buf.push(10.0 + 0.01 * k, np.full(3, float(k)))
     np.testing.assert_allclose(buf.at(10.03, 0.05)[0], 3.0)          # exact stamp
     np.testing.assert_allclose(buf.at(10.035, 0.05)[0], 3.5)         # interpolated
-    np.testing.assert_allclose(buf.at(10.14, 0.05)[0], 10.0)         # nearest within the gap
+    q, why = buf.at(10.14, 0.05)                                      # within the gap, but moving: stale
+    assert q is None and "newer" in why and "move" in why
+    plain = M.JointStateBuffer(window_s=1.0, pose_tolerance_rad=math.inf)
+    for k in range(11):
+        plain.push(10.0 + 0.01 * k, np.full(3, float(k)))
+    np.testing.assert_allclose(plain.at(10.14, 0.05)[0], 10.0)       # nearest within the gap (time rule only)
+    np.testing.assert_allclose(plain.at(9.97, 0.05)[0], 0.0)
     q, why = buf.at(10.3, 0.05)
     assert q is None and "newer" in why
     q, why = buf.at(9.0, 0.05)
     assert q is None and "older" in why
+    with pytest.raises(ValueError, match="pose_tolerance_rad"):
+        M.JointStateBuffer(pose_tolerance_rad=-1.0)
+
+
+def test_joint_state_buffer_gaps_of_a_still_robot() -> None:
+    """A loaded machine loses /joint_states: a still robot's pose survives wide gaps (the
+    voxel_mapper warning 'joint states around the image stamp are 0.246 s apart'), a moving
+    robot's does not."""
+    buf = M.JointStateBuffer(window_s=2.0)
+    still = np.array([0.1, -0.2, 0.3])
+    buf.push(20.0, still)
+    buf.push(20.246, still + 2e-4)                                    # 0.246 s gap, held still
+    np.testing.assert_allclose(buf.at(20.1, 0.1)[0], still + 2e-4 * 0.1 / 0.246)
+    np.testing.assert_allclose(buf.at(20.3, 0.1)[0], still + 2e-4)    # newer, still: the nearest
+    np.testing.assert_allclose(buf.at(19.95, 0.1)[0], still)          # older, still: the nearest
+    buf.push(20.6, still + 0.2)                                       # then the head turned
+    q, why = buf.at(20.4, 0.1)
+    assert q is None and "0.354 s apart" in why and "0.1998 rad" in why
+    q, why = buf.at(20.62, 0.1)                                       # 20 ms ahead of a moving head
+    assert q is None and "move" in why
+    start = M.JointStateBuffer()                                      # a joint starts at 2 rad/s at t = 1 s:
+    for k in range(6):                                                # states at 0.9 .. 1.0 s still, ...
+        start.push(0.9 + 0.02 * k, np.zeros(1))
+    for k in range(1, 6):                                             # ... then 1.06 .. 1.14 s moving
+        start.push(1.04 + 0.02 * k, np.array([2.0 * (0.04 + 0.02 * k)]))
+    q, why = start.at(1.03, 0.05)                                     # between 1.00 and 1.06: the chord errs
+    assert q is None and "velocities change" in why
+    np.testing.assert_allclose(start.at(1.09, 0.05)[0], 2.0 * 0.09)   # constant velocity: exact
+    single = M.JointStateBuffer()
+    single.push(5.0, still)
+    np.testing.assert_allclose(single.at(5.05, 0.1)[0], still)        # one state: no evidence of motion
+    wide = M.JointStateBuffer(pose_tolerance_rad=math.inf)
+    wide.push(1.0, still)
+    wide.push(1.5, still + 1.0)
+    np.testing.assert_allclose(wide.at(1.25, 0.1)[0], still + 0.5)    # inf: any bracket is interpolated
+
+
+def test_joint_state_buffer_window_and_time_jumps() -> None:
+    buf = M.JointStateBuffer(window_s=1.0)
+    for k in range(11):
+        buf.push(10.0 + 0.01 * k, np.full(3, float(k)))
     buf.push(11.5, np.zeros(3))                                       # window: older states dropped
     assert len(buf) == 1
     buf.push(5.0, np.ones(3))                                         # time jumped back: restart

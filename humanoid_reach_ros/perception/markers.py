@@ -15,7 +15,8 @@ The object's pose in the robot (world) frame is the chain
   exceeds a threshold are rejected;
 * ``R_T_C``: the camera's pose from forward kinematics at the image time stamp
   (:class:`JointStateBuffer` interpolates the joint angles between the two joint states
-  that bracket the stamp);
+  that bracket the stamp, and refuses a look-up whose error bound exceeds a joint-angle
+  tolerance: lost ``/joint_states`` while the head moves);
 * ``M_T_O``: where the marker is on the object, configuration per marker id
   (:class:`MarkerTable`, from ``config/marker_localizer.yaml``).
 
@@ -328,10 +329,31 @@ def solve_marker_pose(image_corners: np.ndarray, size_m: float, K: np.ndarray,
 # ----------------------------------------------------------------- joint states by stamp
 class JointStateBuffer:
     """Joint-angle vectors by stamp over the last ``window_s`` seconds (at most
-    ``max_items``), for ``R_T_C`` at an image stamp."""
+    ``max_items``), for ``R_T_C`` at an image stamp.
 
-    def __init__(self, window_s: float = 2.0, max_items: int = 4000) -> None:
+    A stamp between buffered states is linearly interpolated, one outside the buffered
+    range by at most ``max_gap_s`` takes the nearest state -- but only when the joint-angle
+    error this may hide is at most ``pose_tolerance_rad`` (a loaded machine loses or delays
+    ``/joint_states`` messages, and a head yawing at 4 rad/s turns 0.4 rad in 0.1 s):
+
+    * interpolation between states ``s0 < t < s1``: accepted when no joint moved by more than
+      ``pose_tolerance_rad`` between them (the robot held still across the gap, however wide),
+      or when ``s1 - s0 <= 2 max_gap_s`` and the chord's error bound ``|v+ - v-| (s1 - s0) / 4``
+      is within the tolerance (``v-``, ``v+``: joint velocities of the neighbouring
+      intervals; a velocity change inside the bracket makes the true path leave the chord by
+      at most a quarter of the change times the interval);
+    * the nearest state at the ends: accepted when the rate of the two nearest states times
+      the gap is within the tolerance (with one buffered state there is no evidence of
+      motion and the nearest is taken).
+
+    A refused look-up returns the reason; the caller may retry once newer states arrived.
+    ``pose_tolerance_rad = inf`` restores the plain time-gap rules."""
+
+    def __init__(self, window_s: float = 2.0, max_items: int = 4000, pose_tolerance_rad: float = 2e-3) -> None:
+        if not pose_tolerance_rad >= 0.0:
+            raise ValueError(f"pose_tolerance_rad must be >= 0, got {pose_tolerance_rad}")
         self.window_s = float(window_s)
+        self.pose_tolerance_rad = float(pose_tolerance_rad)
         self._items: deque[tuple[float, np.ndarray]] = deque(maxlen=int(max_items))
 
     def __len__(self) -> int:
@@ -345,28 +367,52 @@ class JointStateBuffer:
         while self._items[0][0] < stamp_s - self.window_s:
             self._items.popleft()
 
+    def _velocity(self, k: int) -> np.ndarray | None:
+        """Joint velocity over the interval between states ``k`` and ``k + 1`` (None outside)."""
+        if k < 0 or k + 1 >= len(self._items):
+            return None
+        (sa, qa), (sb, qb) = self._items[k], self._items[k + 1]
+        return (qb - qa) / max(sb - sa, 1e-9)
+
     def at(self, stamp_s: float, max_gap_s: float) -> tuple[np.ndarray | None, str]:
-        """Joint angles at ``stamp_s`` (linear interpolation between the bracketing states,
-        or the nearest within ``max_gap_s`` at the ends) and '' -- or None and the reason."""
+        """Joint angles at ``stamp_s`` (the rules of the class docstring) and '' -- or None
+        and the reason."""
         if not self._items:
             return None, "no /joint_states received yet"
         stamps = [s for s, _ in self._items]
         i = bisect.bisect_left(stamps, stamp_s)
         if i < len(stamps) and stamps[i] == stamp_s:
             return self._items[i][1].copy(), ""
+        tol = self.pose_tolerance_rad
         if 0 < i < len(stamps):
             (s0, q0), (s1, q1) = self._items[i - 1], self._items[i]
-            if s1 - s0 <= 2.0 * max_gap_s:
-                a = (stamp_s - s0) / (s1 - s0)
-                return (1.0 - a) * q0 + a * q1, ""
-            return None, f"joint states around the image stamp are {s1 - s0:.3f} s apart"
+            moved = float(np.max(np.abs(q1 - q0)))
+            if moved > tol:
+                if s1 - s0 > 2.0 * max_gap_s:
+                    return None, (f"joint states around the image stamp are {s1 - s0:.3f} s apart and the joints "
+                                  f"moved up to {moved:.4f} rad between them (pose tolerance {tol:g} rad)")
+                v = self._velocity(i - 1)
+                before, after = self._velocity(i - 2), self._velocity(i)
+                dv = max(float(np.max(np.abs(v - w))) for w in (before, after, v) if w is not None)
+                bound = 0.25 * dv * (s1 - s0)
+                if bound > tol:
+                    return None, (f"joint states around the image stamp are {s1 - s0:.3f} s apart while the joint "
+                                  f"velocities change: interpolation may be off by {bound:.4f} rad (pose "
+                                  f"tolerance {tol:g} rad)")
+            a = (stamp_s - s0) / (s1 - s0)
+            return (1.0 - a) * q0 + a * q1, ""
         nearest = 0 if i == 0 else len(stamps) - 1
         gap = abs(stamps[nearest] - stamp_s)
-        if gap <= max_gap_s:
-            return self._items[nearest][1].copy(), ""
         side = "older" if i == 0 else "newer"
-        return None, (f"image stamp is {gap:.3f} s {side} than the buffered joint states "
-                      f"[{stamps[0]:.3f}, {stamps[-1]:.3f}] s (max gap {max_gap_s:g} s)")
+        if gap > max_gap_s:
+            return None, (f"image stamp is {gap:.3f} s {side} than the buffered joint states "
+                          f"[{stamps[0]:.3f}, {stamps[-1]:.3f}] s (max gap {max_gap_s:g} s)")
+        v = self._velocity(0 if i == 0 else len(stamps) - 2)
+        drift = float(np.max(np.abs(v))) * gap if v is not None else 0.0
+        if drift > tol:
+            return None, (f"image stamp is {gap:.3f} s {side} than the buffered joint states while the joints "
+                          f"move (a stale pose would be off by up to {drift:.4f} rad; pose tolerance {tol:g} rad)")
+        return self._items[nearest][1].copy(), ""
 
 
 # ----------------------------------------------------------------- R_T_C by forward kinematics
