@@ -67,10 +67,16 @@ avoidance, as the dissertation's experiments; obstacles need waypoints, Sec. 5.5
 metrics report ``min_distance_m = inf``; ``com_error_m`` is the horizontal distance of the
 commanded CoM from the controller's CoM reference of the step, ``hand_error_m`` /
 ``hand_error_rad`` the larger hand error w.r.t. the step's interpolated hand references.
-Set-up of a target pair (regression, eq. 6, path check; tens of ms) runs in the solver
-thread: meanwhile the tick thread republishes the last command (not counted as overruns).
-A cancel / preempt / infeasible retarget of a running dual-arm motion brakes it on its
-path over ``dual_arm_brake_s`` (``DualArmReachController.brake``) and then holds.
+Set-up of a target pair (regression, eq. 6, path check; a few to tens of ms) runs in the
+solver thread: meanwhile the tick thread republishes the last command (not counted as
+overruns). A cancel, a stale-/joint_states abort or an infeasible new pair stops a running
+dual-arm motion by braking it on its path over ``dual_arm_brake_s``
+(``DualArmReachController.brake``), then it holds. A feasible new pair (goal or followed
+message) re-plans from the current reference as the controller's follow-targets mode does:
+the minimum-jerk profile restarts at zero speed (a velocity discontinuity, never a
+position jump). A trajectory goal after a dual-arm motion starts the whole-body executor
+from the last command; a dual-arm start after a trajectory resets the controller to the
+last command (``DualArmReachController.reset``).
 
 Continuity: every start (a new goal, a new ``/reach_trajectory`` preempting a goal, or a
 goal after a cancel) begins from the last *commanded* configuration
