@@ -99,3 +99,114 @@ def test_bad_arguments(robot):
         LowerBodyIK(robot, support="middle")
     with pytest.raises(ValueError, match="initial_com_drop_m"):
         lowered_initial_posture(robot, float("nan"))
+
+
+# ---------------------------------------------------------------- fast paths == reference
+def test_closed_form_legs_equal_algorithm3(robot, q0):
+    """ClosedFormLowerBodyIK (closed-form legs + Newton on the waist) returns Algorithm 3's
+    solution: same configuration (to the LM tolerance), CoM, waist orientation and soles."""
+    from humanoid_reach_ros.reach.fast_legs import ClosedFormLowerBodyIK
+
+    ref = LowerBodyIK(robot, max_iter=100)
+    fast = ClosedFormLowerBodyIK(robot, max_iter=100)
+    rng = np.random.default_rng(3)
+    r_sole, l_sole = robot.stance_soles
+    upper = np.arange(robot.model.nq - N_BASE_Q) < 18          # chest, head, arms
+    compared = 0
+    for _ in range(40):
+        q = q0.copy()
+        q[N_BASE_Q:] += np.where(upper, rng.uniform(-0.1, 0.1, robot.model.nq - N_BASE_Q), 0.0)
+        com = robot.com(q0) + rng.uniform([-0.03, -0.03, -0.1], [0.03, 0.03, 0.1])
+        a = ref.solve(q, _legs(robot, com), r_sole)
+        b = fast.solve(q, _legs(robot, com), r_sole)
+        assert np.all(np.isfinite(b.q))
+        if not a.converged:
+            continue
+        compared += 1
+        assert b.converged
+        assert np.abs(pin.difference(robot.model, a.q, b.q)).max() < 1e-5
+        assert np.linalg.norm(robot.com(b.q) - com) < 1e-7
+        assert np.allclose(robot.frame_pose(b.q, "base_link").rotation, np.eye(3), atol=1e-9)
+        for frame, sole in (("r_sole", r_sole), ("l_sole", l_sole)):
+            M = robot.frame_pose(b.q, frame)
+            assert np.linalg.norm(M.translation - sole.translation) < 1e-9
+            assert np.abs(M.rotation - sole.rotation).max() < 1e-9
+    assert compared >= 30
+    assert fast.fallbacks == 0
+
+
+def test_closed_form_legs_fall_back_when_out_of_reach(robot, q0):
+    """A CoM the legs cannot reach: the closed form fails and the numerical reference
+    answers (not converged, finite angles) -- the same report as Algorithm 3."""
+    from humanoid_reach_ros.reach.fast_legs import ClosedFormLowerBodyIK
+
+    fast = ClosedFormLowerBodyIK(robot)
+    r_sole, _ = robot.stance_soles
+    res = fast.solve(q0, _legs(robot, robot.com(q0) + [0.0, 0.0, 0.5]), r_sole)
+    assert not res.converged and fast.fallbacks == 1
+    assert np.all(np.isfinite(res.q))
+
+
+@pytest.mark.parametrize("side", ["right_arm", "left_arm"])
+def test_compiled_arm_ik_equals_reference(robot, side):
+    """fast_arms.arm_ik_pose == LimbIK.solve_reference: same reason code and, when solved,
+    the same angles to 1e-12 -- random reachable, perturbed (unreachable), random-orientation
+    (joint-limit) poses and exact singular ones (stretched arm, shoulder roll at +-90 deg)."""
+    from humanoid_reach_ros.reach.fast_arms import CompiledArmIK
+    from humanoid_reach_ros.robot.limb_ik import LimbIK
+
+    limb = LimbIK(robot, side)
+    fast = CompiledArmIK(limb)
+    rng = np.random.default_rng(11)
+    codes = set()
+    cases = []
+    for i in range(600):
+        q = rng.uniform(limb.lower, limb.upper)
+        if i % 7 == 0:
+            q[3] = 0.0                                         # stretched arm
+        if i % 11 == 0:
+            q[1] = np.clip(np.copysign(np.pi / 2, q[1]), limb.lower[1], limb.upper[1])   # shoulder roll +-90 deg
+        root_p, root_R = rng.normal(size=3) * 0.1, pin.exp3(rng.normal(size=3))
+        p, R = limb.fk(root_p, root_R, q)
+        p, R = p[0], R[0]
+        if i % 3 == 0:
+            p = p + rng.normal(size=3) * 0.2
+        if i % 5 == 0:
+            R = pin.exp3(rng.normal(size=3))
+        ref = limb.q_default if i % 2 else rng.uniform(limb.lower, limb.upper)
+        cases.append((root_p, root_R, p, R, ref))
+    cases.append((np.zeros(3), np.eye(3), np.array([np.nan, 0.0, 0.0]), np.eye(3), limb.q_default))
+    cases.append((np.zeros(3), np.eye(3), np.zeros(3), 2.0 * np.eye(3), limb.q_default))
+    for root_p, root_R, p, R, ref in cases:
+        a = limb.solve_reference(root_p, root_R, p, R, ref)
+        code, q = fast.solve(root_p, root_R, p, R, ref)
+        codes.add(code)
+        assert code == int(a.reason[0])
+        if code == 0:
+            assert np.abs(q - a.q[0]).max() < 1e-12
+        else:
+            assert np.all(np.isnan(q))
+    assert codes == {0, 1, 2, 3}
+
+
+def test_proposed_step_fast_equals_reference_path(robot, q0):
+    """ProposedWholeBodyIK with compiled legs + arms == with the numerical Algorithm 3 and
+    the Python arm IK, along a short reaching motion."""
+    fast = ProposedWholeBodyIK(robot)
+    slow = ProposedWholeBodyIK(robot, closed_form_legs=False, compiled_arms=False)
+    r_sole, _ = robot.stance_soles
+    hands0 = _hands_from(robot, q0)
+    qf, qs = q0.copy(), q0.copy()
+    com0 = robot.com(q0)
+    for k in range(1, 21):
+        s = k / 20
+        hands = HandTargets(hands0.p_right + s * np.array([0.05, 0.0, 0.04]), hands0.R_right,
+                            hands0.p_left + s * np.array([0.04, 0.02, 0.03]), hands0.R_left)
+        chest = s * np.array([0.05, 0.02])
+        legs = _legs(robot, com0 + s * np.array([0.0, 0.0, -0.03]))
+        a = fast.step(qf, hands, chest, legs, r_sole)
+        b = slow.step(qs, hands, chest, legs, r_sole)
+        assert a.ok and b.ok
+        assert np.abs(pin.difference(robot.model, a.q, b.q)).max() < 1e-5
+        assert a.hand_error < 1e-9
+        qf, qs = a.q, b.q

@@ -32,6 +32,7 @@ previous angles and the step reports ``ok = False`` with the reason.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -131,7 +132,9 @@ class DualArmReachController:
 
     # ------------------------------------------------------------ state
     def reset(self, q: np.ndarray | None = None) -> None:
-        """Back to the initial posture (or ``q``), no target."""
+        """Back to the initial posture (or ``q``), no target. Any configuration with the
+        support sole at its stance pose (e.g. the executor node's last command) is a valid
+        start: the next :meth:`set_targets` interpolates hands, CoM and chest from it."""
         q = self.q_init if q is None else np.asarray(q, float)
         if q.shape != (self.robot.model.nq,) or not np.all(np.isfinite(q)):
             raise ValueError(f"q must be a finite ({self.robot.model.nq},) configuration")
@@ -143,8 +146,22 @@ class DualArmReachController:
         self.plan: ReachPlan | None = None
         self._k = 0
         self._start = None
+        self._brake: tuple[int, float, float, int] | None = None
         self._rng = None
         self._remaining = 0
+
+    _STATE = ("q", "_ref", "_com_ref", "_chest_ref", "plan", "_k", "_start", "_brake", "_rng", "_remaining")
+
+    def save_state(self) -> dict:
+        """A snapshot of the controller's state (the node restores it when a new target
+        pair turns out infeasible, so that the running motion can be braked smoothly).
+        The attributes are replaced, never mutated in place, so a shallow copy suffices."""
+        return {k: getattr(self, k) for k in self._STATE}
+
+    def restore_state(self, state: dict) -> None:
+        """Back to a :meth:`save_state` snapshot."""
+        for k in self._STATE:
+            setattr(self, k, state[k])
 
     @property
     def joints(self) -> np.ndarray:
@@ -153,6 +170,11 @@ class DualArmReachController:
     @property
     def busy(self) -> bool:
         return self.plan is not None and self._k < self.plan.n_steps
+
+    @property
+    def sequential_remaining(self) -> int:
+        """Random target pairs still to come in sequential mode (0 otherwise)."""
+        return self._remaining if self._rng is not None else 0
 
     @property
     def start_reference(self) -> tuple:
@@ -174,10 +196,44 @@ class DualArmReachController:
         n = max(1, math.ceil(PEAK_SPEED_RATIO * dist / (self.config.max_speed_mps * self.config.period_s) - 1e-9))
         self.plan = ReachPlan(t, com, chest, n)
         self._start = start
+        self._brake = None
         ok, reason = self._check_path()
         self.plan = ReachPlan(t, com, chest, n, ok, reason)
         self._k = 0
         return self.plan
+
+    def brake(self, duration_s: float) -> int:
+        """Smooth stop on the current path (the executor node's cancel / preempt; not in
+        the dissertation): from step ``k`` the path parameter keeps its current per-step
+        increment ``v = s(k+1) - s(k)`` and decays it linearly to zero over
+        ``m = ceil(duration_s / period)`` steps, ``s(k + j) = s(k) + v (j - j^2 / 2m)``,
+        stopping at ``s(k) + v m / 2`` short of the target (the hands, CoM and chest stop
+        on their straight-line / Rodrigues references). If the minimum-jerk profile would
+        stop sooner (near its end) it is kept. Sequential targets are dropped. Returns the
+        steps left until the stop (0 when idle)."""
+        self._rng, self._remaining = None, 0
+        plan = self.plan
+        if plan is None or not plan.feasible or self._k >= plan.n_steps:
+            return 0
+        k, n = self._k, plan.n_steps
+        m = max(1, math.ceil(duration_s / self.config.period_s - 1e-9))
+        if m >= n - k:
+            return n - k
+        s0 = self._s(k)
+        v = self._s(k + 1) - s0
+        if s0 + 0.5 * v * m >= 1.0:
+            return n - k
+        self._brake = (k, s0, v, m)
+        self.plan = dataclasses.replace(plan, n_steps=k + m)
+        return m
+
+    def _s(self, k: int) -> float:
+        """Path parameter of step ``k``: minimum jerk, or the braking profile (:meth:`brake`)."""
+        if self._brake is not None and k >= self._brake[0]:
+            k0, s0, v, m = self._brake
+            j = min(k - k0, m)
+            return s0 + v * (j - j * j / (2.0 * m))
+        return min_jerk(k / self.plan.n_steps)
 
     def _check_path(self) -> tuple[bool, str]:
         """Solve the plan at ``path_checks`` evenly spaced points of the path (warm-started
@@ -199,7 +255,7 @@ class DualArmReachController:
         plan = self.plan
         if plan is None:
             raise ValueError("no target pair set")
-        s = min_jerk(k / plan.n_steps)
+        s = self._s(k)
         r0, l0, c0, ch0 = self._start
         t = plan.targets
         hands = HandTargets(r0.translation + s * (t.p_right - r0.translation),
@@ -243,7 +299,7 @@ class DualArmReachController:
             self._k = plan.n_steps
             return ControlStep(step.joints, step.q, 1.0, True, False, plan.reason, np.nan, np.nan, step.com_ref)
         self._k += 1
-        s = self._k / plan.n_steps
+        s = self._s(self._k)
         hands, com_ref, chest = self.reference_at(self._k)
         legs = self.leg_targets(com_ref)
         res = self.ik.step(self.q, hands, chest, legs, self.sole_support, measure)

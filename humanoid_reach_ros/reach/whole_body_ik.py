@@ -17,7 +17,14 @@ The torso is the waist link ``base_link`` (the legs cannot move the chest link).
 
 :class:`ProposedWholeBodyIK` -- one control step of the proposed method (Fig. 8): chest
 angles set, Algorithm 3 for the legs, then the closed-form IK of both arms
-(``robot.limb_ik``) from the resulting ``CHEST_LINK1`` pose.
+(``robot.limb_ik``) from the resulting ``CHEST_LINK1`` pose. By default both parts run
+compiled: the legs by :class:`~humanoid_reach_ros.reach.fast_legs.ClosedFormLowerBodyIK`
+(Algorithm 3's 12 equations solved as closed-form legs + a 3-D Newton on the waist
+position -- a named reformulation with the same solution, falling back to
+:class:`LowerBodyIK` whenever it fails), the arms by
+:class:`~humanoid_reach_ros.reach.fast_arms.CompiledArmIK` (numba twin of the closed-form
+arm IK). ``closed_form_legs=False, compiled_arms=False`` gives the reference path; the
+tests check both agree.
 
 :class:`FullBodyLMIK` -- the conventional method of Sec. 5.2 (Table 2): one LM
 (Sugihara, ref. [24]) on legs + chest + arms (26 joints) with 24 task rows (both hands'
@@ -180,15 +187,39 @@ class StepResult:
 class ProposedWholeBodyIK:
     """One control step of the proposed method: chest set -> Algorithm 3 -> closed-form arms."""
 
-    def __init__(self, robot: RobotModel, support: str = "right", **lower_kw) -> None:
+    def __init__(self, robot: RobotModel, support: str = "right", closed_form_legs: bool = True,
+                 compiled_arms: bool = True, **lower_kw) -> None:
         self.robot = robot
         self.lower = LowerBodyIK(robot, support, **lower_kw)
+        if closed_form_legs:      # same solution, compiled (reach/fast_legs.py); falls back to LowerBodyIK
+            from humanoid_reach_ros.reach.fast_legs import ClosedFormLowerBodyIK
+            self.lower = ClosedFormLowerBodyIK(robot, support, tol=self.lower.tol, max_iter=self.lower.max_iter,
+                                               reference=self.lower)
         self.limb_ik = LimbIKSet(robot)
         self.chest_pitch = N_BASE_Q + robot.joint_index["CHEST_JOINT1"]
         self.chest_yaw = N_BASE_Q + robot.joint_index["CHEST_JOINT0"]
         self.arm_cols = {s: N_BASE_Q + np.array(robot.limbs[f"{s}_arm"].joint_index) for s in ("right", "left")}
         self.fid_chest = robot.frame_id(robot.limbs["right_arm"].root)
         self.fid_hand = {s: robot.frame_id(robot.limbs[f"{s}_arm"].tip) for s in ("right", "left")}
+        self.arm_ik = None
+        if compiled_arms:         # numba twin of the closed-form arm IK (reach/fast_arms.py)
+            from humanoid_reach_ros.reach.fast_arms import CompiledArmIK
+            self.arm_ik = {s: CompiledArmIK(self.limb_ik[f"{s}_arm"]) for s in ("right", "left")}
+        if closed_form_legs or compiled_arms:
+            self.warm_up()
+
+    def warm_up(self) -> None:
+        """One step at half-sitting: compiles (or loads from numba's cache) the kernels
+        now rather than in the first control step."""
+        q = self.robot.half_sitting()
+        M = {s: self.robot.frame_pose(q, self.robot.limbs[f"{s}_arm"].tip) for s in ("right", "left")}
+        soles = dict(zip(("right", "left"), self.robot.stance_soles))
+        sup = self.lower.support
+        swing = "left" if sup == "right" else "right"
+        hands = HandTargets(M["right"].translation, M["right"].rotation, M["left"].translation, M["left"].rotation)
+        legs = LegTargets(self.robot.com(q), self.robot.frame_pose(q, self.robot.base_link).rotation,
+                          soles[swing].translation, soles[swing].rotation)
+        self.step(q, hands, np.array([q[self.chest_pitch], q[self.chest_yaw]]), legs, soles[sup], measure=False)
 
     def step(self, q_prev: np.ndarray, hands: HandTargets, chest_pitch_yaw: np.ndarray,
              legs: LegTargets, sole_world: pin.SE3, measure: bool = True) -> StepResult:
@@ -206,11 +237,15 @@ class ProposedWholeBodyIK:
             reasons.append(f"lower body: |e| = {low.error_norm:.2e} after {low.iterations} iterations")
         for side, p, R in (("right", hands.p_right, hands.R_right), ("left", hands.p_left, hands.R_left)):
             cols = self.arm_cols[side]
-            res = self.limb_ik[f"{side}_arm"].solve(C.translation, C.rotation, p, R, q[cols])
-            if res.ok[0]:
-                q[cols] = res.q[0]
+            if self.arm_ik is not None:
+                code, qa = self.arm_ik[side].solve(C.translation, C.rotation, p, R, q[cols])
             else:
-                reasons.append(f"{side} arm: {IKReason(int(res.reason[0])).name}")
+                res = self.limb_ik[f"{side}_arm"].solve(C.translation, C.rotation, p, R, q[cols])
+                code, qa = int(res.reason[0]), res.q[0]
+            if code == 0:
+                q[cols] = qa
+            else:
+                reasons.append(f"{side} arm: {IKReason(code).name}")
         herr, cerr = measure_errors(self.robot, self.lower.data, q, hands, legs) if measure else (np.nan, np.nan)
         return StepResult(q, not reasons, "; ".join(reasons), herr, cerr, low.iterations)
 
