@@ -4,7 +4,7 @@ SHELL := /bin/bash
 ENV := . tools/env.sh &&
 PYTEST_ARGS ?=
 
-.PHONY: setup test demo bench clean urdf
+.PHONY: setup test demo bench bags clean urdf
 
 setup:
 	@tools/setup.sh
@@ -17,6 +17,9 @@ demo: setup
 
 bench: setup
 	@$(ENV) for b in bench/*.py; do echo "== $$b"; python $$b || exit 1; done
+
+bags: setup
+	@$(ENV) python tools/record_bags.py
 
 urdf: setup
 	@$(ENV) python tools/gen_hrp2_urdf.py
