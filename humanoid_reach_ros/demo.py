@@ -42,6 +42,8 @@ RECORDED_TOPICS = ("/joint_states", "/joint_command", "/base_pose", "/robot_desc
 # head (yaw, pitch) poses of the scan [deg]; pitch > 0 looks down
 HEAD_SCAN_DEG = ((0.0, 35.0), (-30.0, 30.0), (30.0, 30.0), (-25.0, 5.0), (25.0, 5.0), (0.0, 10.0))
 HEAD_JOINTS = ("HEAD_JOINT0", "HEAD_JOINT1")
+SIM_JOINT_STATES_TIMEOUT_S = 2.0   # planner/executor staleness of /joint_states in the demo [s]
+SIM_JOINT_STATES_ABORT_S = 5.0     # executor: abort a motion when /joint_states stop this long [s]
 
 
 def arm_code(arm: str) -> int:
@@ -322,6 +324,11 @@ def run(args: argparse.Namespace) -> dict:
                 params["scene_file"] = scene
             elif name in ("reach_planner", "reach_executor"):
                 params["scene_file"] = ""  # the measured /voxel_map is the map
+                # simulation on a shared 2-core machine: a node can be starved of /joint_states for a
+                # second or two, which on a robot would rightly stop a motion (defaults 0.5 s / 2 s)
+                params["joint_states_timeout_s"] = SIM_JOINT_STATES_TIMEOUT_S
+                if name == "reach_executor":
+                    params["joint_states_abort_s"] = SIM_JOINT_STATES_ABORT_S
             graph.start(name, params)
         if not args.no_record:
             bag = out / "demo.mcap"

@@ -13,7 +13,7 @@
   positions outside the joint limits).
 * :func:`arm_motion` / :func:`resolve_arm`: which arm a trajectory moves (its hand is the
   task of level 3), and the check that a requested arm is the one the trajectory moves.
-* :func:`model_joints`: the 30 measured joints of a ``/joint_states`` message in model order
+* (``msgs.model_joints`` gives the 30 measured joints of a ``/joint_states`` message in model order)
   (the same rules as ``reach_planner``'s start posture).
 * :func:`executor_metrics` / :func:`execute_feedback` fill ``ExecutorMetrics`` and the
   ``ExecuteReach`` feedback from the executor's ``StepMetrics`` (or a
@@ -37,7 +37,6 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Pose, PoseArray, PoseStamped
 from humanoid_reach_interfaces.action import ExecuteReach
 from humanoid_reach_interfaces.msg import ExecutorMetrics
-from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
 from humanoid_reach_ros.io import msgs
@@ -173,22 +172,6 @@ def resolve_arm(code: int, motion: dict[str, ArmMotion]) -> str:
         raise ExecInputError(bad, f"wrong arm: the trajectory moves the {other} arm's joints ({theirs:.2f} rad in "
                                   f"all) while the requested {arm} arm's move {mine:.2f} rad")
     return arm
-
-
-def model_joints(msg: JointState, robot: RobotModel) -> tuple[np.ndarray | None, str]:
-    """The 30 joint angles of a ``sensor_msgs/JointState`` in model order, or ``None`` and
-    why not (mismatched arrays, unknown joint, a robot joint missing or NaN/inf)."""
-    js = msgs.parse_joint_state(msg)
-    if len(js.names) != len(js.positions):
-        return None, "/joint_states has mismatched name/position arrays"
-    try:
-        joints = robot.joints_from_dict(dict(zip(js.names, js.positions)), np.full(robot.n_joints, np.nan))
-    except KeyError as exc:
-        return None, f"/joint_states: {exc}"
-    if not np.all(np.isfinite(joints)):
-        missing = [n for n, v in zip(robot.joint_names, joints) if not math.isfinite(v)]
-        return None, f"/joint_states lacks (or has NaN for) {len(missing)} joint(s), e.g. {missing[0]}"
-    return joints, ""
 
 
 # ---------------------------------------------------------------- metrics and feedback

@@ -13,7 +13,7 @@ from __future__ import annotations
 import array
 import math
 from dataclasses import dataclass
-from typing import Any, Iterable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -22,6 +22,9 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose, PoseStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Header
+
+if TYPE_CHECKING:  # pragma: no cover
+    from humanoid_reach_ros.robot.model import RobotModel
 
 NS_PER_S = 1_000_000_000
 
@@ -90,6 +93,22 @@ def parse_joint_state(msg: JointState) -> JointStateArrays:
         efforts=eff if eff.size else None,
         stamp_s=seconds_from_time(msg.header.stamp),
     )
+
+
+def model_joints(msg: JointState, robot: RobotModel) -> tuple[np.ndarray | None, str]:
+    """The 30 joint angles of a ``sensor_msgs/JointState`` in model order, or ``None`` and
+    why not (mismatched arrays, unknown joint, a robot joint missing or NaN/inf)."""
+    js = parse_joint_state(msg)
+    if len(js.names) != len(js.positions):
+        return None, "/joint_states has mismatched name/position arrays"
+    try:
+        joints = robot.joints_from_dict(dict(zip(js.names, js.positions)), np.full(robot.n_joints, np.nan))
+    except KeyError as exc:
+        return None, f"/joint_states: {exc}"
+    if not np.all(np.isfinite(joints)):
+        missing = [n for n, v in zip(robot.joint_names, joints) if not math.isfinite(v)]
+        return None, f"/joint_states lacks (or has NaN for) {len(missing)} joint(s), e.g. {missing[0]}"
+    return joints, ""
 
 
 def joint_state(

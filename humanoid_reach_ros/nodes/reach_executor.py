@@ -552,7 +552,7 @@ class ReachExecutorNode(Node):
         age = time.monotonic() - t
         if age > self._p["joint_states_timeout_s"]:
             return None, f"/joint_states is stale ({age:.2f} s > {self._p['joint_states_timeout_s']:g} s)"
-        return exec_msgs.model_joints(msg, self.robot)
+        return msgs.model_joints(msg, self.robot)
 
     def _prepare(self, label: str, trajectory: JointTrajectory, arm_code: int, no_avoidance: bool, no_com: bool,
                  reshaping: bool, goal: bool) -> Motion:

@@ -284,17 +284,7 @@ class ReachPlannerNode(Node):
         age = time.monotonic() - t
         if age > self._p["joint_states_timeout_s"]:
             return None, f"/joint_states is stale ({age:.2f} s > {self._p['joint_states_timeout_s']:g} s)"
-        js = msgs.parse_joint_state(msg)
-        if len(js.names) != len(js.positions):
-            return None, "/joint_states has mismatched name/position arrays"
-        try:
-            joints = self.model.joints_from_dict(dict(zip(js.names, js.positions)), np.full(self.model.n_joints, np.nan))
-        except KeyError as exc:
-            return None, f"/joint_states: {exc}"
-        if not np.all(np.isfinite(joints)):
-            missing = [n for n, v in zip(self.model.joint_names, joints) if not math.isfinite(v)]
-            return None, f"/joint_states lacks (or has NaN for) {len(missing)} joint(s), e.g. {missing[0]}"
-        return joints, ""
+        return msgs.model_joints(msg, self.model)
 
     def current_target(self) -> tuple[PoseStamped | None, str]:
         with self._state_lock:
