@@ -24,6 +24,14 @@ both executed). Balance at every step: the CoM projection and the ZMP -- from fl
 inverse dynamics (RNEA) of the commanded motion, balance.zmp_trajectory -- inside the
 support polygon of both soles with ``--margin-m`` (0.02 m).
 
+Timing: CPU time of the thread (``time.thread_time``, the headline figures) and wall time
+(``time.perf_counter``) of the same steps; ``same_pairs`` gives both ratios. The proposed
+step runs compiled (reach/fast_legs.py, reach/fast_arms.py; the kernels are loaded from
+numba's cache when the controller is built). ``reachability``: fraction of pairs for
+which eq. 5 holds for both hands at the chosen CoM candidate, for which the final
+whole-body configuration exists (solved from the initial posture, untimed), and whose
+whole path was feasible (executed).
+
 ``--baseline-pairs N`` runs the conventional method on N of the pairs only, spread evenly
 over the list (a named reduction, reported in the JSON), when the full run does not fit
 the time at hand; the speed ratio is then taken on those pairs.
@@ -60,7 +68,9 @@ from humanoid_reach_ros.reach.whole_body_ik import FullBodyLMIK, measure_errors
 
 REPO = Path(__file__).resolve().parents[1]
 CLOCK = time.thread_time
+WALL = time.perf_counter
 DATA: list = []
+WALL_MS: dict = {"proposed": [], "conventional": []}   # wall time per step [ms] (same steps)
 PLAN_MS: list = []      # planning time per pair (regression, eq. 6, path check) [ms]
 STEP_MS: list = []      # proposed step times without the planning [ms]
 
@@ -71,18 +81,22 @@ def run_proposed(ctl: DualArmReachController, pr, pl, ws):
     eq. 6, final-configuration check) in the first step. Errors are measured after the
     timed step. Returns (plan, steps, times, CoM errors, references)."""
     ctl.reset()
-    t0 = CLOCK()
+    w0, t0 = WALL(), CLOCK()
     t = ws.targets(pr, pl)
     plan = ctl.set_targets(t.p_right, t.R_right, t.p_left, t.R_left)
     t_plan = CLOCK() - t0
+    t_plan_wall = WALL() - w0
     refs = [ctl.reference_at(k) for k in range(1, plan.n_steps + 1)]
     times, steps, com_err = [], [], []
     PLAN_MS.append(t_plan * 1e3)
     if plan.feasible:
+        first = True
         while ctl.busy:
-            t0 = CLOCK()
+            w0, t0 = WALL(), CLOCK()
             st = ctl.step(measure=False)
             times.append(CLOCK() - t0)
+            WALL_MS["proposed"].append(1e3 * (WALL() - w0 + (t_plan_wall if first else 0.0)))
+            first = False
             steps.append(st)
             com_err.append(measure_errors(ctl.robot, DATA[0], st.q, st.hands, ctl.leg_targets(st.com_ref))[1])
         STEP_MS.extend(1e3 * np.array(times))
@@ -95,9 +109,10 @@ def run_baseline(lm: FullBodyLMIK, ctl: DualArmReachController, refs):
     out, times, com_err = [], [], []
     for hands, com_ref, _ in refs:
         legs = ctl.leg_targets(com_ref)
-        t0 = CLOCK()
+        w0, t0 = WALL(), CLOCK()
         res = lm.step(q, hands, legs, ctl.sole_support, measure=False)
         times.append(CLOCK() - t0)
+        WALL_MS["conventional"].append(1e3 * (WALL() - w0))
         q = res.q
         out.append(res)
         com_err.append(measure_errors(ctl.robot, DATA[0], q, hands, legs)[1])
@@ -222,10 +237,18 @@ def main(argv=None) -> int:
     P = {"err": [], "com": [], "t": [], "succ": [], "n": 0, "bal": [], "mz": [], "mc": [], "labels": {},
          "feasible": []}
     B = {"err": [], "com": [], "t": [], "succ": [], "n": 0, "bal": [], "mz": [], "mc": []}
-    Pt_sub, Bt_sub = [], []
+    Pt_sub, Bt_sub, Pw_sub, Bw_sub = [], [], [], []
+    reach = {"eq5": 0, "final": 0}
     t_start = time.time()
     for i, (pr, pl) in enumerate(pairs):
+        nw, nwb = len(WALL_MS["proposed"]), len(WALL_MS["conventional"])
         plan, steps, times, cerr, refs = run_proposed(ctl, pr, pl, ws)
+        # reachability diagnostics (untimed): eq. 5 for both hands at the chosen CoM
+        # candidate, and whether the final whole-body configuration exists (from q_init)
+        reach["eq5"] += bool(plan.com.reachable)
+        hands_f, com_f, chest_f = refs[-1]
+        reach["final"] += bool(ctl.ik.step(ctl.q_init, hands_f, chest_f, ctl.leg_targets(com_f), ctl.sole_support,
+                                           measure=False).ok)
         lab = plan.com.label
         P["labels"][lab] = P["labels"].get(lab, 0) + 1
         P["feasible"].append(plan.feasible)
@@ -259,6 +282,8 @@ def main(argv=None) -> int:
             if plan.feasible:
                 Pt_sub += list(times)
                 Bt_sub += list(bt)
+                Pw_sub += WALL_MS["proposed"][nw:]
+                Bw_sub += WALL_MS["conventional"][nwb:]
         if (i + 1) % 27 == 0:
             print(f"{i + 1}/{len(pairs)} pairs, {time.time() - t_start:.0f} s", file=sys.stderr, flush=True)
 
@@ -280,6 +305,7 @@ def main(argv=None) -> int:
                  "min_com_margin_m": round(float(np.min(B["mc"])), 4),
                  "lm_max_iter": a.lm_max_iter})
     ratio = float(np.mean(Bt_sub) / np.mean(Pt_sub)) if Pt_sub else float("nan")
+    ratio_wall = float(np.mean(Bw_sub) / np.mean(Pw_sub)) if Pw_sub else float("nan")
     out = {
         "bench": "dual_arm_table2",
         "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
@@ -289,6 +315,15 @@ def main(argv=None) -> int:
         "period_s": dt, "max_speed_mps": ctl.config.max_speed_mps, "margin_m": a.margin_m,
         "proposed": prop, "conventional": base,
         "speed_ratio_mean_step_same_pairs": round(ratio, 2),
+        "same_pairs": {"pairs": int(sum(1 for i in base_idx if P["feasible"][i])), "steps": len(Pt_sub),
+                       "proposed_mean_step_ms_cpu": round(1e3 * float(np.mean(Pt_sub)), 4) if Pt_sub else None,
+                       "conventional_mean_step_ms_cpu": round(1e3 * float(np.mean(Bt_sub)), 4) if Bt_sub else None,
+                       "proposed_mean_step_ms_wall": round(float(np.mean(Pw_sub)), 4) if Pw_sub else None,
+                       "conventional_mean_step_ms_wall": round(float(np.mean(Bw_sub)), 4) if Bw_sub else None,
+                       "speed_ratio_cpu": round(ratio, 2), "speed_ratio_wall": round(ratio_wall, 2)},
+        "reachability": {"eq5_both_hands_at_chosen_com": round(reach["eq5"] / len(pairs), 4),
+                         "final_configuration_exists": round(reach["final"] / len(pairs), 4),
+                         "path_feasible (executed)": round(float(np.mean(P["feasible"])), 4)},
         "targets": {"error_mm_le_1": prop["mean_hand_error_mm"] <= 1.0, "ratio_ge_8": ratio >= 8.0},
         "wall_s": round(time.time() - t_start, 1),
     }
