@@ -215,6 +215,74 @@ def test_without_com_compensation_the_cog_moves(robot, cm):
     assert drift[False] > 5e-3
 
 
+
+def test_com_motion_after_cancelled_uncompensated_motion(robot, cm, plant):
+    """Issue #4: forward reach (COG on) -> backward WITHOUT compensation cancelled at 27 %
+    (the COG drifts ~5 cm) -> backward WITH compensation from there. The COG target
+    ramps back to its nominal point instead of being held off-centre for the whole
+    motion: no OSQP fallback, level 1 exact, distances >= d_s, the hand and the COG track,
+    the posture reaches the reference and the COG ends at its nominal point."""
+    tree, fwd = plant
+    bwd = SplineTrajectory(fwd.waypoints[::-1].copy(), fwd.times[-1] - fwd.times[::-1])
+    ex = WholeBodyExecutor(robot, cm, ExecutorParams())
+    ex.set_environment(tree)
+    j0 = fwd.position(0.0)
+    q0 = robot.config(j0, robot.base_on_feet(j0))
+    com_nominal = robot.com(q0)[:2]
+    ex.start(q0, fwd, "right")
+    for _ in range(int(np.ceil(fwd.duration / DT)) + 60):
+        if ex.step().done:
+            break
+    ex.start(ex.q, bwd, "right", params=ex.with_params(com_compensation=False))
+    while ex.step().metrics.progress < 0.27:
+        pass
+    ex.hold()
+    ex.step()
+    q1 = ex.q
+    assert np.linalg.norm(robot.com(q1)[:2] - com_nominal) > 0.03      # the cancelled motion moved the COG
+    soles1 = _sole_poses(robot, q1)
+    ex.start(q1, bwd, "right", params=ex.with_params(com_compensation=True))
+    results = _run(ex, int(np.ceil(bwd.duration / DT)) + 60)
+    m = [r.metrics for r in results]
+    d_s = ExecutorParams().security_distance_m
+    assert not any(x.fallback for x in m)
+    assert max(x.level_slack[0] for x in m) < 1e-6
+    assert min(x.min_distance_m for x in m) >= d_s - 2e-3
+    assert max(x.com_error_m for x in m) < 2e-3
+    assert max(x.hand_error_m for x in m) < 1e-2
+    assert results[-1].done and m[-1].hand_error_m < 1e-3
+    assert np.linalg.norm(robot.com(ex.q)[:2] - com_nominal) < 2e-3
+    assert np.max(np.abs(results[-1].joints - bwd.position(bwd.duration))) < 0.05
+    for s0, s in zip(soles1, _sole_poses(robot, ex.q)):
+        assert np.linalg.norm(s.translation - s0.translation) < 1e-4
+
+
+def test_start_inside_security_distance_stays_feasible(robot, cm):
+    """A start with the hand already inside d_s: the dampers allow the distance to grow
+    and never to shrink (h >= 0), so level 1 stays feasible and exact at every step."""
+    d_s = 0.03
+    ex = WholeBodyExecutor(robot, cm, ExecutorParams(security_distance_m=d_s))
+    q0 = robot.half_sitting()
+    P0, P1 = ex._fk.world_shapes(q0)
+    hand = robot.frame_pose(q0, "r_hand_ee").translation
+    k = int(np.argmin(np.minimum(np.linalg.norm(P0 - hand, axis=1), np.linalg.norm(P1 - hand, axis=1))))
+    # a sphere 1 cm from the hand shape's surface, in front of it
+    centre = P0[k] + np.array([cm.radii[k] + 0.01 + 0.02, 0.0, 0.0])
+    ex.set_environment(SphereTree.build(centre[None], 0.02))
+    target = robot.frame_pose(q0, "r_hand_ee")
+    target = pin.SE3(target.rotation, target.translation + np.array([0.05, 0.0, 0.0]))
+    ex.start(q0, SplineTrajectory(robot.half_sitting_joints[None], np.zeros(1)), "right")
+    ex.reference_hand = lambda joints: target          # pushes the hand into the sphere
+    prev = None
+    for r in _run(ex, 100):
+        m = r.metrics
+        assert m.level_slack[0] < 1e-6
+        if prev is not None and prev < d_s:
+            assert m.min_distance_m >= prev - 1e-3         # inside d_s: never closer (first order)
+        prev = m.min_distance_m
+        assert np.all(r.joints >= robot.lower) and np.all(r.joints <= robot.upper)
+    assert prev > 0.0
+
 def test_done_and_metrics_fields(robot, cm):
     ex = WholeBodyExecutor(robot, cm)
     ref = _arm_reference(robot, {"RARM_JOINT0": -0.2}, duration=0.2)

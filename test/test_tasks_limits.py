@@ -238,6 +238,16 @@ def test_world_point_rows_match_point_normal_rows(robot, cm):
     masks = support_masks(m, cm.frame_ids)[links]
     assert np.allclose(world_point_rows(data.J, masks, pts, nrm), point_normal_rows(m, data, fids, pts, nrm),
                        atol=1e-12)
+    # indexed masks and the self-pair difference form give the same rows
+    all_masks = support_masks(m, cm.frame_ids)
+    assert np.allclose(world_point_rows(data.J, all_masks, pts, nrm, links), world_point_rows(data.J, masks, pts, nrm),
+                       atol=1e-12)
+    from humanoid_reach_ros.control.limits import pair_point_rows
+    other = rng.integers(0, len(cm.frame_ids), size=12)
+    pts_b = rng.normal(size=(12, 3))
+    expect = (point_normal_rows(m, data, fids, pts, nrm)
+              - point_normal_rows(m, data, np.asarray(cm.frame_ids)[other], pts_b, nrm))
+    assert np.allclose(pair_point_rows(data.J, all_masks, links, pts, other, pts_b, nrm), expect, atol=1e-12)
 
 
 def test_self_pair_geometry_matches_numpy(robot, cm):

@@ -8,13 +8,15 @@ The priority levels are those of the paper:
 
 1. joint position limits over one step, joint velocity limits (``velocity_scale`` of
    the URDF limits) and Faverjon-Tournassoud velocity dampers
-   ``delta_d >= -xi (d - d_s)`` between every environment sphere within the distance
+   ``delta_d >= -xi max(d - d_s, 0)`` (never a forced push-out: always feasible) between every environment sphere within the distance
    bound ``d_i`` of a robot shape (sphere-tree query ``spheres_within_batch``) and
    between the self-collision pairs closer than ``d_i`` (inequalities
    ``G dq <= h``, :mod:`humanoid_reach_ros.control.limits`);
 2. both soles 6D fixed at their pose at :meth:`WholeBodyExecutor.start` and the
    horizontal position of the *exact* COG (``J_com``, all link masses) held at its
-   value at ``start``;
+   value at ``start``; when that value is off the nominal COG (half-sitting's,
+   relative to the right sole; e.g. after a motion without compensation) the target
+   ramps back to the nominal point (quintic, ``com_recenter_speed_mps`` on average);
 3. the hand 6D pose of the reference: forward kinematics of the reference joints at
    ``t`` with the waist of :meth:`RobotModel.base_on_feet`, expressed relative to the
    right sole so it stays consistent with the real stance;
@@ -30,7 +32,8 @@ Speed (bench/execution.py): one ``computeJointJacobians`` + ``updateFramePlaceme
 per step; the capsules from the numba forward kinematics of :class:`RobotCollision`;
 only environment spheres within ``d_i`` make damper rows, their closest points and
 normals in numba and their rows ``n^T J_v + (p x n)^T J_w`` straight from the WORLD
-joint Jacobians (no per-link Jacobian calls); the closed-form solver needs no QP in the
+joint Jacobians in one numba kernel (no per-link Jacobian calls, no temporaries); the
+constant joint-limit and posture rows built once; the closed-form solver needs no QP in the
 common case. The executor limits BLAS to ``blas_threads`` (default 1, process-wide):
 on these small matrices BLAS threads only add synchronisation (a 34x34 product took
 0.29 ms with threads on a loaded machine, 8 us without). ``smooth_reshaping`` runs
@@ -56,7 +59,8 @@ import pinocchio as pin
 from threadpoolctl import threadpool_limits
 
 from humanoid_reach_ros.control.hqp import HierarchicalQP, Level, SaturatedNullSpaceHQP
-from humanoid_reach_ros.control.limits import env_pair_geometry, self_pair_geometry, support_masks, world_point_rows
+from humanoid_reach_ros.control.limits import (damper_bound, env_pair_geometry, pair_point_rows, self_pair_geometry,
+                                               support_masks, world_point_rows)
 from humanoid_reach_ros.control.tasks import DofSelection
 from humanoid_reach_ros.geometry.distance import RobotCollision
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree
@@ -98,6 +102,7 @@ class ExecutorParams:
     osqp_max_iter: int = 400
     blas_threads: int = 1                   # process-wide BLAS thread limit set by the executor (0: leave)
     smooth_reshaping: bool = False          # reshape the reference (planning/reshape.py) in start()
+    com_recenter_speed_mps: float = 0.05    # mean speed of the COG target back to its nominal point
 
     def validate(self) -> "ExecutorParams":
         checks = [
@@ -107,7 +112,8 @@ class ExecutorParams:
             ("com_gain", 0 < self.com_gain <= 1), ("feet_gain", 0 < self.feet_gain <= 1),
             ("posture_gain", 0 < self.posture_gain <= 1), ("velocity_scale", 0 < self.velocity_scale <= 1),
             ("blend_min_s", self.blend_min_s >= 0), ("settle_timeout_s", self.settle_timeout_s >= 0),
-            ("max_saturation_iter", self.max_saturation_iter >= 1), ("blas_threads", self.blas_threads >= 0), ("osqp_max_iter", self.osqp_max_iter >= 1),
+            ("max_saturation_iter", self.max_saturation_iter >= 1),
+            ("com_recenter_speed_mps", self.com_recenter_speed_mps > 0), ("blas_threads", self.blas_threads >= 0), ("osqp_max_iter", self.osqp_max_iter >= 1),
         ]
         for name, ok in checks:
             v = getattr(self, name)
@@ -130,7 +136,8 @@ class StepMetrics:
     spheres_in_bound: int       # environment spheres within distance_bound_m (Fig. 9)
     active_constraints: int     # inequality rows active at the solution
     active_levels: int          # number of priority levels solved
-    com_error_m: float          # horizontal distance of the EXACT COG from its value at start()
+    com_error_m: float          # horizontal distance of the EXACT COG from its target (value at start(),
+                                # or the recentering ramp after a start away from the nominal COG)
     min_distance_m: float       # robot-environment minimum distance (inf without a map)
     hand_error_m: float         # position error of the hand vs the reference at t
     hand_error_rad: float
@@ -176,7 +183,11 @@ class WholeBodyExecutor:
         self._blend_s = 0.0
         self._sole_targets: tuple[pin.SE3, pin.SE3] | None = None
         self._com_target = np.zeros(2)
+        self._com_offset = np.zeros(2)          # COG target = _com_target + (1 - s5(t / _com_blend_s)) _com_offset
+        self._com_blend_s = 0.0
         self._stance_r_inv = robot.stance_soles[0].inverse()
+        # nominal COG: that of half-sitting, in the right-sole frame (where a balanced stance has it)
+        self._com_nominal_in_sole = self._stance_r_inv.act(robot.com(robot.half_sitting()))
         self._sole_ids = tuple(robot.frame_id(f) for f in SOLE_FRAMES)
         self._hand_ids = {a: robot.frame_id(f) for a, f in HAND_FRAMES.items()}
         # joint rows: the selected joints (grippers excluded)
@@ -184,6 +195,12 @@ class WholeBodyExecutor:
         self._joint_sel = np.array([j for j in range(robot.n_joints) if j not in grip], dtype=np.intp)
         self._joint_cols = np.searchsorted(self.sel.index, N_BASE_V + self._joint_sel)
         self._joint_groups = np.full(2 * len(self._joint_sel), -1, dtype=np.int64)
+        # constant rows, built once: joint-limit rows (+I; -I) and the posture task (I)
+        k, nx = len(self._joint_sel), self.sel.n
+        self._G_joint = np.zeros((2 * k, nx))
+        self._G_joint[np.arange(k), self._joint_cols] = 1.0
+        self._G_joint[k + np.arange(k), self._joint_cols] = -1.0
+        self._A_posture = np.ascontiguousarray(self._G_joint[:k])
         self._pi = np.ascontiguousarray(collision.pair_index[:, 0], dtype=np.int64)
         self._pj = np.ascontiguousarray(collision.pair_index[:, 1], dtype=np.int64)
         self._radii = np.ascontiguousarray(collision.radii, dtype=float)
@@ -282,6 +299,7 @@ class WholeBodyExecutor:
             from humanoid_reach_ros.planning.reshape import SmoothReshaper
             reference = SmoothReshaper(self.robot, self.cm).reshape(reference, self._tree, arm).trajectory
         self._fix_stance(q)
+        self._recenter_com(q)
         self._q = q
         self._ref = reference
         self._arm = arm
@@ -306,6 +324,10 @@ class WholeBodyExecutor:
             self._q = q
         if self._sole_targets is None or q is not None and not self._active:
             self._fix_stance(self._q)
+        # a hold freezes the COG target where it is (mid-recentering included)
+        self._com_target = self._com_ref(self._t)
+        self._com_offset = np.zeros(2)
+        self._com_blend_s = 0.0
         joints = self._q[N_BASE_Q:].copy()
         self._ref = SplineTrajectory(joints[None], np.zeros(1))
         self._t = 0.0
@@ -319,6 +341,36 @@ class WholeBodyExecutor:
         pin.framesForwardKinematics(self.model, self.data, q)
         self._sole_targets = tuple(self.data.oMf[i].copy() for i in self._sole_ids)
         self._com_target = pin.centerOfMass(self.model, self.data, q)[:2].copy()
+        self._com_offset = np.zeros(2)
+        self._com_blend_s = 0.0
+
+    def _recenter_com(self, q: np.ndarray) -> None:
+        """With COG compensation, move the level-2 COG target from the COG of ``q`` to the
+        nominal one (half-sitting's, relative to the real right sole) along a quintic
+        ramp at ``com_recenter_speed_mps`` on average.
+
+        Root cause of issue #4: a motion WITHOUT compensation leaves the COG off its
+        nominal point (66 mm after a cancel at 27 %); holding the COG *there* for the whole
+        next motion forces the legs and waist far from the reference posture (level 4
+        cannot be met), pushes the body into the obstacles and makes the damper rows
+        conflict with the level-2 task. The paper holds the COG at its (balanced)
+        initial value: the nominal point plays that role after such a start."""
+        if not self.params.com_compensation:
+            return
+        nominal = self._sole_targets[0].act(self._com_nominal_in_sole)[:2]
+        offset = self._com_target - nominal
+        dist = float(np.linalg.norm(offset))
+        if dist <= 1e-4:
+            return
+        self._com_target = nominal
+        self._com_offset = offset
+        self._com_blend_s = max(self.params.blend_min_s, dist / self.params.com_recenter_speed_mps)
+
+    def _com_ref(self, t: float) -> np.ndarray:
+        """Level-2 COG xy target at ``t``."""
+        if self._com_blend_s > 0.0 and t < self._com_blend_s:
+            return self._com_target + (1.0 - _smoothstep5(t / self._com_blend_s)) * self._com_offset
+        return self._com_target
 
     def _set_blend(self, ref0: np.ndarray) -> None:
         diff = self._q[N_BASE_Q:] - ref0
@@ -365,7 +417,7 @@ class WholeBodyExecutor:
         ti = time.perf_counter()
         jr = self.reference_joints(t_next)
         hand_target = self.reference_hand(jr)
-        levels = self._levels(q, jr, hand_target, G_d, h_d)
+        levels = self._levels(q, jr, hand_target, G_d, h_d, self._com_ref(t_next))
         if p.solver == "osqp":
             res = self._osqp.solve([Level(None, None, levels[0][2], levels[0][3])]
                                    + [Level(A, b) for A, b, _, _ in levels[1:]], n=self.sel.n)
@@ -384,8 +436,8 @@ class WholeBodyExecutor:
         H = data.oMf[self._hand_ids[self._arm]]
         e_pos = float(np.linalg.norm(H.translation - hand_target.translation))
         e_rot = float(np.linalg.norm(pin.log3(hand_target.rotation.T @ H.rotation)))
-        com = pin.centerOfMass(model, data, q_new, False)
-        com_err = float(np.linalg.norm(com[:2] - self._com_target))
+        com = pin.centerOfMass(model, data, pin.KinematicLevel.POSITION, False)   # placements just computed
+        com_err = float(np.linalg.norm(com[:2] - self._com_ref(t_next)))
         dur = self.duration
         progress = 1.0 if dur <= 0 else min(t_next / dur, 1.0)
         done = self._holding or (t_next >= self._end_t and (
@@ -398,7 +450,7 @@ class WholeBodyExecutor:
         return StepResult(q_new.copy(), q_new[N_BASE_Q:].copy(), m, bool(done))
 
     # ------------------------------------------------------------ rows
-    def _levels(self, q, jr, hand_target, G_d, h_d):
+    def _levels(self, q, jr, hand_target, G_d, h_d, com_target):
         """[(None, None, G, h) level 1, (A, b, ...) levels 2-4] on the selected unknowns."""
         p = self.params
         model, data, sel = self.model, self.data, self.sel.index
@@ -409,12 +461,10 @@ class WholeBodyExecutor:
         up = np.maximum(np.minimum(self.robot.upper[js] - p.limit_margin_rad - qj, vdt), -vdt)
         lo = np.maximum(np.minimum(qj - self.robot.lower[js] - p.limit_margin_rad, vdt), -vdt)
         k = len(js)
-        nx = len(sel)
-        G = np.zeros((2 * k + len(h_d), nx))
-        G[np.arange(k), self._joint_cols] = 1.0
-        G[k + np.arange(k), self._joint_cols] = -1.0
+        G = np.empty((2 * k + len(h_d), len(sel)))
+        G[:2 * k] = self._G_joint
         if len(h_d):
-            G[2 * k:] = G_d[:, sel]
+            np.take(G_d, sel, axis=1, out=G[2 * k:])
         h = np.concatenate([up, lo, h_d])
         # level 2: soles 6D + COG xy
         A2, b2 = [], []
@@ -428,8 +478,8 @@ class WholeBodyExecutor:
             A2 += [J[:3], Jr]
             b2 += [-p.feet_gain * e_p, -p.feet_gain * e_r]
         if p.com_compensation:
-            Jc = pin.jacobianCenterOfMass(model, data, q, False)
-            e_c = data.com[0][:2] - self._com_target
+            Jc = pin.jacobianCenterOfMass(model, data, False)   # joint Jacobians of this step
+            e_c = data.com[0][:2] - com_target
             A2.append(Jc[:2])
             b2.append(-p.com_gain * e_c)
         A2 = np.vstack(A2)[:, sel]
@@ -445,10 +495,8 @@ class WholeBodyExecutor:
         A3 = np.vstack([J[:3], Jr])[:, sel]
         b3 = -p.hand_gain * np.concatenate([e_p, e_r])
         # level 4: posture on the selected joints
-        A4 = np.zeros((k, nx))
-        A4[np.arange(k), self._joint_cols] = 1.0
         b4 = -p.posture_gain * (qj - jr[js])
-        return [(None, None, G, h), (A2, b2, None, None), (A3, b3, None, None), (A4, b4, None, None)]
+        return [(None, None, G, h), (A2, b2, None, None), (A3, b3, None, None), (self._A_posture, b4, None, None)]
 
     def _damper_rows(self):
         """Velocity-damper rows ``n^T J_p dq <= xi (d - d_s)`` (all nv columns), the number of
@@ -473,8 +521,8 @@ class WholeBodyExecutor:
                 dmin_env = float(dist.min())
                 if p.collision_avoidance:
                     pts, nrm = env_pair_geometry(P0, P1, s_idx, tree.centers[k_idx])
-                    rows_G.append(world_point_rows(J, self._shape_masks[s_idx], pts, nrm))
-                    rows_h.append(p.damper_xi * (dist - p.security_distance_m))
+                    rows_G.append(world_point_rows(J, self._shape_masks, pts, nrm, s_idx))
+                    rows_h.append(damper_bound(dist, p.security_distance_m, p.damper_xi))
                     rows_g.append(np.asarray(s_idx, dtype=np.int64))
             else:
                 dmin_env = float(tree.min_distance_batch(P0, P1, R).min())
@@ -482,10 +530,8 @@ class WholeBodyExecutor:
         if len(self._pi):
             k, pa, pb, nrm, d, dmin_self = self_pair_geometry(P0, P1, R, self._pi, self._pj, p.distance_bound_m)
             if p.collision_avoidance and p.self_collision and len(k):
-                Ga = world_point_rows(J, self._shape_masks[self._pi[k]], pa, nrm)
-                Gb = world_point_rows(J, self._shape_masks[self._pj[k]], pb, nrm)
-                rows_G.append(Ga - Gb)
-                rows_h.append(p.damper_xi * (d - p.security_distance_m))
+                rows_G.append(pair_point_rows(J, self._shape_masks, self._pi[k], pa, self._pj[k], pb, nrm))
+                rows_h.append(damper_bound(d, p.security_distance_m, p.damper_xi))
                 rows_g.append(self.cm.n_shapes + k)
         if rows_G:
             G = rows_G[0] if len(rows_G) == 1 else np.vstack(rows_G)
@@ -500,7 +546,8 @@ class WholeBodyExecutor:
         from humanoid_reach_ros.control.limits import warm_up as limits_warm_up
         limits_warm_up()
         saved = (self._tree, self._q, self._ref, self._arm, self._t, self._active, self._holding, self._end_t,
-                 self._blend_offset, self._blend_s, self._sole_targets, self._com_target)
+                 self._blend_offset, self._blend_s, self._sole_targets, self._com_target, self._com_offset,
+                 self._com_blend_s)
         try:
             q = self.robot.half_sitting()
             hand = self.robot.frame_pose(q, HAND_FRAMES["right"]).translation
@@ -510,7 +557,8 @@ class WholeBodyExecutor:
                 self.step()
         finally:
             (self._tree, self._q, self._ref, self._arm, self._t, self._active, self._holding, self._end_t,
-             self._blend_offset, self._blend_s, self._sole_targets, self._com_target) = saved
+             self._blend_offset, self._blend_s, self._sole_targets, self._com_target, self._com_offset,
+                 self._com_blend_s) = saved
 
     def with_params(self, **changes) -> ExecutorParams:
         """A copy of the current parameters with ``changes`` (for ``start(..., params=)``)."""

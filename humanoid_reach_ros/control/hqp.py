@@ -435,7 +435,9 @@ class SaturatedNullSpaceHQP:
        most ``max_iter`` passes per level); a row pushed by the hand task thus never
        takes freedom from the feet; at most ``max_add`` rows (the most violated) are
        saturated per pass, so rows whose violation disappears once others are held are
-       not saturated needlessly;
+       not saturated needlessly a pass of stage ``k`` restarts from the cached
+       ``(x, Z)`` after the stages above it (unchanged within the stage: only the new
+       saturated rows and level ``k`` are solved again);
     4. if rows are still violated (inconsistent saturated set), the OSQP cascade
        :class:`HierarchicalQP` (``fallback``) is solved on the level-1 rows within
        ``fallback_margin`` of activity, level 1 tightened by ``fallback_tighten`` so its
@@ -443,9 +445,11 @@ class SaturatedNullSpaceHQP:
        saturation passes and the candidate of least violation is kept (without a
        fallback: the least-violation iterate);
     5. if a row with ``h >= 0`` is still violated, the step is scaled down,
-       ``x <- alpha x`` with the largest ``alpha`` in [0, 1] satisfying those rows
-       (task scaling: ``x = 0`` is feasible for them), so joint limits and dampers
-       outside ``d_s`` hold even then.
+       ``x <- x_1 + alpha (x - x_1)`` with the largest ``alpha`` in [0, 1] satisfying
+       those rows, ``x_1`` the closed-form solution of the first equality level alone
+       when it meets level 1, else ``0`` (task scaling: ``x_1`` resp. ``x = 0`` is
+       feasible for them), so joint limits and dampers hold even then and the first
+       level (feet, COG) keeps its exact solution whenever it can.
 
     Simplifications with respect to Kanoun's lexicographic QP (named as required):
     rows are only ever *added* to the saturated set within a step (no release test on
@@ -473,7 +477,7 @@ class SaturatedNullSpaceHQP:
         self.fallbacks = 0
 
     def equality_cascade(self, levels: Sequence[tuple[np.ndarray, np.ndarray]], n: int,
-                         exact_first: bool = False, prefixes: list | None = None) -> np.ndarray:
+                         exact_first: bool = False, states: list | None = None) -> np.ndarray:
         """Closed-form hierarchy of equality levels ``[(A_k, b_k)]`` (first = highest).
 
         Works on an orthonormal basis ``Z_k`` of the null space of the levels above
@@ -483,35 +487,46 @@ class SaturatedNullSpaceHQP:
         Singular values below ``rank_tol * max(s_1, 1)`` are dropped (their directions
         stay free for the lower levels), the kept ones are inverted with the damping
         ``s / (s^2 + damping^2)`` (``exact_first``: the first level without damping).
+        ``states`` (optional list) receives ``(x_k, Z_k)`` after every non-empty level
+        (``Z`` is ``None`` after the last one): the cached start of later stages.
         """
-        x = np.zeros(n)
-        Z = None
-        last = len(levels) - 1
-        lam2 = self.damping * self.damping
-        for k, (A, b) in enumerate(levels):
-            if A is None or len(A) == 0:
-                continue
-            M = A if Z is None else A @ Z
-            if M.shape[1] == 0:
+        x, Z = np.zeros(n), None
+        nonempty = [k for k, (A, _) in enumerate(levels) if A is not None and len(A)]
+        for k in nonempty:
+            A, b = levels[k]
+            x, Z = self._stage(x, Z, A, b, exact_first and k == 0, k != nonempty[-1])
+            if states is not None:
+                states.append((x, Z))
+            if Z is not None and Z.shape[1] == 0:
                 break
-            U, S, Vt = np.linalg.svd(M, full_matrices=k < last)
-            tol = self.saturated_rank_tol if (exact_first and k == 0) else self.rank_tol
-            r = int(np.count_nonzero(S > tol * max(S[0], 1.0))) if len(S) else 0
-            if r:
-                Sr = S[:r]
-                inv = 1.0 / Sr if (exact_first and k == 0) else Sr / (Sr * Sr + lam2)
-                y = Vt[:r].T @ (inv * (U[:, :r].T @ (b - A @ x)))
-                x = x + (y if Z is None else Z @ y)
-            if prefixes is not None:
-                prefixes.append(x)
-            if k < last:
-                Zk = Vt[r:].T
-                Z = Zk if Z is None else Z @ Zk
         return x
+
+    def _stage(self, x: np.ndarray, Z: np.ndarray | None, A: np.ndarray, b: np.ndarray, exact: bool,
+               need_z: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """One level of the cascade from ``(x, Z)``: ``x + Z (A Z)^# (b - A x)`` and the basis of
+        the remaining null space (``need_z``; ``Z is None``: the whole space)."""
+        if A is None or len(A) == 0:
+            return x, Z
+        M = A if Z is None else A @ Z
+        if M.shape[1] == 0:
+            return x, Z
+        U, S, Vt = np.linalg.svd(M, full_matrices=need_z)
+        tol = self.saturated_rank_tol if exact else self.rank_tol
+        r = int(np.count_nonzero(S > tol * max(S[0], 1.0))) if len(S) else 0
+        if r:
+            Sr = S[:r]
+            inv = 1.0 / Sr if exact else Sr / (Sr * Sr + self.damping * self.damping)
+            y = Vt[:r].T @ (inv * (U[:, :r].T @ (b - A @ x)))
+            x = x + (y if Z is None else Z @ y)
+        if not need_z:
+            return x, None
+        Zk = Vt[r:].T
+        return x, (Zk if Z is None else Z @ Zk)
 
     def _cascade_staged(self, G, h, S, levels, n):
         """Cascade ``[S_0, L_1, S_1, L_2, ...]``: the rows saturated because of level ``k``
-        (``S[k]`` boolean masks) sit right above level ``k``, below the higher levels."""
+        (``S[k]`` boolean masks) sit right above level ``k``, below the higher levels.
+        (Reference form of the cached stages of :meth:`_saturate`.)"""
         stack = []
         if np.any(S[0]):
             stack.append((G[S[0]], h[S[0]]))
@@ -540,35 +555,58 @@ class SaturatedNullSpaceHQP:
             new[keep] = True
         return new
 
-    def _saturate(self, G, h, levels, n, W0, groups, prefixes=None):
+    def _saturate(self, G, h, levels, n, W0, groups, states=None):
         """Staged saturation: (best x, its max violation, passes, saturated mask).
 
         Rows violated at ``x = 0`` (``h < 0``) and those of ``W0`` are saturated above
         every task; then the levels are added one by one and the rows their solution
         violates are saturated *just above that level* (a row pushed by the hand task
-        never constrains the feet), each stage repeated until no new row is violated."""
+        never constrains the feet), each stage repeated until no new row is violated.
+
+        The cascade is cached: a pass of stage ``k`` only redoes ``[S_{k+1}, L_k]`` from
+        the state ``(x, Z)`` reached after ``[S_0, L_0, ..., S_k, L_{k-1}]`` (unchanged
+        within the stage), the same numbers as :meth:`_cascade_staged` for ``levels[:k+1]``.
+        ``states``: the ``(x, Z)`` after each level of the unconstrained cascade."""
         m = len(h)
-        S = [np.zeros(m, dtype=bool) for _ in range(len(levels) + 1)]
+        nl = len(levels)
+        S = [np.zeros(m, dtype=bool) for _ in range(nl + 1)]
         S[0] = W0 | (h < -self.tol)
         W = S[0].copy()
         best_x, best_v = None, np.inf
         it = 0
-        for k in range(len(levels)):
-            if (prefixes is not None and k < len(levels) - 1 and not np.any(W)
-                    and float((G @ prefixes[k] - h).max(initial=0.0)) <= self.tol):
-                continue       # levels <= k alone violate nothing: no stage needed yet
+        base = (np.zeros(n), None)
+        if np.any(S[0]):
+            base = self._stage(base[0], None, G[S[0]], h[S[0]], True, True)
+        for k in range(nl):
+            last = k == nl - 1
+            if (states is not None and not last and not np.any(W)
+                    and float((G @ states[k][0] - h).max(initial=0.0)) <= self.tol):
+                base = states[k]   # levels <= k alone violate nothing: no stage needed yet
+                continue
+            A, b = levels[k]
+            stale = False
             for _ in range(self.max_iter):
                 it += 1
-                x = self._cascade_staged(G, h, S, levels[: k + 1], n)
+                x, Z = base
+                if np.any(S[k + 1]):
+                    x, Z = self._stage(x, Z, G[S[k + 1]], h[S[k + 1]], False, True)
+                x, Z = self._stage(x, Z, A, b, False, not last)
                 viol = G @ x - h
                 vmax = float(viol.max()) if m else 0.0
-                if k == len(levels) - 1 and vmax < best_v:
+                if last and vmax < best_v:
                     best_x, best_v = x, vmax
                 new = self._new_rows(viol, W, groups)
-                if not np.any(new):
+                stale = bool(np.any(new))
+                if not stale:
                     break
                 S[k + 1] |= new
                 W |= new
+            if not last:
+                if stale:   # the pass budget ran out after adding rows: the stage with them
+                    x, Z = base
+                    x, Z = self._stage(x, Z, G[S[k + 1]], h[S[k + 1]], False, True)
+                    x, Z = self._stage(x, Z, A, b, False, True)
+                base = (x, Z)
         return best_x, best_v, it, W
 
     def solve(self, G: np.ndarray, h: np.ndarray, levels: Sequence[tuple[np.ndarray, np.ndarray]],
@@ -582,15 +620,15 @@ class SaturatedNullSpaceHQP:
         n = G.shape[1] if G is not None and G.ndim == 2 and G.shape[1] else next(A.shape[1] for A, _ in levels)
         G = np.zeros((0, n)) if G is None else G
         h = np.zeros(0) if h is None else h
-        prefixes: list = []
-        x = self.equality_cascade(levels, n, prefixes=prefixes)
+        states: list = []
+        x = self.equality_cascade(levels, n, states=states)
         v0 = float((G @ x - h).max()) if len(h) else 0.0
         if v0 <= self.tol:       # no level-1 row active: the unconstrained hierarchy is the optimum
             best_x, best_v, it, W = x, v0, 1, np.zeros(len(h), dtype=bool)
         else:
-            ok = len(prefixes) == len(levels)     # one prefix per (non-empty) level
+            ok = len(states) == len(levels)     # one state per (non-empty) level
             best_x, best_v, it, W = self._saturate(G, h, levels, n, np.zeros(len(h), dtype=bool), groups,
-                                                   prefixes if ok else None)
+                                                   states if ok else None)
         used_fallback = False
         if best_v > self.tol and fallback is not None:
             # the saturated set is inconsistent (e.g. nearly parallel damper rows): the OSQP
@@ -624,11 +662,17 @@ class SaturatedNullSpaceHQP:
             # last resort, task scaling: x = 0 satisfies every row with h >= 0, so the
             # largest alpha in [0, 1] keeping those rows gives a point of level 1 (rows
             # with h < 0, e.g. a damper already inside d_s, keep their least violation)
-            g = G @ best_x
-            over = (g > h + self.tol) & (h >= -self.tol)
+            # the step is scaled from the first level's own solution when that one meets
+            # level 1 (the feet/COG then stay exact and only the lower levels are scaled)
+            base = np.zeros(n)
+            if states and len(states) == len(levels) and float((G @ states[0][0] - h).max()) <= self.tol:
+                base = states[0][0]
+            g0 = G @ base
+            dg = G @ best_x - g0
+            over = (g0 + dg > h + self.tol) & (h >= -self.tol) & (dg > 0.0)
             if np.any(over):
-                alpha = float(np.min(np.maximum(h[over], 0.0) / g[over]))
-                x_s = max(alpha, 0.0) * best_x
+                alpha = float(np.min(np.maximum(h[over] - g0[over], 0.0) / dg[over]))
+                x_s = base + min(max(alpha, 0.0), 1.0) * (best_x - base)
                 # rows with h >= 0 (joint limits, dampers outside d_s) are kept exactly; a
                 # damper already inside d_s may miss its push-away for this step
                 best_x, best_v = x_s, float((G @ x_s - h).max())

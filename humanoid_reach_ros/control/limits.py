@@ -12,7 +12,11 @@
 
   i.e. the velocity damper ``d_dot >= -xi_FT (d - d_s) / (d_i - d_s)`` with
   ``xi_FT = xi (d_i - d_s) / dt``. To first order ``d - d_s`` then shrinks at most by
-  the factor ``1 - xi`` per step, so ``d`` never crosses ``d_s``. With ``n`` the unit
+  the factor ``1 - xi`` per step, so ``d`` never crosses ``d_s``. A pair already
+  inside ``d_s`` (e.g. a start there) gets ``delta_d >= 0``: the bound
+  ``xi max(d - d_s, 0)`` (:func:`damper_bound`) lets ``d`` grow and never shrink, and
+  ``dq = 0`` always satisfies it, so the dampers never make level 1 infeasible
+  (a forced push-out ``-xi (d - d_s) > 0`` could conflict with other rows). With ``n`` the unit
   vector from the robot point ``p`` to the other point:
 
   - static environment sphere (centre ``c``): ``delta_d = n^T (0 - J_p dq)``, row
@@ -86,6 +90,11 @@ def joint_limit_rows(q: np.ndarray, lower: np.ndarray, upper: np.ndarray, dt: fl
     return LimitRows(G, np.concatenate([up, lo]))
 
 
+def damper_bound(d: np.ndarray, d_s: float, xi: float) -> np.ndarray:
+    """Right-hand side ``xi max(d - d_s, 0)`` of the damper rows (never negative)."""
+    return xi * np.maximum(np.asarray(d, dtype=float) - d_s, 0.0)
+
+
 def point_normal_rows(model: pin.Model, data: pin.Data, frame_ids: np.ndarray, points: np.ndarray,
                       normals: np.ndarray) -> np.ndarray:
     """``n_k^T J_{p_k}`` (K, nv) for points ``p_k`` rigidly attached to frames ``frame_ids[k]``.
@@ -126,7 +135,7 @@ def environment_damper_rows(model: pin.Model, data: pin.Data, cm: "CollisionMode
     n = _unit(c - p)
     d = dist - R[s_idx] - tree.radii[k_idx]
     G = point_normal_rows(model, data, cm.frame_ids[cm.shape_link[s_idx]], p, n)
-    return LimitRows(G, xi * (d - d_s), d)
+    return LimitRows(G, damper_bound(d, d_s, xi), d)
 
 
 def self_collision_damper_rows(model: pin.Model, data: pin.Data, cm: "CollisionModel",
@@ -145,7 +154,7 @@ def self_collision_damper_rows(model: pin.Model, data: pin.Data, cm: "CollisionM
     n = _unit(pb - pa)
     Ga = point_normal_rows(model, data, cm.frame_ids[cm.shape_link[i]], pa, n)
     Gb = point_normal_rows(model, data, cm.frame_ids[cm.shape_link[j]], pb, n)
-    return LimitRows(Ga - Gb, xi * (d - d_s), d)
+    return LimitRows(Ga - Gb, damper_bound(d, d_s, xi), d)
 
 
 def velocity_damper_rows(model: pin.Model, data: pin.Data, cm: "CollisionModel", tree: "SphereTree | None",
@@ -306,13 +315,48 @@ def support_masks(model: pin.Model, frame_ids: Sequence[int]) -> np.ndarray:
     return masks
 
 
-def world_point_rows(J_world: np.ndarray, masks: np.ndarray, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+@nb.njit(cache=True)       # short kernel: no GIL release (its cost would dominate)
+def _add_point_rows(J, masks, index, points, normals, sign, out):
+    """``out[k] += sign * (n_k^T J_v + (p_k x n_k)^T J_w)`` on the columns of ``masks[index[k]]``."""
+    nv = J.shape[1]
+    for k in range(len(index)):
+        m = index[k]
+        px, py, pz = points[k, 0], points[k, 1], points[k, 2]
+        nx, ny, nz = normals[k, 0], normals[k, 1], normals[k, 2]
+        cx, cy, cz = py * nz - pz * ny, pz * nx - px * nz, px * ny - py * nx
+        for j in range(nv):
+            if masks[m, j] != 0.0:
+                out[k, j] += sign * (nx * J[0, j] + ny * J[1, j] + nz * J[2, j]
+                                     + cx * J[3, j] + cy * J[4, j] + cz * J[5, j])
+
+
+def world_point_rows(J_world: np.ndarray, masks: np.ndarray, points: np.ndarray, normals: np.ndarray,
+                     index: np.ndarray | None = None) -> np.ndarray:
     """``n_k^T J_{p_k}`` (K, nv) from the WORLD joint Jacobian stack ``data.J`` (6, nv)
     filled by ``computeJointJacobians``: ``n^T J_v + (p x n)^T J_w``, restricted to the
-    supporting columns ``masks`` (K, nv) of each point's link (the spatial velocity of
-    the world-origin point, ``v_p = v_O + w x p``). Same rows as :func:`point_normal_rows`
-    without one ``getFrameJacobian`` per link."""
-    return (normals @ J_world[:3] + np.cross(points, normals) @ J_world[3:]) * masks
+    supporting columns of each point's link (the spatial velocity of the world-origin
+    point, ``v_p = v_O + w x p``): ``masks`` (K, nv), or (F, nv) with ``index`` (K,)
+    naming the row of each point. Same rows as :func:`point_normal_rows` without one
+    ``getFrameJacobian`` per link (numba, no temporaries)."""
+    points = np.ascontiguousarray(points, dtype=float)
+    normals = np.ascontiguousarray(normals, dtype=float)
+    index = np.arange(len(points), dtype=np.int64) if index is None else np.ascontiguousarray(index, dtype=np.int64)
+    out = np.zeros((len(points), J_world.shape[1]))
+    _add_point_rows(np.ascontiguousarray(J_world), masks, index, points, normals, 1.0, out)
+    return out
+
+
+def pair_point_rows(J_world: np.ndarray, masks: np.ndarray, index_a: np.ndarray, points_a: np.ndarray,
+                    index_b: np.ndarray, points_b: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Self-collision rows ``n^T (J_{p_a} - J_{p_b})`` (K, nv), see :func:`world_point_rows`."""
+    J = np.ascontiguousarray(J_world)
+    normals = np.ascontiguousarray(normals, dtype=float)
+    out = np.zeros((len(normals), J.shape[1]))
+    _add_point_rows(J, masks, np.ascontiguousarray(index_a, dtype=np.int64),
+                    np.ascontiguousarray(points_a, dtype=float), normals, 1.0, out)
+    _add_point_rows(J, masks, np.ascontiguousarray(index_b, dtype=np.int64),
+                    np.ascontiguousarray(points_b, dtype=float), normals, -1.0, out)
+    return out
 
 
 def warm_up() -> None:
@@ -321,8 +365,10 @@ def warm_up() -> None:
     P[1, 0] = 1.0
     self_pair_geometry(P, P + 0.5, np.full(2, 0.1), np.zeros(1, np.int64), np.ones(1, np.int64), 0.1)
     env_pair_geometry(P, P + 0.5, np.zeros(1, np.int64), np.zeros((1, 3)))
+    pair_point_rows(np.zeros((6, 3)), np.ones((2, 3)), np.zeros(1, np.int64), P[:1], np.ones(1, np.int64), P[1:],
+                    P[1:])
 
 
-__all__ = ["LimitRows", "joint_limit_rows", "point_normal_rows", "environment_damper_rows",
+__all__ = ["LimitRows", "damper_bound", "joint_limit_rows", "point_normal_rows", "environment_damper_rows",
            "self_collision_damper_rows", "velocity_damper_rows", "self_pair_geometry", "env_pair_geometry",
-           "support_masks", "world_point_rows", "warm_up"]
+           "support_masks", "world_point_rows", "pair_point_rows", "warm_up"]
