@@ -30,10 +30,25 @@ def warm_up_all() -> dict[str, float]:
     ReachPlanner().warm_up()
     times["planner_and_collision"] = time.perf_counter() - t
     t = time.perf_counter()
-    from humanoid_reach_ros.control import limits
+    from humanoid_reach_ros.control.executor import ExecutorParams, WholeBodyExecutor
+    from humanoid_reach_ros.robot.model import RobotModel
+    from humanoid_reach_ros.robot.shapes import load_collision_model
 
-    limits.warm_up()
-    times["velocity_dampers"] = time.perf_counter() - t
+    robot = RobotModel()
+    WholeBodyExecutor(robot, load_collision_model(None, robot), ExecutorParams()).warm_up()
+    times["executor"] = time.perf_counter() - t
+    t = time.perf_counter()
+    from humanoid_reach_ros.reach.controller import ControllerConfig, DualArmReachController
+    from humanoid_reach_ros.reach.torso_regression import ReachWorkspace, TorsoRegression
+
+    ctl = DualArmReachController(RobotModel(), TorsoRegression.load(), ReachWorkspace.load(), ControllerConfig())
+    ctl.reset(robot.half_sitting())
+    ws = ctl.ws
+    pair = ws.targets(0.5 * (ws.right_lower + ws.right_upper), 0.5 * (ws.left_lower + ws.left_upper))
+    ctl.set_targets(pair.p_right, pair.R_right, pair.p_left, pair.R_left)
+    for _ in range(3):
+        ctl.step()
+    times["dual_arm"] = time.perf_counter() - t
     t = time.perf_counter()
     from humanoid_reach_ros.sim import camera
 

