@@ -30,7 +30,6 @@ import argparse
 import gc
 import json
 import os
-import platform
 import sys
 import time
 from dataclasses import replace
@@ -41,6 +40,7 @@ import pinocchio as pin
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from humanoid_reach_ros.machine import describe as describe_machine  # noqa: E402
 from humanoid_reach_ros.control.executor import ExecutorParams, WholeBodyExecutor  # noqa: E402
 from humanoid_reach_ros.control.limits import warm_up as limits_warm_up  # noqa: E402
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree  # noqa: E402
@@ -52,18 +52,6 @@ from humanoid_reach_ros.sim.scene import load_scene  # noqa: E402
 
 OVERRUN_S = 0.005
 ARMS = ("right", "left")
-
-
-def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cpus, {platform.system()} {platform.release()}, Python {platform.python_version()}"
 
 
 def plan_reaches(seed: int, resolution_m: float = 0.02):
@@ -288,7 +276,7 @@ def main(argv=None) -> int:
                                                                              "fallback", "active", "damper_rows")}
     with_all = {a: runs[a]["with"] for a in ARMS}
     result = {
-        "bench": "execution", "machine": machine(), "load_avg_1min": os.getloadavg()[0],
+        "bench": "execution", "machine": describe_machine(), "load_avg_1min": os.getloadavg()[0],
         "voxels": int(len(voxels)), "params": {"period_s": params.period_s, "distance_bound_m": params.distance_bound_m,
                                                "security_distance_m": params.security_distance_m,
                                                "damper_xi": params.damper_xi, "solver": params.solver},

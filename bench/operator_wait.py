@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import tempfile
 import time
@@ -36,22 +35,11 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from humanoid_reach_ros.machine import describe as describe_machine  # noqa: E402
 from humanoid_reach_ros.graph import NodeProcess, allocate_domain, graph_env, wait_for  # noqa: E402
 
 PLANNER_PARAMS = REPO / "config" / "reach_planner.yaml"
 DRIVER_PARAMS = REPO / "config" / "joint_driver.yaml"
-
-
-def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cpus, {platform.system()} {platform.release()}, Python {platform.python_version()}"
 
 
 def dist_ms(values_s: list[float]) -> dict:
@@ -164,7 +152,7 @@ def main() -> int:
     procs: list[NodeProcess] = []
     client = None
     seeds = [args.seed_base + k for k in range(args.requests)]
-    out: dict = {"bench": "operator_wait", "machine": machine(), "requests": args.requests,
+    out: dict = {"bench": "operator_wait", "machine": describe_machine(), "requests": args.requests,
                  "joint_source": args.joint_source if args.joint_source == "driver"
                  else f"probe {args.probe_rate_hz:g} Hz", "log_dir": str(log_dir)}
     try:

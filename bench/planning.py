@@ -27,8 +27,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import sys
 import time
 from dataclasses import replace
@@ -39,6 +37,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from humanoid_reach_ros.machine import describe as describe_machine  # noqa: E402
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree  # noqa: E402
 from humanoid_reach_ros.planning.goal_sampler import cog_errors, sample_goals  # noqa: E402
 from humanoid_reach_ros.planning.path import ShortcutOptions, plan as run_planner, shortcut_path  # noqa: E402
@@ -47,18 +46,6 @@ from humanoid_reach_ros.planning.wgr import valve_region  # noqa: E402
 from humanoid_reach_ros.sim.scene import load_scene  # noqa: E402
 
 SEED = 20120514
-
-
-def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cpus, {platform.system()} {platform.release()}, Python {platform.python_version()}"
 
 
 def goal_table(rp: ReachPlanner, region, n: int) -> tuple[dict, object]:
@@ -211,7 +198,7 @@ def main() -> None:
         t0 = time.perf_counter()
         SphereTree.from_voxels(voxels, params.resolution_m)
         builds.append(time.perf_counter() - t0)
-    out = {"bench": "planning", "machine": machine(), "voxels": int(len(voxels)),
+    out = {"bench": "planning", "machine": describe_machine(), "voxels": int(len(voxels)),
            "sphere_tree_build_ms": 1e3 * float(np.median(builds)), "params": {
                "goal_count": params.goal_count, "rrt_step": params.rrt_step, "edge_resolution": params.edge_resolution,
                "time_budget_s": params.time_budget_s, "trunk_pitch_rad": list(params.trunk_pitch_rad)}}

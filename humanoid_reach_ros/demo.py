@@ -99,7 +99,9 @@ class Operator:
         from humanoid_reach_interfaces.srv import PlanReach
         from rclpy.action import ActionClient
         from rclpy.executors import SingleThreadedExecutor
-        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+        from rclpy.qos import qos_profile_sensor_data
+
+        from humanoid_reach_ros.nodes.common import LATCHED
         from sensor_msgs.msg import JointState, PointCloud2
 
         self.graph = graph
@@ -108,8 +110,6 @@ class Operator:
         self.node = rclpy.create_node("demo_operator", context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.joint_states: JointState | None = None
         self.recording = False                      # keep /joint_states while executing
         self.samples: list[JointState] = []
@@ -118,7 +118,7 @@ class Operator:
         self.metrics: list[Any] = []
         self.node.create_subscription(JointState, "/joint_states", self._on_joints, 10)
         self.node.create_subscription(PointCloud2, "/voxel_map",
-                                      lambda m: self.maps.append((time.monotonic(), m.width * m.height)), latched)
+                                      lambda m: self.maps.append((time.monotonic(), m.width * m.height)), LATCHED)
         self.node.create_subscription(PoseStamped, "/target_pose", self.targets.append, qos_profile_sensor_data)
         self.node.create_subscription(ExecutorMetrics, "/executor/metrics", self.metrics.append, 200)
         self.command_pub = self.node.create_publisher(JointState, "/joint_command", 10)

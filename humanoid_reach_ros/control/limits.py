@@ -39,6 +39,7 @@ import numba as nb
 import numpy as np
 import pinocchio as pin
 
+from humanoid_reach_ros.geometry.distance import closest_segment_params
 from humanoid_reach_ros.robot.model import N_BASE_Q, N_BASE_V
 from humanoid_reach_ros.robot.shapes import point_segment_distance, segment_segment_distance
 
@@ -177,42 +178,6 @@ _JIT = dict(cache=True, nogil=True, fastmath=False)
 
 
 @nb.njit(**_JIT)
-def _closest_seg_seg(P0, P1, i, j):
-    """Parameters (s, t) of the closest points of segments i and j (Ericson 5.1.9)."""
-    d1x = P1[i, 0] - P0[i, 0]
-    d1y = P1[i, 1] - P0[i, 1]
-    d1z = P1[i, 2] - P0[i, 2]
-    d2x = P1[j, 0] - P0[j, 0]
-    d2y = P1[j, 1] - P0[j, 1]
-    d2z = P1[j, 2] - P0[j, 2]
-    rx = P0[i, 0] - P0[j, 0]
-    ry = P0[i, 1] - P0[j, 1]
-    rz = P0[i, 2] - P0[j, 2]
-    a = d1x * d1x + d1y * d1y + d1z * d1z
-    e = d2x * d2x + d2y * d2y + d2z * d2z
-    f = d2x * rx + d2y * ry + d2z * rz
-    eps = 1e-18
-    if a <= eps and e <= eps:
-        return 0.0, 0.0
-    if a <= eps:
-        return 0.0, min(max(f / e, 0.0), 1.0)
-    c = d1x * rx + d1y * ry + d1z * rz
-    if e <= eps:
-        return min(max(-c / a, 0.0), 1.0), 0.0
-    b = d1x * d2x + d1y * d2y + d1z * d2z
-    den = a * e - b * b
-    s = min(max((b * f - c * e) / den, 0.0), 1.0) if den > 1e-14 * a * e else 0.0
-    t = (b * s + f) / e
-    if t < 0.0:
-        t = 0.0
-        s = min(max(-c / a, 0.0), 1.0)
-    elif t > 1.0:
-        t = 1.0
-        s = min(max((b - c) / a, 0.0), 1.0)
-    return s, t
-
-
-@nb.njit(**_JIT)
 def self_pair_geometry(P0, P1, R, pi, pj, bound):
     """Self-collision pairs (pi[k], pj[k]) of capsules P0, P1 (S, 3), R (S,).
 
@@ -230,7 +195,7 @@ def self_pair_geometry(P0, P1, R, pi, pj, bound):
     for k in range(K):
         i = pi[k]
         j = pj[k]
-        s, t = _closest_seg_seg(P0, P1, i, j)
+        s, t = closest_segment_params(P0, P1, i, j)
         ax = P0[i, 0] + s * (P1[i, 0] - P0[i, 0])
         ay = P0[i, 1] + s * (P1[i, 1] - P0[i, 1])
         az = P0[i, 2] + s * (P1[i, 2] - P0[i, 2])

@@ -115,8 +115,9 @@ def _fk_shapes_kernel(Q, jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l, P
 
 
 @nb.njit(**_JIT)
-def _seg_seg_dist(P0, P1, i, j):
-    """Exact distance between segments i and j of one configuration (Ericson 5.1.9)."""
+def closest_segment_params(P0, P1, i, j):
+    """Parameters (s, t) in [0, 1] of the closest points P0[i] + s d_i and P0[j] + t d_j of
+    segments i and j (rows of P0, P1) (Ericson 5.1.9)."""
     d1x = P1[i, 0] - P0[i, 0]
     d1y = P1[i, 1] - P0[i, 1]
     d1z = P1[i, 2] - P0[i, 2]
@@ -131,33 +132,32 @@ def _seg_seg_dist(P0, P1, i, j):
     f = d2x * rx + d2y * ry + d2z * rz
     eps = 1e-18
     if a <= eps and e <= eps:
-        s = 0.0
+        return 0.0, 0.0
+    if a <= eps:
+        return 0.0, min(max(f / e, 0.0), 1.0)
+    c = d1x * rx + d1y * ry + d1z * rz
+    if e <= eps:
+        return min(max(-c / a, 0.0), 1.0), 0.0
+    b = d1x * d2x + d1y * d2y + d1z * d2z
+    den = a * e - b * b
+    s = min(max((b * f - c * e) / den, 0.0), 1.0) if den > 1e-14 * a * e else 0.0
+    t = (b * s + f) / e
+    if t < 0.0:
         t = 0.0
-    elif a <= eps:
-        s = 0.0
-        t = min(max(f / e, 0.0), 1.0)
-    else:
-        c = d1x * rx + d1y * ry + d1z * rz
-        if e <= eps:
-            t = 0.0
-            s = min(max(-c / a, 0.0), 1.0)
-        else:
-            b = d1x * d2x + d1y * d2y + d1z * d2z
-            den = a * e - b * b
-            if den > 1e-14 * a * e:
-                s = min(max((b * f - c * e) / den, 0.0), 1.0)
-            else:
-                s = 0.0
-            t = (b * s + f) / e
-            if t < 0.0:
-                t = 0.0
-                s = min(max(-c / a, 0.0), 1.0)
-            elif t > 1.0:
-                t = 1.0
-                s = min(max((b - c) / a, 0.0), 1.0)
-    dx = rx + d1x * s - d2x * t
-    dy = ry + d1y * s - d2y * t
-    dz = rz + d1z * s - d2z * t
+        s = min(max(-c / a, 0.0), 1.0)
+    elif t > 1.0:
+        t = 1.0
+        s = min(max((b - c) / a, 0.0), 1.0)
+    return s, t
+
+
+@nb.njit(**_JIT)
+def _seg_seg_dist(P0, P1, i, j):
+    """Exact distance between segments i and j of one configuration."""
+    s, t = closest_segment_params(P0, P1, i, j)
+    dx = P0[i, 0] + s * (P1[i, 0] - P0[i, 0]) - P0[j, 0] - t * (P1[j, 0] - P0[j, 0])
+    dy = P0[i, 1] + s * (P1[i, 1] - P0[i, 1]) - P0[j, 1] - t * (P1[j, 1] - P0[j, 1])
+    dz = P0[i, 2] + s * (P1[i, 2] - P0[i, 2]) - P0[j, 2] - t * (P1[j, 2] - P0[j, 2])
     return math.sqrt(dx * dx + dy * dy + dz * dz)
 
 

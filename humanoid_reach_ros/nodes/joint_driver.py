@@ -29,12 +29,12 @@ from geometry_msgs.msg import PoseStamped
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from humanoid_reach_ros.io import msgs
-from humanoid_reach_ros.nodes.common import ParamSpec, declare_parameters, run_node
+from humanoid_reach_ros.nodes.common import LATCHED, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.sim.joint_sim import JointSimulator
 
@@ -95,12 +95,10 @@ class JointDriver(Node):
         self.hardware_id = str(self.model.semantic.get("robot_name", "robot"))
 
         reliable10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.joint_states_pub = self.create_publisher(JointState, "joint_states", reliable10)
         self.base_pose_pub = self.create_publisher(PoseStamped, "base_pose", reliable10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", reliable10)
-        self.description_pub = self.create_publisher(String, "robot_description", latched)
+        self.description_pub = self.create_publisher(String, "robot_description", LATCHED)
         self.command_sub = self.create_subscription(JointState, "joint_command", self._on_command, reliable10)
 
         # Pre-built outgoing message: only arrays and stamp change per tick.

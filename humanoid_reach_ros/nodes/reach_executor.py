@@ -116,7 +116,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallb
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import JointState, PointCloud2
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
@@ -126,7 +126,7 @@ from humanoid_reach_ros.geometry.sphere_tree import SphereTree
 from humanoid_reach_ros.geometry.voxels import without_target
 from humanoid_reach_ros.io import exec_msgs, msgs
 from humanoid_reach_ros.io.exec_msgs import ExecInputError, Reference
-from humanoid_reach_ros.nodes.common import ParamSpec, declare_parameters, run_node
+from humanoid_reach_ros.nodes.common import LATCHED, RELIABLE_LATEST, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.planning.trajectory import SplineTrajectory
 from humanoid_reach_ros.reach.controller import ControllerConfig, ControlStep, DualArmReachController
@@ -394,16 +394,13 @@ class ReachExecutorNode(Node):
         self._map_group = MutuallyExclusiveCallbackGroup()
         self._traj_group = MutuallyExclusiveCallbackGroup()
         self._action_group = ReentrantCallbackGroup()
-        reliable1 = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.command_pub = self.create_publisher(JointState, "joint_command", 10)
         self.metrics_pub = self.create_publisher(ExecutorMetrics, "executor/metrics", 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(JointState, "joint_states", self._on_joint_states, qos_profile_sensor_data,
                                  callback_group=self._state_group)
-        self.create_subscription(PointCloud2, "voxel_map", self._on_map, latched, callback_group=self._map_group)
-        self.create_subscription(JointTrajectory, "reach_trajectory", self._on_trajectory, reliable1,
+        self.create_subscription(PointCloud2, "voxel_map", self._on_map, LATCHED, callback_group=self._map_group)
+        self.create_subscription(JointTrajectory, "reach_trajectory", self._on_trajectory, RELIABLE_LATEST,
                                  callback_group=self._traj_group)
         # best effort depth 1: the latest pair only; matches reliable and sensor-data publishers
         self.create_subscription(PoseArray, "dual_arm/targets", self._on_targets,
@@ -869,14 +866,9 @@ class ReachExecutorNode(Node):
             self._motion = None
             self._starting = True    # ticks republish the last command meanwhile (not an overrun)
         if q0 is None:
-            joints, reason = self.current_joints()
-            if joints is None:
-                with self._cond:
-                    self._starting = False
-                    self._finish(motion, R.NO_JOINT_STATES, reason)
+            q0 = self._measured_start(motion)
+            if q0 is None:
                 return
-            with self._fk_lock:
-                q0 = self.robot.config(joints, self.robot.base_on_feet(joints))
         try:
             self.executor_.start(q0, motion.reference.spline, motion.arm, motion.params)
         except Exception as exc:
@@ -899,6 +891,18 @@ class ReachExecutorNode(Node):
             self._engine = "executor"
         self.get_logger().info(f"{motion.label}: started from {source}")
 
+    def _measured_start(self, motion: Motion) -> np.ndarray | None:
+        """The configuration of the current /joint_states to start ``motion`` from; without
+        one, ``motion`` ends with NO_JOINT_STATES and the result is None."""
+        joints, reason = self.current_joints()
+        if joints is None:
+            with self._cond:
+                self._starting = False
+                self._finish(motion, R.NO_JOINT_STATES, reason)
+            return None
+        with self._fk_lock:
+            return self.robot.config(joints, self.robot.base_on_feet(joints))
+
     def _start_dual(self, motion: Motion) -> None:
         """Plan ``motion``'s target pair on the dual-arm controller from the last command
         (measured when none). Infeasible: ``INVALID_GOAL`` with the controller's reason, the
@@ -914,14 +918,9 @@ class ReachExecutorNode(Node):
             self._starting = True
         source = "the last command"
         if q0 is None:
-            joints, reason = self.current_joints()
-            if joints is None:
-                with self._cond:
-                    self._starting = False
-                    self._finish(motion, R.NO_JOINT_STATES, reason)
+            q0 = self._measured_start(motion)
+            if q0 is None:
                 return
-            with self._fk_lock:
-                q0 = self.robot.config(joints, self.robot.base_on_feet(joints))
             source = "/joint_states"
         ctl = self.dual_
         saved = ctl.save_state()

@@ -55,14 +55,14 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallb
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState, PointCloud2
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from humanoid_reach_ros.geometry.voxels import without_target
 from humanoid_reach_ros.io import msgs
-from humanoid_reach_ros.nodes.common import ParamSpec, declare_parameters, run_node
+from humanoid_reach_ros.nodes.common import LATCHED, RELIABLE_LATEST, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner
 from humanoid_reach_ros.robot.model import RobotModel
@@ -191,13 +191,10 @@ class ReachPlannerNode(Node):
         self._state_group = MutuallyExclusiveCallbackGroup()
         self._map_group = MutuallyExclusiveCallbackGroup()
         self._service_group = ReentrantCallbackGroup()
-        reliable1 = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.trajectory_pub = self.create_publisher(JointTrajectory, "reach_trajectory", reliable1)
-        self.markers_pub = self.create_publisher(MarkerArray, "planning/markers", latched)
+        self.trajectory_pub = self.create_publisher(JointTrajectory, "reach_trajectory", RELIABLE_LATEST)
+        self.markers_pub = self.create_publisher(MarkerArray, "planning/markers", LATCHED)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(PointCloud2, "voxel_map", self._on_map, latched, callback_group=self._map_group)
+        self.create_subscription(PointCloud2, "voxel_map", self._on_map, LATCHED, callback_group=self._map_group)
         self.create_subscription(JointState, "joint_states", self._on_joint_states, qos_profile_sensor_data,
                                  callback_group=self._state_group)
         self.create_subscription(PoseStamped, "target_pose", self._on_target, qos_profile_sensor_data,

@@ -53,13 +53,13 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, JointState, PointCloud2
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
 from humanoid_reach_ros.io import msgs
-from humanoid_reach_ros.nodes.common import ParamSpec, declare_parameters, run_node
+from humanoid_reach_ros.nodes.common import LATCHED, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.perception.markers import JointStateBuffer, camera_pose, joint_vector
 from humanoid_reach_ros.perception.stereo import StereoCalibration, StereoMatcher, StereoParams, image_to_gray
 from humanoid_reach_ros.perception.voxel_map import FusionParams, VoxelMap
@@ -243,10 +243,8 @@ class VoxelMapperNode(Node):
         self.map.clear()
         self.get_logger().info(f"fusion kernels warmed up in {1e3 * (time.perf_counter() - t0):.0f} ms")
 
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.map_pub = self.create_publisher(PointCloud2, "voxel_map", latched)
-        self.markers_pub = self.create_publisher(MarkerArray, "voxel_map/markers", latched)
+        self.map_pub = self.create_publisher(PointCloud2, "voxel_map", LATCHED)
+        self.markers_pub = self.create_publisher(MarkerArray, "voxel_map/markers", LATCHED)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         inputs = MutuallyExclusiveCallbackGroup()
         output = MutuallyExclusiveCallbackGroup()
