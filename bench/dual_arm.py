@@ -1,10 +1,20 @@
 #!/usr/bin/env python3
 """Benchmark: dissertation Table 2 (Sec. 5.2.3) and Fig. 14 (Sec. 5.1.3) on the HRP-2-class model.
 
-Table 2. ``pairs_per_hand`` (27) random target positions per hand, uniform in the Sec. 4.1
-workspace boxes (config/torso_regression/workspace.yaml), every right/left combination:
-27 x 27 = 729 target pairs. Each pair is one motion from the initial posture, interpolated
-at 0.38 m/s with 5 ms control steps (hands linear + Rodrigues, CoM to the eq. 6 candidate).
+Table 2. ``pairs_per_hand`` (27) random target positions per hand, every right/left
+combination: 27 x 27 = 729 target pairs. Each pair is one motion from the initial posture,
+interpolated at 0.38 m/s with 5 ms control steps (hands linear + Rodrigues, CoM to the eq. 6
+candidate). Targets (``--targets``):
+
+* ``reachable`` (default): uniform in the Sec. 4.1 workspace boxes
+  (config/torso_regression/workspace.yaml), each hand's target kept only if the method
+  reaches it from the initial posture in the symmetric pair it forms with its mirror image
+  (``DualArmReachController.sample_reachable``; our reading of "random target poses in the
+  workspace, as shown in Figure 5" -- the dissertation does not say how it drew them);
+* ``box``: uniform in the boxes, nothing kept out.
+
+Whatever ``--targets`` is, ``box_distribution`` reports the proposed method alone on 729
+uniform ``box`` pairs of the same seed (how much of the raw box this model reaches).
 
 * proposed: DualArmReachController (regression once per pair, eq. 6 and the check that the
   final whole-body configuration exists -- their time is added to the first step --, then
@@ -32,9 +42,13 @@ which eq. 5 holds for both hands at the chosen CoM candidate, for which the fina
 whole-body configuration exists (solved from the initial posture, untimed), and whose
 whole path was feasible (executed).
 
-``--baseline-pairs N`` runs the conventional method on N of the pairs only, spread evenly
-over the list (a named reduction, reported in the JSON), when the full run does not fit
-the time at hand; the speed ratio is then taken on those pairs.
+By default both methods run on all pairs. ``--baseline-pairs N`` runs the conventional
+method on N of the pairs only, spread evenly over the list (a named reduction, reported in
+the JSON); the speed ratio is then taken on those pairs. One pair of each method runs
+untimed first (first-call costs: numba cache loads, allocations).
+
+``failures`` breaks the proposed method's failed pairs down (refused before moving, a step
+failed, final hand error > 1 mm, balance margin) and lists the first ten with the reason.
 
 Fig. 14. One motion with the upper-body IK of Algorithm 1 (waist and legs fixed), standard
 vs weighted pseudo-inverse (chest mobility 0.1), 3 s, interpolated targets: chest pitch
@@ -51,7 +65,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
 import json
-import platform
 import sys
 import time
 from pathlib import Path
@@ -59,6 +72,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from humanoid_reach_ros.machine import describe
 from humanoid_reach_ros.reach.balance import com_projection, polygon_margin, support_polygon, zmp_trajectory
 from humanoid_reach_ros.reach.controller import DualArmReachController, min_jerk
 from humanoid_reach_ros.reach.kinematics import HandTargets, rodrigues_interpolate
@@ -139,7 +153,7 @@ def summarize(errs, com_errs, times, succ, n_steps):
     return {
         "pairs": len(succ),
         "successful_pairs": int(np.sum(succ)),
-        "mean_hand_error_mm": round(float(e.mean()) * 1e3, 4),
+        "mean_hand_error_mm": round(float(e.mean()) * 1e3, 6),
         "mean_com_error_mm": round(float(np.mean(com_errs)) * 1e3, 4),
         "mean_step_ms": round(float(np.mean(times)) * 1e3, 4),
         "max_step_ms": round(float(np.max(times)) * 1e3, 3),
@@ -209,6 +223,44 @@ def fig14(robot, ctl, out_dir: Path, dt: float) -> dict:
                    "final_hand_error_mm": [round(e * 1e3, 4) for e in v[2]]} for name, v in res.items()}
 
 
+def warm_up(ctl: DualArmReachController, lm: FullBodyLMIK, ws, pair) -> None:
+    """One pair of each method, untimed and not counted (first-call costs)."""
+    t = ws.targets(*pair)
+    ctl.reset()
+    ctl.set_targets(t.p_right, t.R_right, t.p_left, t.R_left)
+    refs = [ctl.reference_at(k) for k in range(1, min(ctl.plan.n_steps, 20) + 1)]
+    for _ in range(20):
+        ctl.step(measure=False)
+    q = ctl.q_init.copy()
+    for hands, com_ref, _ in refs:
+        q = lm.step(q, hands, ctl.leg_targets(com_ref), ctl.sole_support, measure=False).q
+    ctl.reset()
+
+
+def box_reference(ctl: DualArmReachController, ws, seed: int, n: int, poly, margin: float) -> dict:
+    """The proposed method alone on n x n pairs uniform in the workspace boxes."""
+    PR, PL = ws.sample(np.random.default_rng(seed), n)
+    feas = succ = final = 0
+    for pr in PR:
+        for pl in PL:
+            t = ws.targets(pr, pl)
+            final += bool(ctl.final_configuration(t).ok)
+            ctl.reset()
+            plan = ctl.set_targets(t.p_right, t.R_right, t.p_left, t.R_left)
+            if not plan.feasible:
+                continue
+            feas += 1
+            steps = ctl.run()
+            qs = np.array([s.q for s in steps])
+            er = final_hand_errors(ctl.robot, qs[-1], pr, pl)
+            succ += bool(all(s.ok for s in steps) and max(er) <= 1e-3
+                         and balance(ctl.robot, ctl.q_init, qs, ctl.config.period_s, poly, margin)[2])
+    ctl.reset()
+    m = len(PR) * len(PL)
+    return {"pairs": m, "final_configuration_exists": final, "path_feasible": feas, "successful_pairs": succ,
+            "success_rate": round(succ / m, 4)}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description="Table 2 + Fig. 14 of the dissertation")
     ap.add_argument("--pairs-per-hand", type=int, default=27)
@@ -219,23 +271,38 @@ def main(argv=None) -> int:
     ap.add_argument("--fig-dir", default=str(REPO / "doc"))
     ap.add_argument("--no-fig", action="store_true")
     ap.add_argument("--model", default=None, help="regression stem under config/ (default: the shipped one)")
+    ap.add_argument("--targets", choices=("reachable", "box"), default="reachable",
+                    help="target distribution (module docstring)")
+    ap.add_argument("--no-box-reference", action="store_true", help="skip the box_distribution run")
     a = ap.parse_args(argv)
     if a.pairs_per_hand < 1:
         ap.error("--pairs-per-hand must be >= 1")
+    if a.baseline_pairs is not None and a.baseline_pairs < 1:
+        ap.error("--baseline-pairs must be >= 1")
+    if a.lm_max_iter < 1:
+        ap.error("--lm-max-iter must be >= 1")
+    if not (np.isfinite(a.margin_m) and a.margin_m >= 0):
+        ap.error("--margin-m must be a finite value >= 0")
     ctl = DualArmReachController(regression=None if a.model is None else TorsoRegression.load(a.model))
     robot, ws = ctl.robot, ctl.ws
     dt = ctl.config.period_s
     DATA.append(robot.model.createData())
     poly = support_polygon(robot)
-    rng = np.random.default_rng(a.seed)
-    PR, PL = ws.sample(rng, a.pairs_per_hand)
+    t_sample = time.time()
+    if a.targets == "reachable":
+        PR, PL = ctl.sample_reachable(np.random.default_rng(a.seed), a.pairs_per_hand)
+    else:
+        PR, PL = ws.sample(np.random.default_rng(a.seed), a.pairs_per_hand)
+    t_sample = time.time() - t_sample
     pairs = [(pr, pl) for pr in PR for pl in PL]
     n_base = len(pairs) if a.baseline_pairs is None else max(1, min(a.baseline_pairs, len(pairs)))
     base_idx = set(np.linspace(0, len(pairs) - 1, n_base).round().astype(int).tolist())   # spread evenly
     lm = FullBodyLMIK(robot, max_iter=a.lm_max_iter)
+    warm_up(ctl, lm, ws, pairs[0])
 
     P = {"err": [], "com": [], "t": [], "succ": [], "n": 0, "bal": [], "mz": [], "mc": [], "labels": {},
          "feasible": []}
+    fails = {"refused": 0, "step_failed": 0, "hand_error_gt_1mm": 0, "unbalanced": 0, "first": []}
     B = {"err": [], "com": [], "t": [], "succ": [], "n": 0, "bal": [], "mz": [], "mc": []}
     Pt_sub, Bt_sub, Pw_sub, Bw_sub = [], [], [], []
     reach = {"eq5": 0, "final": 0}
@@ -246,9 +313,7 @@ def main(argv=None) -> int:
         # reachability diagnostics (untimed): eq. 5 for both hands at the chosen CoM
         # candidate, and whether the final whole-body configuration exists (from q_init)
         reach["eq5"] += bool(plan.com.reachable)
-        hands_f, com_f, chest_f = refs[-1]
-        reach["final"] += bool(ctl.ik.step(ctl.q_init, hands_f, chest_f, ctl.leg_targets(com_f), ctl.sole_support,
-                                           measure=False).ok)
+        reach["final"] += bool(ctl.final_configuration(ws.targets(pr, pl)).ok)
         lab = plan.com.label
         P["labels"][lab] = P["labels"].get(lab, 0) + 1
         P["feasible"].append(plan.feasible)
@@ -257,7 +322,15 @@ def main(argv=None) -> int:
             qs = np.array([s.q for s in steps])
             er = final_hand_errors(robot, qs[-1], pr, pl)
             mz, mc, bal = balance(robot, ctl.q_init, qs, dt, poly, a.margin_m)
-            ok_p = all(s.ok for s in steps) and max(er) <= 1e-3 and bal
+            steps_ok = all(s.ok for s in steps)
+            ok_p = steps_ok and max(er) <= 1e-3 and bal
+            fails["step_failed"] += not steps_ok
+            fails["hand_error_gt_1mm"] += max(er) > 1e-3
+            fails["unbalanced"] += not bal
+            if not ok_p and len(fails["first"]) < 10:
+                fails["first"].append({"pair": i, "steps_ok": steps_ok, "hand_error_mm": [round(e * 1e3, 3) for e in er],
+                                       "zmp_margin_m": round(mz, 4), "com_margin_m": round(mc, 4),
+                                       "reason": next((s.reason for s in steps if not s.ok), "")})
             P["err"] += er
             P["com"] += cerr
             P["t"] += list(times)
@@ -265,6 +338,10 @@ def main(argv=None) -> int:
             P["mz"].append(mz)
             P["mc"].append(mc)
             P["n"] += len(steps)
+        else:
+            fails["refused"] += 1
+            if len(fails["first"]) < 10:
+                fails["first"].append({"pair": i, "refused": plan.reason})
         P["succ"].append(ok_p)
         if i in base_idx:
             res, bt, cerrb = run_baseline(lm, ctl, refs)
@@ -288,7 +365,7 @@ def main(argv=None) -> int:
             print(f"{i + 1}/{len(pairs)} pairs, {time.time() - t_start:.0f} s", file=sys.stderr, flush=True)
 
     prop = summarize(P["err"], P["com"], P["t"], P["succ"], P["n"])
-    prop.update({"feasible_pairs": int(np.sum(P["feasible"])),
+    prop.update({"feasible_pairs": int(np.sum(P["feasible"])), "failures": fails,
                  "success_rate_of_feasible": round(float(np.sum(P["succ"]) / max(1, np.sum(P["feasible"]))), 4),
                  "balanced_every_step_rate": round(float(np.mean(P["bal"])), 4),
                  "min_zmp_margin_m": round(float(np.min(P["mz"])), 4),
@@ -308,10 +385,10 @@ def main(argv=None) -> int:
     ratio_wall = float(np.mean(Bw_sub) / np.mean(Pw_sub)) if Pw_sub else float("nan")
     out = {
         "bench": "dual_arm_table2",
-        "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
-                    "python": platform.python_version(), "load_avg_1m": round(os.getloadavg()[0], 2)},
+        "machine": {"description": describe(), "load_avg_1m": round(os.getloadavg()[0], 2)},
         "timing": "CPU time of the calling thread per control step (time.thread_time)",
         "pairs": len(pairs), "pairs_per_hand": a.pairs_per_hand, "baseline_pairs": n_base,
+        "targets": a.targets, "target_sampling_s": round(t_sample, 2),
         "period_s": dt, "max_speed_mps": ctl.config.max_speed_mps, "margin_m": a.margin_m,
         "proposed": prop, "conventional": base,
         "speed_ratio_mean_step_same_pairs": round(ratio, 2),
@@ -324,9 +401,13 @@ def main(argv=None) -> int:
         "reachability": {"eq5_both_hands_at_chosen_com": round(reach["eq5"] / len(pairs), 4),
                          "final_configuration_exists": round(reach["final"] / len(pairs), 4),
                          "path_feasible (executed)": round(float(np.mean(P["feasible"])), 4)},
-        "targets": {"error_mm_le_1": prop["mean_hand_error_mm"] <= 1.0, "ratio_ge_8": ratio >= 8.0},
+        "goals": {"error_mm_le_1": prop["mean_hand_error_mm"] <= 1.0, "ratio_ge_8": ratio >= 8.0,
+                  "every_executed_pair_balanced": bool(all(P["bal"])),
+                  "every_executed_baseline_pair_balanced": bool(all(B["bal"]))},
         "wall_s": round(time.time() - t_start, 1),
     }
+    if not a.no_box_reference:
+        out["box_distribution"] = box_reference(ctl, ws, a.seed, a.pairs_per_hand, poly, a.margin_m)
     if not a.no_fig:
         out["fig14"] = fig14(robot, ctl, Path(a.fig_dir), dt)
     print(json.dumps(out))

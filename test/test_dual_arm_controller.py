@@ -115,3 +115,69 @@ def test_bad_config(ctl):
         ControllerConfig(max_speed_mps=float("nan"))
     with pytest.raises(ValueError, match="count"):
         ctl.start_sequential(0)
+
+
+def test_sample_reachable_targets_are_reached_and_state_kept(ctl):
+    ctl.reset()
+    t = ctl.ws.targets(np.array(PAIRS[0][0]), np.array(PAIRS[0][1]))
+    ctl.set_targets(t.p_right, t.R_right, t.p_left, t.R_left)
+    for _ in range(5):
+        ctl.step()
+    q, k, plan = ctl.q.copy(), ctl._k, ctl.plan
+    PR, PL = ctl.sample_reachable(np.random.default_rng(11), 3)
+    # the running motion is untouched
+    np.testing.assert_array_equal(ctl.q, q)
+    assert ctl._k == k and ctl.plan is plan
+    ws = ctl.ws
+    assert PR.shape == PL.shape == (3, 3)
+    assert np.all((PR >= ws.right_lower) & (PR <= ws.right_upper))
+    assert np.all((PL >= ws.left_lower) & (PL <= ws.left_upper))
+    mirror = np.array([1.0, -1.0, 1.0])
+    for pr, pl in zip(PR, PL):      # each hand's symmetric pair is reached from the initial posture
+        for a, b in ((pr, pr * mirror), (pl * mirror, pl)):
+            _, p, steps = _run(ctl, a, b)
+            assert p.feasible and steps and all(s.ok for s in steps)
+    with pytest.raises(ValueError, match="n must be"):
+        ctl.sample_reachable(np.random.default_rng(0), -1)
+    # the whole box is not reachable: a tiny draw budget gives up clearly
+    with pytest.raises(ValueError, match="reachable right hand targets in 1 draws"):
+        ctl.sample_reachable(np.random.default_rng(0), 5, max_draws=1)
+    ctl.reset()
+
+
+def test_step_failing_between_checks_holds_and_stops(ctl):
+    """A pair whose end is reachable but whose path is not: with a single check point the
+    plan is accepted, the motion fails mid-way, and then the whole configuration is held
+    (no later jump), the motion ends and no NaN comes out."""
+    coarse = DualArmReachController(robot=ctl.robot, regression=ctl.regression, workspace=ctl.ws,
+                                    config=ControllerConfig(path_checks=1))
+    rng = np.random.default_rng(5)
+    for _ in range(400):
+        pr, pl = ctl.ws.sample(rng, 1)
+        t = ctl.ws.targets(pr[0], pl[0])
+        ctl.reset()
+        if ctl.final_configuration(t).ok and not ctl.set_targets(t.p_right, t.R_right, t.p_left, t.R_left).feasible:
+            break
+    else:
+        pytest.fail("no pair with a reachable end and an unreachable path in 400 draws")
+    ctl.reset()
+    coarse.reset()
+    assert coarse.set_targets(t.p_right, t.R_right, t.p_left, t.R_left).feasible
+    steps = coarse.run()
+    bad = [i for i, s in enumerate(steps) if not s.ok]
+    assert bad == [len(steps) - 1], "the first failed step ends the motion"
+    failed = steps[-1]
+    assert failed.done and "stopped at" in failed.reason and "posture held" in failed.reason
+    prev_q = steps[-2].q if len(steps) > 1 else coarse.q_init
+    np.testing.assert_array_equal(failed.q, prev_q)
+    assert np.all(np.isfinite(failed.q))
+    assert not coarse.busy
+    for _ in range(3):              # then the posture is held
+        np.testing.assert_array_equal(coarse.step().q, prev_q)
+    # a new target starts from what is held: its first step moves the hands only a little
+    pr, pl = PAIRS[0]
+    t2 = ctl.ws.targets(np.array(pr), np.array(pl))
+    assert coarse.set_targets(t2.p_right, t2.R_right, t2.p_left, t2.R_left).feasible
+    first = coarse.step()
+    assert first.ok
+    assert np.max(np.abs(first.q[7:] - prev_q[7:])) < 0.05
