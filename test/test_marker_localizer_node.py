@@ -202,3 +202,101 @@ def test_bad_marker_table_stops_with_a_clear_error(start_node) -> None:
     line = proc.wait_for_log(r"cannot start", 30.0)
     assert "1 marker_ids need 1 marker_sizes_m (got 2)" in line
     assert proc.proc.wait(30.0) == 2
+
+
+# ---------------------------------------------------------------- dual-arm hand markers
+HAND_IDS = (3, 5)                       # right, left
+BOARD_X = 0.89                          # front face of the board the two markers are printed on
+R_WM = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])   # z out of the face (-x), y up
+
+
+def _two_marker_frame(model, joints, cam):
+    """A board facing the robot with markers 3 (right, y = -0.15) and 5 (left, y = +0.15)
+    at z = 1.05; rendered once per marker and merged (the renderer prints one marker)."""
+    scene, hits = _board_only(model, joints, cam)
+    plain = C.render_image(scene, hits)
+    out, centres = plain.copy(), {}
+    for mid, y in zip(HAND_IDS, (-0.15, 0.15)):
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R_WM, (BOARD_X, y, 1.05)
+        img = C.render_image(scene, hits, C.MarkerPrint(T, 0.1, C.aruco_cells("DICT_4X4_50", mid)))
+        changed = np.any(img != plain, axis=2)
+        out[changed] = img[changed]
+        centres[mid] = T[:3, 3]
+    return out, centres
+
+
+def test_hand_marker_parameters_are_checked() -> None:
+    known = {7: None, 3: None, 5: None}
+    assert ML.hand_marker_setup([-1, -1], "workspace", "torso_regression/workspace.yaml", known) == (None, None)
+    ids, ws = ML.hand_marker_setup([3, 5], "workspace", "torso_regression/workspace.yaml", known)
+    assert ids == (3, 5) and ws is not None
+    assert ML.hand_marker_setup([5, 3], "marker", "unused.yaml", known) == ((5, 3), None)
+    for args, msg in ((([3], "workspace"), "needs 2 ids"), (([3, 3], "workspace"), "two different markers"),
+                      (([3, 9], "workspace"), r"\[9\] are not among marker_ids"),
+                      (([3, 5], "gripper"), "must be 'workspace' or 'marker'")):
+        with pytest.raises(ValueError, match=msg):
+            ML.hand_marker_setup(*args, "torso_regression/workspace.yaml", known)
+
+
+@pytest.mark.node
+def test_two_hand_markers_give_dual_arm_targets(start_node, ros_probe) -> None:
+    """Markers 3 and 5 in one image -> /dual_arm/targets [right, left] at the markers'
+    object positions (M_T_O: 2 cm in front of each face) with the workspace rule's
+    orientations; an image with one of them only publishes nothing."""
+    from humanoid_reach_ros.reach.torso_regression import ReachWorkspace
+
+    model = RobotModel()
+    cam = C.PinholeCamera.from_fov(640, 480, math.radians(60.0))
+    joints = model.half_sitting_joints.copy()
+    joints[model.joint_index["HEAD_JOINT1"]] = 0.45
+    frame, centres = _two_marker_frame(model, joints, cam)
+    one_marker = frame.copy()
+    one_marker[:, 320:] = C.render_image(*_board_only(model, joints, cam))[:, 320:]   # left marker gone
+    pubs = {
+        "js": ros_probe.node.create_publisher(JointState, "/joint_states", qos_profile_sensor_data),
+        "img": ros_probe.node.create_publisher(Image, "/head_camera/image_raw", qos_profile_sensor_data),
+        "info": ros_probe.node.create_publisher(CameraInfo, "/head_camera/camera_info", qos_profile_sensor_data),
+    }
+    hands = ros_probe.collect(PoseArray, "/dual_arm/targets", qos_profile_sensor_data)
+    markers = ros_probe.collect(PoseArray, "/markers", qos_profile_sensor_data)
+    M_T_O = [0.0, 0.0, 0.02, 0.0, 0.0, 0.0, 1.0]
+    loc = start_node("marker_localizer", params_file=PARAMS_FILE,
+                     params={"marker_ids": [7, 3, 5], "marker_sizes_m": [0.1, 0.1, 0.1],
+                             "marker_object_poses": [0.0, 0.0, 0.04, -0.5, 0.5, 0.5, 0.5] + M_T_O + M_T_O,
+                             "hand_marker_ids": list(HAND_IDS)},
+                     ready_log=r"dual_arm/targets from ids \[3, 5\]")
+    t = [200.0]
+
+    def send(img) -> None:
+        t[0] += 0.01
+        s = msgs.time_from_seconds(t[0])
+        pubs["js"].publish(msgs.joint_state(model.joint_names, joints, stamp=s))
+        pubs["info"].publish(camera_info_msg(cam, "head_camera_optical_frame", s))
+        pubs["img"].publish(image_msg(img, "rgb8", "head_camera_optical_frame", s))
+
+    # one hand marker only: /markers, but no hand targets
+    ros_probe.spin_until(lambda: send(one_marker) or len(markers) > 0, 30.0, "a /markers message",
+                         on_timeout=loc.log_tail)
+    ros_probe.spin_for(0.5)
+    assert len(hands) == 0
+    ros_probe.spin_until(lambda: send(frame) or len(hands) > 0, 30.0, "a /dual_arm/targets message",
+                         on_timeout=loc.log_tail)
+    msg = hands.last
+    assert msg.header.frame_id == "world" and len(msg.poses) == 2
+    ws = ReachWorkspace.load()
+    for side, mid, pose in zip(("right", "left"), HAND_IDS, msg.poses):
+        M = msgs.se3_from_pose(pose)
+        expected = centres[mid] + R_WM @ np.array(M_T_O[:3])
+        assert np.linalg.norm(M.translation - expected) < 0.01, (side, M.translation, expected)
+        np.testing.assert_allclose(M.rotation, ws.hand_rotation(side, M.translation), atol=1e-6)
+    assert loc.alive()
+
+
+def _board_only(model, joints, cam):
+    """The board scene (no marker) and its ray cast from the head camera."""
+    from humanoid_reach_ros.sim.scene import scene_from_dict
+
+    scene = scene_from_dict({"name": "board", "frame_id": "world", "primitives": [
+        {"name": "board", "type": "box", "center": [BOARD_X + 0.01, 0.0, 1.1], "size": [0.02, 1.0, 0.8]}]})
+    return scene, C.cast(scene, cam, camera_pose(model, joints, "head_camera_optical_frame"))

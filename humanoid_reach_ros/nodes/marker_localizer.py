@@ -14,7 +14,16 @@ A thin node around ``humanoid_reach_ros.perception.markers`` (dissertation 004, 
 * publishes ``/target_pose`` (geometry_msgs/PoseStamped in ``world_frame_id``: the OBJECT
   pose R_T_O of ``target_marker_id``, e.g. the valve centre) and ``/markers``
   (geometry_msgs/PoseArray of every accepted marker's pose R_T_C C_T_M), both stamped with
-  the image stamp, and ``/diagnostics`` (inputs, detections, rejections, rate).
+  the image stamp, and ``/diagnostics`` (inputs, detections, rejections, rate);
+* dual-arm hand targets (dissertation Sec. 5.2.2 / 5.3: both hands follow AR markers): when
+  ``hand_marker_ids`` names two markers ``[right, left]`` and both are accepted in one
+  image, publishes ``/dual_arm/targets`` (geometry_msgs/PoseArray, world frame, image
+  stamp: right hand, then left hand) -- the object positions R_T_O of the two markers,
+  with orientations by ``hand_orientation``: ``workspace`` (default) the dual-arm
+  workspace rule of ``dual_arm_workspace`` (tool axis from the shoulder to the target, the
+  rule the torso regression was trained with; the dissertation takes only positions from
+  its markers) or ``marker`` (the object frame R_T_O itself). ``reach_executor`` follows
+  them while its ``dual_arm_follow`` parameter is true. ``[-1, -1]`` (default): off.
 
 Bad input -- unsupported encodings, data sizes that disagree with width/height/step,
 images without (or with stale, or differently sized) camera_info, camera_info with a zero
@@ -59,6 +68,12 @@ PARAMETERS: dict[str, ParamSpec] = {
     "marker_object_poses": ParamSpec([0.0, 0.0, 0.04, -0.5, 0.5, 0.5, 0.5],
                                      "M_T_O per id: x y z [m] qx qy qz qw of the object in the marker frame"),
     "target_marker_id": ParamSpec(7, "marker whose object pose is published on /target_pose"),
+    "hand_marker_ids": ParamSpec([-1, -1], "[right, left] markers whose object poses are published as dual-arm "
+                                 "hand targets on /dual_arm/targets; [-1, -1]: off"),
+    "hand_orientation": ParamSpec("workspace", "hand target orientation: workspace (dual-arm workspace rule) | "
+                                  "marker (the object frame)"),
+    "dual_arm_workspace": ParamSpec("torso_regression/workspace.yaml", "dual-arm workspace YAML (orientation rule), "
+                                    "relative to config/ or absolute"),
     "robot_config": ParamSpec("robots/hrp2.yaml", "robot semantic YAML, relative to config/ or absolute"),
     "camera_frame_id": ParamSpec("head_camera_optical_frame", "URDF frame of the camera (R_T_C by FK)"),
     "world_frame_id": ParamSpec("world", "frame of /target_pose and /markers"),
@@ -130,6 +145,38 @@ def intrinsics_from_camera_info(msg: CameraInfo) -> Intrinsics:
     return Intrinsics(int(msg.width), int(msg.height), K, D)
 
 
+def hand_marker_setup(ids, orientation: str, workspace_yaml: str, known) -> tuple[tuple[int, int] | None, object]:
+    """Checks the dual-arm hand marker parameters: ``(None, None)`` when off (``[-1, -1]``),
+    else ``((right_id, left_id), ReachWorkspace or None)``; ``ValueError`` with the reason."""
+    ids = [int(i) for i in ids]
+    if len(ids) != 2:
+        raise ValueError(f"hand_marker_ids needs 2 ids [right, left] (or [-1, -1]), got {ids}")
+    if orientation not in ("workspace", "marker"):
+        raise ValueError(f"hand_orientation must be 'workspace' or 'marker', got {orientation!r}")
+    if ids == [-1, -1]:
+        return None, None
+    if ids[0] == ids[1]:
+        raise ValueError(f"hand_marker_ids must be two different markers, got {ids}")
+    unknown = [i for i in ids if i not in known]
+    if unknown:
+        raise ValueError(f"hand_marker_ids {unknown} are not among marker_ids {sorted(known)}")
+    if orientation == "marker":
+        return (ids[0], ids[1]), None
+    from humanoid_reach_ros.reach.torso_regression import ReachWorkspace
+    return (ids[0], ids[1]), ReachWorkspace.load(workspace_yaml)
+
+
+def hand_target_poses(R_T_O: list[np.ndarray], workspace) -> list[pin.SE3]:
+    """[right, left] hand targets from the two objects' 4x4 poses: their positions, and
+    the workspace rule's orientations (``workspace`` given) or the objects' own."""
+    out = []
+    for side, T in zip(("right", "left"), R_T_O):
+        p = np.asarray(T[:3, 3], float)
+        R = T[:3, :3] if workspace is None else workspace.hand_rotation(side, p)
+        out.append(pin.SE3(np.asarray(R, float), p))
+    return out
+
+
 class MarkerLocalizer(Node):
     """Thin node around ``MarkerDetector``: input checks, eq. 1, publishing and diagnostics."""
 
@@ -143,6 +190,8 @@ class MarkerLocalizer(Node):
             raise ValueError(f"target_marker_id {p['target_marker_id']} is not among marker_ids {p['marker_ids']}")
         if not 1 <= p["corner_refine_window_px"] <= 50:
             raise ValueError("corner_refine_window_px must be in 1..50")
+        self.hand_ids, self.workspace = hand_marker_setup(p["hand_marker_ids"], p["hand_orientation"],
+                                                          p["dual_arm_workspace"], self.table.markers)
         self.detector = MarkerDetector(self.table, p["max_reprojection_error_px"], p["corner_refine_window_px"],
                                        p["edge_refinement"])
         self.model = RobotModel(p["robot_config"])
@@ -156,6 +205,7 @@ class MarkerLocalizer(Node):
         self.last_rejection = ""
         self.last_error_px = math.nan
         self.last_target: np.ndarray | None = None
+        self.last_hands: np.ndarray | None = None
         self._skipped_reported = 0
         self._window = {"start": time.monotonic(), "images": 0, "localized": 0, "max_process_s": 0.0}
 
@@ -163,6 +213,8 @@ class MarkerLocalizer(Node):
         joint_qos = QoSProfile(depth=50, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.BEST_EFFORT)
         self.target_pub = self.create_publisher(PoseStamped, "target_pose", sensor)
         self.markers_pub = self.create_publisher(PoseArray, "markers", sensor)
+        self.hands_pub = (self.create_publisher(PoseArray, "dual_arm/targets", sensor)
+                          if self.hand_ids is not None else None)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(JointState, "joint_states", self._on_joint_states, joint_qos)
         self.create_subscription(CameraInfo, "head_camera/camera_info", self._on_camera_info, sensor)
@@ -171,7 +223,9 @@ class MarkerLocalizer(Node):
         self.create_timer(p["diagnostics_period_s"], self._publish_diagnostics, clock=steady)
         self.get_logger().info(
             f"marker localizer ready: {self.table.dictionary} ids {sorted(self.table.markers)}, target id "
-            f"{p['target_marker_id']}, camera frame {p['camera_frame_id']}; publishing target_pose, markers")
+            f"{p['target_marker_id']}, camera frame {p['camera_frame_id']}; publishing target_pose, markers"
+            + ("" if self.hand_ids is None else f", dual_arm/targets from ids {list(self.hand_ids)} (right, left; "
+               f"{p['hand_orientation']} orientations)"))
 
     # ------------------------------------------------------------ helpers
     def _skip(self, what: str, reason: str) -> None:
@@ -234,10 +288,13 @@ class MarkerLocalizer(Node):
         R_T_C = camera_pose(self.model, joints, p["camera_frame_id"])
         world, stamp = p["world_frame_id"], msg.header.stamp
         poses = PoseArray(header=msgs.header(world, stamp))
+        hands: dict[int, np.ndarray] = {}
         for det in result.detections:
             R_T_M = R_T_C @ det.C_T_M
             poses.poses.append(msgs.pose_from_se3(pin.SE3(R_T_M[:3, :3], R_T_M[:3, 3])))
             self.last_error_px = det.reprojection_error_px
+            if self.hand_ids is not None and det.marker_id in self.hand_ids:
+                hands[det.marker_id] = object_pose(R_T_C, det.C_T_M, self.table.markers[det.marker_id].M_T_O)
             if det.marker_id == p["target_marker_id"]:
                 R_T_O = object_pose(R_T_C, det.C_T_M, self.table.markers[det.marker_id].M_T_O)
                 self.target_pub.publish(msgs.pose_stamped(pin.SE3(R_T_O[:3, :3], R_T_O[:3, 3]), world, stamp))
@@ -245,7 +302,25 @@ class MarkerLocalizer(Node):
                 self.counts["localized"] += 1
                 self._window["localized"] += 1
         self.markers_pub.publish(poses)
+        if self.hand_ids is not None:
+            self._publish_hands(hands, world, stamp)
         self._window["max_process_s"] = max(self._window["max_process_s"], time.perf_counter() - t0)
+
+    def _publish_hands(self, hands: dict[int, np.ndarray], world: str, stamp) -> None:
+        """``/dual_arm/targets`` [right, left] when both hand markers are in this image."""
+        if not all(i in hands for i in self.hand_ids):
+            self.counts["hand_pair_incomplete"] += 1
+            return
+        try:
+            out = hand_target_poses([hands[i] for i in self.hand_ids], self.workspace)
+        except ValueError as exc:       # e.g. a marker at the shoulder: no orientation rule
+            self._skip("hand targets", str(exc))
+            return
+        msg = PoseArray(header=msgs.header(world, stamp))
+        msg.poses = [msgs.pose_from_se3(M) for M in out]
+        self.hands_pub.publish(msg)
+        self.counts["hand_pairs"] += 1
+        self.last_hands = np.array([M.translation for M in out])
 
     # ------------------------------------------------------------ diagnostics
     def _publish_diagnostics(self) -> None:
@@ -261,6 +336,9 @@ class MarkerLocalizer(Node):
                   "max_process_ms": 1e3 * w["max_process_s"], "last_reprojection_error_px": self.last_error_px,
                   "last_skip_reason": self.last_skip_reason, "last_rejection": self.last_rejection,
                   "joint_states_buffered": len(self.joints)}
+        if self.hand_ids is not None:
+            values.update({"hand_pairs_total": c["hand_pairs"], "hand_pair_incomplete_total": c["hand_pair_incomplete"],
+                           "skipped_hand_targets_total": c["hand targets"]})
         if self.last_target is not None:
             values.update({"target_x_m": self.last_target[0], "target_y_m": self.last_target[1],
                            "target_z_m": self.last_target[2]})

@@ -25,11 +25,8 @@ prioritized IK step: joint limits + velocity dampers, feet + exact COG, hand, po
   ignored (marker noise must not restart the interpolation); an infeasible pair or a bad
   message gets a throttled warning and a diagnostic counter, the robot holds. When
   ``dual_arm_follow`` is false the messages are counted and ignored. A followed pair
-  preempts whatever runs (goals included). Feeding it from ``marker_localizer``: its
-  ``/markers`` PoseArray carries marker poses without ids, in detection order, and marker
-  orientations are not hand orientations, so it is not relayed as is; a relay (not part of
-  this node) must pick the two markers by id and apply each hand's grasp offset, then
-  publish ``[right, left]`` in ``world`` on ``/dual_arm/targets``;
+  preempts whatever runs (goals included). ``marker_localizer`` publishes this topic from
+  two AR markers when its ``hand_marker_ids`` parameter names them (Sec. 5.3);
 * serves ``~/dual_arm_sequential`` (std_srvs/Trigger): sequential random targets
   (Sec. 5.4): ``dual_arm_sequential_count`` pairs drawn uniformly in the workspace boxes
   (seed ``dual_arm_sequential_seed``), each started as soon as the previous one is
