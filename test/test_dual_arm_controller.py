@@ -106,6 +106,18 @@ def test_sequential_random_targets(ctl):
     assert 0 < len(steps) < 5000
     assert sum(s.done for s in steps) == 2
     assert all(np.all(np.isfinite(s.joints)) and s.joints.shape == (30,) for s in steps)
+    # the targets were drawn among those the method reaches: both pairs were executed
+    assert all(s.ok for s in steps), [s.reason for s in steps if not s.ok][:1]
+    # the same pairs given explicitly (e.g. drawn by another thread) give the same motion
+    PR, PL = ctl.sample_reachable(np.random.default_rng(3), 2)
+    ctl.reset()
+    ctl.start_sequential(2, pairs=(PR, PL))
+    again = ctl.run(max_steps=5000)
+    np.testing.assert_array_equal(again[-1].q, steps[-1].q)
+    for bad in ((PR[:1], PL), (PR, PL * np.nan), (PR.ravel(), PL)):
+        with pytest.raises(ValueError, match="pairs must be two finite"):
+            ctl.start_sequential(2, pairs=bad)
+    ctl.reset()
 
 
 def test_bad_config(ctl):

@@ -305,7 +305,8 @@ def test_dual_arm_goals_follow_and_bad_inputs(start_node, ros_probe, model, ws) 
     assert max(hand_errors(model, settled_joints(), right, left)) < HAND_TOL_M
 
     # sequential random targets (Sec. 5.4) by ~/dual_arm_sequential: 2 pairs, then SUCCESS with the counts
-    # (seed 6 from this posture: the first pair is reachable, the second is not -- random pairs often are not)
+    # (each hand's target is reached from the initial posture; chained from the previous target a pair can
+    # still be refused, which is counted as infeasible)
     from std_srvs.srv import Trigger
 
     for name, value in (("dual_arm_sequential_count", 2), ("dual_arm_sequential_seed", 6)):
@@ -328,7 +329,7 @@ def test_dual_arm_goals_follow_and_bad_inputs(start_node, ros_probe, model, ws) 
     ros_probe.spin_until(future.done, 10.0, "set a bad count")
     call = trigger.call_async(Trigger.Request())
     ros_probe.spin_until(call.done, 20.0, "~/dual_arm_sequential response")
-    assert not call.result().success and "1..10000" in call.result().message
+    assert not call.result().success and "1..1000," in call.result().message
 
     values = execution()
     assert int(values["dual_arm_goals"]) == 5 and int(values["target_messages_rejected"]) == 4

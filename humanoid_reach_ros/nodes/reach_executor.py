@@ -28,8 +28,10 @@ prioritized IK step: joint limits + velocity dampers, feet + exact COG, hand, po
   preempts whatever runs (goals included). ``marker_localizer`` publishes this topic from
   two AR markers when its ``hand_marker_ids`` parameter names them (Sec. 5.3);
 * serves ``~/dual_arm_sequential`` (std_srvs/Trigger): sequential random targets
-  (Sec. 5.4): ``dual_arm_sequential_count`` pairs drawn uniformly in the workspace boxes
-  (seed ``dual_arm_sequential_seed``), each started as soon as the previous one is
+  (Sec. 5.4): ``dual_arm_sequential_count`` (1..1000) pairs, each hand's target drawn in the
+  workspace box among those the method reaches from the initial posture
+  (``DualArmReachController.sample_reachable``, about 30 ms per pair, in the service call;
+  seed ``dual_arm_sequential_seed``), each started as soon as the previous one is
   reached; pairs the controller finds infeasible are skipped (counted). Runs as a motion
   like the others (a goal or a followed pair preempts it; SUCCESS when all were tried);
 * subscribes ``/reach_trajectory`` (trajectory_msgs/JointTrajectory, reliable, depth 1,
@@ -140,6 +142,9 @@ SOLVERS = ("nullspace", "osqp")
 # Defaults match config/reach_executor.yaml (checked by test_reach_executor_node). The first
 # group maps one to one onto ``ExecutorParams`` fields and takes its defaults from it.
 _D = ExecutorParams()
+#: upper bound of dual_arm_sequential_count (the pairs are drawn in the service call, ~30 ms each)
+MAX_SEQUENTIAL = 1000
+
 EXECUTOR_PARAMETERS: dict[str, ParamSpec] = {
     "period_s": ParamSpec(_D.period_s, "control period dt [s]: one executor step and one /joint_command each",
                           (0.001, 0.1)),
@@ -204,7 +209,7 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
                                                read_only=False),
     "dual_arm_retarget_threshold_rad": ParamSpec(0.02, "... and whose hand orientations are within this [rad]",
                                                  (0.0, 3.2), read_only=False),
-    "dual_arm_sequential_count": ParamSpec(10, "random target pairs of one ~/dual_arm_sequential run (1..10000)",
+    "dual_arm_sequential_count": ParamSpec(10, "random target pairs of one ~/dual_arm_sequential run (1..1000)",
                                            read_only=False),
     "dual_arm_sequential_seed": ParamSpec(0, "seed of the random target pairs of ~/dual_arm_sequential",
                                           read_only=False),
@@ -233,7 +238,7 @@ class Motion:
     note: str = ""                              # e.g. what smooth reshaping did
     targets: tuple[pin.SE3, pin.SE3] | None = None   # dual arm: (right, left) hand targets in world
     follow: bool = False                        # dual arm from /dual_arm/targets
-    sequential: tuple[int, int] | None = None   # dual arm, sequential random targets: (count, seed)
+    sequential: tuple | None = None             # dual arm, sequential random targets: (count, seed, (PR, PL))
     pairs_reached: int = 0                      # sequential: pairs reached / skipped as infeasible
     pairs_skipped: int = 0
 
@@ -333,6 +338,11 @@ class ReachExecutorNode(Node):
             ReachWorkspace.load(p["dual_arm_workspace"]),
             ControllerConfig(period_s=self.period_s, max_speed_mps=p["dual_arm_max_speed_mps"]))
         self._warm_up_dual()
+        # a second controller (own RobotModel; regression and workspace are read-only) draws the
+        # reachable target pairs of ~/dual_arm_sequential in the service callback, off the solver thread
+        self._sampler = DualArmReachController(RobotModel(p["robot_config"]), self.dual_.regression, self.dual_.ws,
+                                               self.dual_.config)
+        self._sampler_lock = threading.Lock()
         self.get_logger().info(f"dual-arm controller (torso regression {p['dual_arm_regression']}) ready in "
                                f"{1e3 * (time.perf_counter() - t0):.0f} ms")
         self._engine = "executor"                    # which solver made the last command: executor | dual
@@ -617,9 +627,9 @@ class ReachExecutorNode(Node):
         """``~/dual_arm_sequential``: start sequential random targets (see the module docstring)."""
         count, seed = int(self._p["dual_arm_sequential_count"]), int(self._p["dual_arm_sequential_seed"])
         label = f"sequential #{next(self._sequential_ids)}"
-        if not 1 <= count <= 10000:
-            response.success, response.message = False, (f"dual_arm_sequential_count must be in 1..10000, got "
-                                                         f"{count}")
+        if not 1 <= count <= MAX_SEQUENTIAL:
+            response.success, response.message = False, (f"dual_arm_sequential_count must be in 1..{MAX_SEQUENTIAL}, "
+                                                         f"got {count}")
         elif seed < 0:
             response.success, response.message = False, f"dual_arm_sequential_seed must be >= 0, got {seed}"
         else:
@@ -627,8 +637,12 @@ class ReachExecutorNode(Node):
             if joints is None:
                 response.success, response.message = False, f"NO_JOINT_STATES: {reason}"
             else:
-                self._submit(Motion(label, None, "both", self.params, False, sequential=(count, seed)))
-                response.success, response.message = True, f"{label}: {count} random target pairs (seed {seed})"
+                t0 = time.perf_counter()
+                with self._sampler_lock:
+                    pairs = self._sampler.sample_reachable(np.random.default_rng(seed), count)
+                self._submit(Motion(label, None, "both", self.params, False, sequential=(count, seed, pairs)))
+                response.success, response.message = True, (f"{label}: {count} random target pairs (seed {seed}, "
+                                                             f"drawn in {time.perf_counter() - t0:.2f} s)")
         if not response.success:
             self._count_rejection("goals_rejected", f"~/dual_arm_sequential: {response.message}")
             self.get_logger().warning(f"~/dual_arm_sequential refused: {response.message}",

@@ -25,7 +25,7 @@ trained at the initial torso height (Sec. 4.1) and the workspace moves with the 
 
 Modes: *follow targets* -- :meth:`set_targets` at any time re-plans from the current
 reference (e.g. from AR markers, Sec. 5.3); *sequential random targets* --
-:meth:`start_sequential` draws target pairs uniformly in the workspace boxes, the next one
+:meth:`start_sequential` draws target pairs in the workspace (:meth:`sample_reachable`), the next one
 as soon as the previous is reached (Sec. 5.4). A step never returns NaN angles.
 
 Failure handling (not in the dissertation, which interpolates blindly): before moving, the
@@ -132,7 +132,7 @@ class DualArmReachController:
         self._fid = {s: self.robot.frame_id(self.robot.limbs[f"{s}_arm"].tip) for s in ("right", "left")}
         self._chest_cols = (N_BASE_Q + self.robot.joint_index["CHEST_JOINT1"],
                             N_BASE_Q + self.robot.joint_index["CHEST_JOINT0"])
-        self._rng: np.random.Generator | None = None
+        self._seq: tuple[np.ndarray, np.ndarray] | None = None     # sequential mode's target pairs
         self._remaining = 0
         self.reset()
 
@@ -150,10 +150,10 @@ class DualArmReachController:
         self._k = 0
         self._start = None
         self._brake: tuple[int, float, float, int] | None = None
-        self._rng = None
+        self._seq = None
         self._remaining = 0
 
-    _STATE = ("q", "_ref", "_com_ref", "_chest_ref", "plan", "_k", "_start", "_brake", "_rng", "_remaining")
+    _STATE = ("q", "_ref", "_com_ref", "_chest_ref", "plan", "_k", "_start", "_brake", "_seq", "_remaining")
 
     def save_state(self) -> dict:
         """A snapshot of the controller's state (the node restores it when a new target
@@ -177,7 +177,7 @@ class DualArmReachController:
     @property
     def sequential_remaining(self) -> int:
         """Random target pairs still to come in sequential mode (0 otherwise)."""
-        return self._remaining if self._rng is not None else 0
+        return self._remaining if self._seq is not None else 0
 
     @property
     def start_reference(self) -> tuple:
@@ -214,7 +214,7 @@ class DualArmReachController:
         on their straight-line / Rodrigues references). If the minimum-jerk profile would
         stop sooner (near its end) it is kept. Sequential targets are dropped. Returns the
         steps left until the stop (0 when idle)."""
-        self._rng, self._remaining = None, 0
+        self._seq, self._remaining = None, 0
         plan = self.plan
         if plan is None or not plan.feasible or self._k >= plan.n_steps:
             return 0
@@ -310,23 +310,30 @@ class DualArmReachController:
             self.restore_state(saved)
         return out["right"], out["left"]
 
-    def start_sequential(self, count: int, seed: int = 0) -> ReachPlan:
-        """Sequential-random-targets mode (Sec. 5.4): ``count`` pairs in the workspace."""
+    def start_sequential(self, count: int, seed: int = 0, pairs: tuple | None = None) -> ReachPlan:
+        """Sequential-random-targets mode (Sec. 5.4): ``count`` pairs, each hand's target
+        drawn by :meth:`sample_reachable` with ``seed`` (all drawn here, about 30 ms per pair,
+        so that the control steps that chain them stay short) or given as ``pairs`` =
+        ``(PR, PL)`` (``count`` x 3 each, e.g. drawn by another thread), reached one after
+        the other."""
         if count < 1:
             raise ValueError(f"count must be >= 1, got {count}")
-        self._rng = np.random.default_rng(seed)
+        if pairs is None:
+            pairs = self.sample_reachable(np.random.default_rng(seed), count)
+        PR, PL = (np.asarray(a, float) for a in pairs)
+        if PR.shape != (count, 3) or PL.shape != (count, 3) or not (np.all(np.isfinite(PR)) and np.all(np.isfinite(PL))):
+            raise ValueError(f"pairs must be two finite ({count}, 3) arrays")
+        self._seq = (PR, PL)
         self._remaining = count
         return self._next_random()
 
     def _next_random(self) -> ReachPlan:
-        assert self._rng is not None
-        pr, pl = self.ws.sample(self._rng, 1)
+        assert self._seq is not None
+        PR, PL = self._seq
+        i = len(PR) - self._remaining
         self._remaining -= 1
-        rng, remaining = self._rng, self._remaining
-        t = self.ws.targets(pr[0], pl[0])
-        plan = self.set_targets(t.p_right, t.R_right, t.p_left, t.R_left)
-        self._rng, self._remaining = rng, remaining
-        return plan
+        t = self.ws.targets(PR[i], PL[i])
+        return self.set_targets(t.p_right, t.R_right, t.p_left, t.R_left)
 
     # ------------------------------------------------------------ control step
     def step(self, measure: bool = True) -> ControlStep:
@@ -335,7 +342,7 @@ class DualArmReachController:
         if self.plan is None:
             return self._hold()
         if self._k >= self.plan.n_steps:
-            if self._rng is not None and self._remaining > 0:
+            if self._seq is not None and self._remaining > 0:
                 self._next_random()
             else:
                 return self._hold()
@@ -386,6 +393,6 @@ class DualArmReachController:
     def run(self, max_steps: int = 100000) -> list[ControlStep]:
         """Step until the current target (and any sequential ones) is reached."""
         out = []
-        while (self.busy or (self._rng is not None and self._remaining > 0)) and len(out) < max_steps:
+        while (self.busy or (self._seq is not None and self._remaining > 0)) and len(out) < max_steps:
             out.append(self.step())
         return out
