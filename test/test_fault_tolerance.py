@@ -33,6 +33,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -276,8 +277,10 @@ def test_planner_restart_executor_holds_and_second_requests(start_node, ros_prob
     progress_at_kill = progress_since(m0)
     print(f"planner killed at progress {progress_at_kill:.2f} of the /reach_trajectory")
     assert progress_at_kill < 1.0, "the motion ended before the planner was killed: nothing tested"
-    line = wait_log(ros_probe, ex, r"/reach_trajectory #1: SUCCESS at progress 1\.00")
+    # the one executed (#1, or a later number when the executor had no /joint_states yet for #1)
+    line = wait_log(ros_probe, ex, r"/reach_trajectory #\d+: SUCCESS at progress 1\.00")
     print(line)
+    next_topic_no = int(re.search(r"/reach_trajectory #(\d+): SUCCESS", line).group(1)) + 1
     assert log_time(line) > killed_at, "the motion ended before the planner was killed: nothing tested"
     J = wait_held(ros_probe, commands, model, n0, log_time(line), "the robot held after the planner's motion", logs)
     assert max_jump_ratio(J, model, PERIOD_S) <= JUMP_PERIODS
@@ -347,11 +350,11 @@ def test_planner_restart_executor_holds_and_second_requests(start_node, ros_prob
     ros_probe.spin_until(lambda: traj_pub.get_subscription_count() > 0, 20.0, "/reach_trajectory subscription")
     n2, m2 = len(commands), len(metrics)
     traj_pub.publish(reversed_trajectory(forward, factor=SLOW))
-    wait_log(ros_probe, ex, r"/reach_trajectory #2: started", 30.0)
+    wait_log(ros_probe, ex, rf"/reach_trajectory #{next_topic_no}: started", 30.0)
     ros_probe.spin_until(lambda: progress_since(m2) > 0.05, 30.0, "the topic trajectory to execute",
                          on_timeout=logs)
     kill(driver)
-    line = wait_log(ros_probe, ex, r"/reach_trajectory #2: ABORTED at progress")
+    line = wait_log(ros_probe, ex, rf"/reach_trajectory #{next_topic_no}: ABORTED at progress")
     print(line)
     assert "/joint_states stale" in line and "holding the last command" in line
     aborted_at = float(line.split("ABORTED at progress ")[1].split(":")[0])
