@@ -42,6 +42,22 @@ def _test_failed(request: pytest.FixtureRequest) -> bool:
     return any(getattr(getattr(request.node, f"rep_{w}", None), "failed", False) for w in ("setup", "call"))
 
 
+@pytest.fixture(scope="module")
+def robot():
+    """The HRP-2-class RobotModel, one per test module."""
+    from humanoid_reach_ros.robot.model import RobotModel
+
+    return RobotModel()
+
+
+@pytest.fixture(scope="module")
+def cm(robot):
+    """The robot's default collision model, one per test module."""
+    from humanoid_reach_ros.robot.shapes import load_collision_model
+
+    return load_collision_model(None, robot)
+
+
 @pytest.fixture
 def ros_env(monkeypatch: pytest.MonkeyPatch) -> Iterator[dict[str, str]]:
     """Environment of an isolated ROS graph: a domain id locked for this test (1..101) and

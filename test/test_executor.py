@@ -12,21 +12,10 @@ from humanoid_reach_ros.geometry.sphere_tree import SphereTree
 from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner
 from humanoid_reach_ros.planning.trajectory import SplineTrajectory
 from humanoid_reach_ros.planning.wgr import valve_region
-from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
-from humanoid_reach_ros.robot.shapes import load_collision_model
+from humanoid_reach_ros.robot.model import N_BASE_Q
 from humanoid_reach_ros.sim.scene import load_scene
 
 DT = 0.005
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return RobotModel()
-
-
-@pytest.fixture(scope="module")
-def cm(robot):
-    return load_collision_model(None, robot)
 
 
 @pytest.fixture(scope="module")

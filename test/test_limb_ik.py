@@ -20,11 +20,6 @@ ROT_TOL = 1e-9   # rad
 
 
 @pytest.fixture(scope="module")
-def robot() -> RobotModel:
-    return RobotModel()
-
-
-@pytest.fixture(scope="module")
 def iks(robot) -> LimbIKSet:
     return LimbIKSet(robot)
 

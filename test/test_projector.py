@@ -8,12 +8,6 @@ import pytest
 from humanoid_reach_ros.planning.goal_sampler import TrunkSampling
 from humanoid_reach_ros.planning.projector import LEFT, NONE, RIGHT, Projector, quat_xyzw_from_rpy
 from humanoid_reach_ros.planning.wgr import rpy_matrix, valve_region
-from humanoid_reach_ros.robot.model import RobotModel
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return RobotModel()
 
 
 @pytest.fixture(scope="module")

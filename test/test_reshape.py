@@ -7,20 +7,8 @@ import pytest
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree
 from humanoid_reach_ros.planning.reshape import ReshapeParams, SmoothReshaper, _bump, _pinned_ends, _runs
 from humanoid_reach_ros.planning.trajectory import SplineTrajectory
-from humanoid_reach_ros.robot.model import RobotModel
-from humanoid_reach_ros.robot.shapes import load_collision_model
 
 DT = 0.005
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return RobotModel()
-
-
-@pytest.fixture(scope="module")
-def cm(robot):
-    return load_collision_model(None, robot)
 
 
 def test_runs_and_pinned_ends():

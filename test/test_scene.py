@@ -45,11 +45,6 @@ def plant_doc() -> dict:
 
 
 @pytest.fixture(scope="module")
-def robot() -> RobotModel:
-    return RobotModel()
-
-
-@pytest.fixture(scope="module")
 def voxels(plant) -> np.ndarray:
     return plant.voxelize(0.02)
 

@@ -11,7 +11,6 @@ import yaml
 
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.shapes import (
-    CollisionModel,
     collision_model_from_dict,
     load_collision_model,
     point_segment_distance,
@@ -22,19 +21,9 @@ coal = pytest.importorskip("coal")
 
 
 @pytest.fixture(scope="module")
-def robot() -> RobotModel:
-    return RobotModel()
-
-
-@pytest.fixture(scope="module")
 def doc(robot) -> dict:
     with open(robot.collision_path) as f:
         return yaml.safe_load(f)
-
-
-@pytest.fixture(scope="module")
-def cm(robot) -> CollisionModel:
-    return load_collision_model(None, robot)
 
 
 def random_q(robot: RobotModel, rng: np.random.Generator) -> np.ndarray:

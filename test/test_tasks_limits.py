@@ -12,20 +12,9 @@ from humanoid_reach_ros.control.limits import LimitRows, joint_limit_rows, veloc
 from humanoid_reach_ros.control.tasks import (ComTask, DofSelection, FrameTask, PostureTask, compute_kinematics,
                                               integrate)
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree
-from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
-from humanoid_reach_ros.robot.shapes import load_collision_model
+from humanoid_reach_ros.robot.model import N_BASE_Q
 
 DT = 0.005
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return RobotModel()
-
-
-@pytest.fixture(scope="module")
-def cm(robot):
-    return load_collision_model(None, robot)
 
 
 def _random_q(robot, rng):

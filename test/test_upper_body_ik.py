@@ -7,12 +7,7 @@ import pytest
 
 from humanoid_reach_ros.reach.kinematics import HandTargets, damped_pinv_apply
 from humanoid_reach_ros.reach.upper_body_ik import UpperBodyIK
-from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return RobotModel()
+from humanoid_reach_ros.robot.model import N_BASE_Q
 
 
 @pytest.fixture(scope="module")

@@ -13,11 +13,6 @@ from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 
 
 @pytest.fixture(scope="module")
-def robot():
-    return RobotModel()
-
-
-@pytest.fixture(scope="module")
 def q0(robot):
     return lowered_initial_posture(robot, 0.08)
 
