@@ -70,6 +70,7 @@ import gc
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -156,6 +157,30 @@ def balance(robot, q0, qs, dt, poly, margin):
     com = com_projection(robot, traj)
     mz, mc = polygon_margin(poly, zmp), polygon_margin(poly, com)
     return float(mz.min()), float(mc.min()), bool(mz.min() >= margin and mc.min() >= margin)
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """How one executed pair ended: final hand errors [m], min ZMP / CoM margins [m],
+    balanced (both margins >= the bench margin), every step solved, and success (all that
+    and both hands within 1 mm)."""
+
+    hand_errors: tuple
+    zmp_margin: float
+    com_margin: float
+    balanced: bool
+    steps_ok: bool
+
+    @property
+    def success(self) -> bool:
+        return self.steps_ok and max(self.hand_errors) <= 1e-3 and self.balanced
+
+
+def judge(robot, q0, results, pr, pl, dt, poly, margin) -> Verdict:
+    """:class:`Verdict` of one pair from its per-step results (anything with ``.q``, ``.ok``)."""
+    qs = np.array([r.q for r in results])
+    mz, mc, bal = balance(robot, q0, qs, dt, poly, margin)
+    return Verdict(final_hand_errors(robot, qs[-1], pr, pl), mz, mc, bal, all(r.ok for r in results))
 
 
 def summarize(errs, com_errs, times, succ, n_steps):
@@ -260,11 +285,7 @@ def box_reference(ctl: DualArmReachController, ws, seed: int, n: int, poly, marg
             if not plan.feasible:
                 continue
             feas += 1
-            steps = ctl.run()
-            qs = np.array([s.q for s in steps])
-            er = final_hand_errors(ctl.robot, qs[-1], pr, pl)
-            succ += bool(all(s.ok for s in steps) and max(er) <= 1e-3
-                         and balance(ctl.robot, ctl.q_init, qs, ctl.config.period_s, poly, margin)[2])
+            succ += judge(ctl.robot, ctl.q_init, ctl.run(), pr, pl, ctl.config.period_s, poly, margin).success
     ctl.reset()
     m = len(PR) * len(PL)
     return {"pairs": m, "final_configuration_exists": final, "path_feasible": feas, "successful_pairs": succ,
@@ -329,24 +350,22 @@ def main(argv=None) -> int:
         P["feasible"].append(plan.feasible)
         ok_p = False
         if plan.feasible:
-            qs = np.array([s.q for s in steps])
-            er = final_hand_errors(robot, qs[-1], pr, pl)
-            mz, mc, bal = balance(robot, ctl.q_init, qs, dt, poly, a.margin_m)
-            steps_ok = all(s.ok for s in steps)
-            ok_p = steps_ok and max(er) <= 1e-3 and bal
-            fails["step_failed"] += not steps_ok
-            fails["hand_error_gt_1mm"] += max(er) > 1e-3
-            fails["unbalanced"] += not bal
+            v = judge(robot, ctl.q_init, steps, pr, pl, dt, poly, a.margin_m)
+            ok_p = v.success
+            fails["step_failed"] += not v.steps_ok
+            fails["hand_error_gt_1mm"] += max(v.hand_errors) > 1e-3
+            fails["unbalanced"] += not v.balanced
             if not ok_p and len(fails["first"]) < 10:
-                fails["first"].append({"pair": i, "steps_ok": steps_ok, "hand_error_mm": [round(e * 1e3, 3) for e in er],
-                                       "zmp_margin_m": round(mz, 4), "com_margin_m": round(mc, 4),
+                fails["first"].append({"pair": i, "steps_ok": v.steps_ok,
+                                       "hand_error_mm": [round(e * 1e3, 3) for e in v.hand_errors],
+                                       "zmp_margin_m": round(v.zmp_margin, 4), "com_margin_m": round(v.com_margin, 4),
                                        "reason": next((s.reason for s in steps if not s.ok), "")})
-            P["err"] += er
+            P["err"] += v.hand_errors
             P["com"] += cerr
             P["t"] += list(times)
-            P["bal"].append(bal)
-            P["mz"].append(mz)
-            P["mc"].append(mc)
+            P["bal"].append(v.balanced)
+            P["mz"].append(v.zmp_margin)
+            P["mc"].append(v.com_margin)
             P["n"] += len(steps)
         else:
             fails["refused"] += 1
@@ -355,16 +374,14 @@ def main(argv=None) -> int:
         P["succ"].append(ok_p)
         if i in base_idx:
             res, bt, cerrb = run_baseline(lm, ctl, refs)
-            qb = np.array([r.q for r in res])
-            erb = final_hand_errors(robot, qb[-1], pr, pl)
-            mzb, mcb, balb = balance(robot, ctl.q_init, qb, dt, poly, a.margin_m)
-            B["err"] += erb
+            vb = judge(robot, ctl.q_init, res, pr, pl, dt, poly, a.margin_m)
+            B["err"] += vb.hand_errors
             B["com"] += cerrb
             B["t"] += list(bt)
-            B["succ"].append(all(r.ok for r in res) and max(erb) <= 1e-3 and balb)
-            B["bal"].append(balb)
-            B["mz"].append(mzb)
-            B["mc"].append(mcb)
+            B["succ"].append(vb.success)
+            B["bal"].append(vb.balanced)
+            B["mz"].append(vb.zmp_margin)
+            B["mc"].append(vb.com_margin)
             B["n"] += len(res)
             if plan.feasible:
                 Pt_sub += list(times)

@@ -339,9 +339,9 @@ class ReachExecutorNode(Node):
             ControllerConfig(period_s=self.period_s, max_speed_mps=p["dual_arm_max_speed_mps"]))
         self._warm_up_dual()
         # a second controller (own RobotModel; regression and workspace are read-only) draws the
-        # reachable target pairs of ~/dual_arm_sequential in the service callback, off the solver thread
-        self._sampler = DualArmReachController(RobotModel(p["robot_config"]), self.dual_.regression, self.dual_.ws,
-                                               self.dual_.config)
+        # reachable target pairs of ~/dual_arm_sequential in the service callback, off the solver
+        # thread; built on the first call (most runs never use it)
+        self._sampler: DualArmReachController | None = None
         self._sampler_lock = threading.Lock()
         self.get_logger().info(f"dual-arm controller (torso regression {p['dual_arm_regression']}) ready in "
                                f"{1e3 * (time.perf_counter() - t0):.0f} ms")
@@ -639,6 +639,9 @@ class ReachExecutorNode(Node):
             else:
                 t0 = time.perf_counter()
                 with self._sampler_lock:
+                    if self._sampler is None:
+                        self._sampler = DualArmReachController(RobotModel(self._p["robot_config"]),
+                                                               self.dual_.regression, self.dual_.ws, self.dual_.config)
                     pairs = self._sampler.sample_reachable(np.random.default_rng(seed), count)
                 self._submit(Motion(label, None, "both", self.params, False, sequential=(count, seed, pairs)))
                 response.success, response.message = True, (f"{label}: {count} random target pairs (seed {seed}, "

@@ -191,8 +191,7 @@ class DualArmReachController:
         checked at ``config.path_checks`` points; an infeasible pair gives a plan with
         ``feasible = False`` and a reason, and the controller holds its posture."""
         t = HandTargets.make(p_right, R_right, p_left, R_left)
-        com = self.selector.select(t)
-        chest = self.regression.predict(t.p_right - com.shift, t.p_left - com.shift)
+        com, chest = self._com_and_chest(t)
         start = (self._ref["right"].copy(), self._ref["left"].copy(), self._com_ref.copy(), self._chest_ref.copy())
         dist = max(np.linalg.norm(t.p_right - start[0].translation), np.linalg.norm(t.p_left - start[1].translation),
                    np.linalg.norm(com.p_com - start[2]))
@@ -267,12 +266,17 @@ class DualArmReachController:
                             rodrigues_interpolate(l0.rotation, t.R_left, s))
         return hands, c0 + s * (plan.com.p_com - c0), ch0 + s * (plan.chest_target - ch0)
 
+    def _com_and_chest(self, t: HandTargets) -> tuple[ComTarget, np.ndarray]:
+        """eq. 6 CoM candidate and the regression's chest angles for hand targets ``t`` (the
+        regression input is the hands minus the CoM shift, see the module docstring)."""
+        com = self.selector.select(t)
+        return com, self.regression.predict(t.p_right - com.shift, t.p_left - com.shift)
+
     def final_configuration(self, t: HandTargets):
         """The whole-body configuration at the end of a reach to ``t`` from the initial
         posture (eq. 6 CoM candidate, regression chest, Algorithm 3 + closed-form arms):
         an ``ik.step`` result whose ``ok`` says whether the pair can be held at all."""
-        com = self.selector.select(t)
-        chest = self.regression.predict(t.p_right - com.shift, t.p_left - com.shift)
+        com, chest = self._com_and_chest(t)
         return self.ik.step(self.q_init, t, chest, self.leg_targets(com.p_com), self.sole_support, measure=False)
 
     def sample_reachable(self, rng: np.random.Generator, n: int, max_draws: int = 100000) -> tuple[np.ndarray, np.ndarray]:
