@@ -8,6 +8,7 @@
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
@@ -51,6 +52,18 @@ def declare_parameters(node: Node, table: Mapping[str, ParamSpec]) -> dict[str, 
     return {name: node.get_parameter(name).value for name in table}
 
 
+def context_shutting_down(wait_s: float = 1.0, context=None) -> bool:
+    """Whether the rclpy context is shut down or becomes so within ``wait_s`` (a signal
+    handler shuts it down asynchronously, so an exception raised by that shutdown can
+    precede ``rclpy.ok()`` turning false)."""
+    deadline = time.monotonic() + wait_s
+    while rclpy.ok(context=context):
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
 def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = None,
              executor: Callable[[], Executor] | None = None) -> int:
     """Run a node until Ctrl-C / SIGTERM; returns the process exit code.
@@ -58,7 +71,10 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
     rclpy's signal handlers shut the context down asynchronously, so the executor can
     fail with an ``RCLError`` ("context is not valid") instead of raising
     ``ExternalShutdownException`` when the signal lands while it builds its wait set;
-    any exception after the context is shut down therefore counts as a clean stop.
+    any exception after the context is shut down therefore counts as a clean stop. The
+    exception can come a moment before ``rclpy.ok()`` turns false (seen: a subscription's
+    ``take_message`` failing while the context was shut down), hence
+    :func:`context_shutting_down`.
     """
     rclpy.init(args=args)
     try:
@@ -77,7 +93,7 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
         except Exception:
-            if rclpy.ok():
+            if not context_shutting_down():
                 raise
         finally:
             node.destroy_node()
