@@ -39,25 +39,15 @@ from humanoid_reach_interfaces.action import ExecuteReach
 from humanoid_reach_interfaces.msg import ExecutorMetrics
 from trajectory_msgs.msg import JointTrajectory
 
+from humanoid_reach_ros.codes import ARM_AUTO, ARM_LEFT, ARM_NAMES, ARM_RIGHT  # noqa: F401 (re-exported)
+from humanoid_reach_ros.codes import RequestError as ExecInputError
+from humanoid_reach_ros.execution.engines import DualArmMetrics  # noqa: F401 (re-exported)
+from humanoid_reach_ros.execution.requests import (ArmMotion, HandTarget, arm_motion, needs_waist,  # noqa: F401
+                                                   resolve_arm, targets_in_world)
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.planning.trajectory import SplineTrajectory
 from humanoid_reach_ros.robot.model import RobotModel
 
-ARM_AUTO, ARM_RIGHT, ARM_LEFT = 0, 1, 2        # PlanReach.Request ARM_* (ExecuteReach.arm uses them)
-ARM_NAMES = {ARM_RIGHT: "right", ARM_LEFT: "left"}
-HAND_LIMBS = {"right": "right_arm", "left": "left_arm"}
-# A requested arm whose joints travel less than this fraction of the other arm's, while the other
-# arm's travel more than WRONG_ARM_MIN_TRAVEL_RAD, is the wrong arm for the trajectory.
-WRONG_ARM_RATIO = 0.1
-WRONG_ARM_MIN_TRAVEL_RAD = 0.05
-
-
-class ExecInputError(ValueError):
-    """An execution input that cannot be executed; ``code`` is an ``ExecuteReach.Result`` code."""
-
-    def __init__(self, code: int, message: str) -> None:
-        super().__init__(message)
-        self.code = int(code)
 
 
 @dataclass(frozen=True, eq=False)
@@ -129,51 +119,6 @@ def reference_from_trajectory(msg: JointTrajectory, robot: RobotModel, limit_tol
     return Reference(times, pos, SplineTrajectory(pos, times), float(t[0]))
 
 
-@dataclass(frozen=True)
-class ArmMotion:
-    """How much one arm moves along a trajectory: the summed |delta q| of its joints [rad]
-    and the length of its hand's path [m] (standing on the feet)."""
-
-    joint_travel_rad: float
-    hand_travel_m: float
-
-
-def arm_motion(robot: RobotModel, positions: np.ndarray, samples: int = 12) -> dict[str, ArmMotion]:
-    """:class:`ArmMotion` of the right and left arm over ``positions`` (K, 30); the hand
-    path is measured at up to ``samples`` evenly spaced points."""
-    P = np.asarray(positions, dtype=float)
-    idx = np.unique(np.linspace(0, len(P) - 1, min(len(P), samples)).round().astype(int))
-    out = {}
-    for arm, limb in HAND_LIMBS.items():
-        spec = robot.limbs[limb]
-        joint = float(np.abs(np.diff(P[:, list(spec.joint_index)], axis=0)).sum())
-        pts = np.array([robot.frame_pose(robot.config(j, robot.base_on_feet(j)), spec.tip).translation
-                        for j in P[idx]])
-        out[arm] = ArmMotion(joint, float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum()))
-    return out
-
-
-def resolve_arm(code: int, motion: dict[str, ArmMotion]) -> str:
-    """The executor arm ('right' | 'left') of an ``ExecuteReach.arm`` code given each arm's
-    motion (:func:`arm_motion`). 0 = the arm whose joints move more (the planner moves only
-    the reaching arm; a tie, e.g. a trunk-only motion, goes to the hand that travels further).
-    1 / 2 = right / left, refused as the wrong arm when that arm's joints stay (almost) still
-    while the other arm's joints move (less than ``WRONG_ARM_RATIO`` of its travel, which
-    exceeds ``WRONG_ARM_MIN_TRAVEL_RAD``)."""
-    bad = ExecuteReach.Result.INVALID_GOAL
-    if code == ARM_AUTO:
-        return max(("right", "left"), key=lambda a: (round(motion[a].joint_travel_rad, 6), motion[a].hand_travel_m))
-    if code not in ARM_NAMES:
-        raise ExecInputError(bad, f"arm {code} is unknown; use 0 (from the trajectory), 1 (right) or 2 (left)")
-    arm = ARM_NAMES[code]
-    other = "left" if arm == "right" else "right"
-    mine, theirs = motion[arm].joint_travel_rad, motion[other].joint_travel_rad
-    if theirs > WRONG_ARM_MIN_TRAVEL_RAD and mine < WRONG_ARM_RATIO * theirs:
-        raise ExecInputError(bad, f"wrong arm: the trajectory moves the {other} arm's joints ({theirs:.2f} rad in "
-                                  f"all) while the requested {arm} arm's move {mine:.2f} rad")
-    return arm
-
-
 # ---------------------------------------------------------------- metrics and feedback
 def _finite_or(v: float, default: float) -> float:
     return float(v) if math.isfinite(v) else default
@@ -240,14 +185,6 @@ def result_names() -> dict[int, str]:
 TARGET_FRAMES = ("world", "base_link")     # explicit: an empty header is a goal whose targets were never set
 
 
-@dataclass(frozen=True, eq=False)
-class HandTarget:
-    """One validated hand target: its pose in ``frame`` ('world' or 'base_link')."""
-
-    frame: str
-    pose: pin.SE3
-
-
 def hand_target(pose: Pose, frame_id: str, what: str) -> HandTarget:
     """Validate one hand target: frame 'world' or 'base_link' (explicit: "" is refused, an
     unset header means the targets were never filled in), finite position and
@@ -279,49 +216,3 @@ def array_hand_targets(msg: PoseArray) -> tuple[HandTarget, HandTarget]:
     frame = msg.header.frame_id
     return (hand_target(msg.poses[0], frame, "poses[0] (right hand)"),
             hand_target(msg.poses[1], frame, "poses[1] (left hand)"))
-
-
-def needs_waist(targets: tuple[HandTarget, ...]) -> bool:
-    return any(t.frame == "base_link" for t in targets)
-
-
-def targets_in_world(targets: tuple[HandTarget, HandTarget], waist: pin.SE3 | None) -> tuple[pin.SE3, pin.SE3]:
-    """World poses of the targets; ``waist`` = the waist pose in world (``base_on_feet`` of
-    the measured joints) for base_link targets (``NO_JOINT_STATES`` when it is missing)."""
-    out = []
-    for t in targets:
-        if t.frame == "base_link":
-            if waist is None:
-                raise ExecInputError(ExecuteReach.Result.NO_JOINT_STATES,
-                                     "a base_link hand target needs a recent /joint_states to place the waist")
-            out.append(waist * t.pose)
-        else:
-            out.append(t.pose)
-    return out[0], out[1]
-
-
-@dataclass(frozen=True)
-class DualArmMetrics:
-    """One step of the dual-arm controller in the fields :func:`executor_metrics` and
-    :func:`execute_feedback` read (the whole-body executor's ``StepMetrics`` names).
-
-    ``com_error_m``: horizontal distance of the commanded CoM from the controller's CoM
-    reference of that step (the interpolation towards the eq. 6 target);
-    ``hand_error_m`` / ``hand_error_rad``: the larger of the two hands' position /
-    orientation errors w.r.t. the step's interpolated hand references; no environment
-    (``min_distance_m = inf``, no spheres, no levels: the controller has no collision
-    avoidance)."""
-
-    t: float
-    progress: float
-    solve_time_s: float
-    com_error_m: float
-    hand_error_m: float
-    hand_error_rad: float
-    ik_time_s: float = 0.0
-    distance_time_s: float = 0.0
-    spheres_in_bound: int = 0
-    active_constraints: int = 0
-    active_levels: int = 0
-    level_slack: tuple[float, ...] = ()
-    min_distance_m: float = math.inf

@@ -1,0 +1,89 @@
+"""The control loop: a tick thread at absolute deadlines and a solver thread.
+
+* The **tick thread** wakes at ``t_0 + k period_s`` (no drift) and calls
+  :meth:`ExecutionSupervisor.tick` (publish the finished step or the last safe command).
+  When it falls more than one period behind, the missed deadlines are skipped and counted
+  (:meth:`ExecutionSupervisor.missed`), never burst.
+* The **solver thread** calls :meth:`ExecutionSupervisor.work` whenever there is work: the
+  queued commands and the next step, computed as soon as the previous one was consumed.
+
+Both threads ask for ``SCHED_FIFO`` (tick ``rt_priority``, solver one below) where the OS
+allows it (:mod:`humanoid_reach_ros.execution.realtime`); the outcome is in
+:attr:`ControlLoop.realtime`.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from typing import Callable
+
+from humanoid_reach_ros.execution.realtime import make_thread_realtime
+from humanoid_reach_ros.execution.supervisor import ExecutionSupervisor
+
+
+class ControlLoop:
+    def __init__(self, supervisor: ExecutionSupervisor, period_s: float, rt_priority: int = 0,
+                 on_error: Callable[[str], None] | None = None) -> None:
+        self.sup = supervisor
+        self.period_s = float(period_s)
+        self.rt_priority = int(rt_priority)
+        self.on_error = on_error or (lambda text: None)
+        self.realtime: dict[str, str] = {}
+        self._stop = False
+        self._tick_thread = threading.Thread(target=self._run_ticks, name="executor_ticks", daemon=True)
+        self._solver_thread = threading.Thread(target=self._run_solver, name="executor_solver", daemon=True)
+        self._rt_ready = threading.Barrier(3)
+
+    def start(self) -> dict[str, str]:
+        """Start both threads; returns what real-time scheduling each got."""
+        self._tick_thread.start()
+        self._solver_thread.start()
+        self._rt_ready.wait(10.0)
+        return dict(self.realtime)
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self._stop = True
+        self.sup.wake()
+        for t in (self._tick_thread, self._solver_thread):
+            if t.is_alive():
+                t.join(timeout)
+
+    def _set_priority(self, name: str, priority: int) -> None:
+        ok, message = make_thread_realtime(priority)
+        self.realtime[name] = message
+        try:
+            self._rt_ready.wait(10.0)
+        except threading.BrokenBarrierError:
+            pass
+
+    def _run_solver(self) -> None:
+        self._set_priority("solver", self.rt_priority - 1 if self.rt_priority > 1 else self.rt_priority)
+        while not self._stop:
+            if self.sup.wait_for_work(0.1):
+                self.sup.work()
+
+    def _run_ticks(self) -> None:
+        self._set_priority("tick", self.rt_priority)
+        period = self.period_s
+        t0 = time.monotonic()
+        k = 0
+        while not self._stop:
+            deadline = t0 + k * period
+            delay = deadline - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            try:
+                self.sup.tick(t0 + (k + 1) * period)
+            except Exception as exc:  # e.g. publishing while the process shuts down
+                if self._stop:
+                    return
+                self.on_error(f"tick failed: {type(exc).__name__}: {exc}")
+            k += 1
+            behind = time.monotonic() - (t0 + k * period)
+            if behind > period:  # more than a whole period late: skip the missed deadlines
+                skipped = int(behind // period)
+                k += skipped
+                self.sup.missed(skipped)
+
+
+__all__ = ["ControlLoop"]

@@ -1,0 +1,321 @@
+"""The control loop in a process of its own.
+
+Why: in one Python interpreter the ROS callbacks (200 Hz ``/joint_states``, the action
+server, map messages), the solver and the tick share one global interpreter lock, and the
+5 ms deadlines then wait on whatever callback holds it. Here the supervisor, both engines
+and the :class:`~humanoid_reach_ros.execution.loop.ControlLoop` run in a child process
+(a fresh interpreter, ``python -m humanoid_reach_ros.execution.loop_process``) that owns nothing else: no subscriptions, no executor spinning.
+It publishes ``/joint_command`` and ``/executor/metrics`` itself through a publish-only
+rclpy node (``<node>_loop``), so a command never crosses the parent's interpreter.
+
+The parent (the ``reach_executor`` node) talks to it through a pipe:
+
+* parent -> child: ``("start", Motion)``, ``("stop", motion_id | None, code, message)``,
+  ``("map", SphereTree | None)``, ``("close",)``;
+* child -> parent: ``("ready", info)``, ``("started", id, note, source)``,
+  ``("finished", id, code, message, summary, note)``, ``("status", dict)`` every
+  ``status_period_s``, ``("log", level, text)``, ``("failed", text)`` (set-up error).
+
+The child asks for ``SCHED_FIFO`` for its loop threads and locks its memory where the OS
+allows (:mod:`humanoid_reach_ros.execution.realtime`; the parent logs the outcome once),
+ignores SIGINT (the parent stops it with ``("close",)``) and dies with its parent
+(``PR_SET_PDEATHSIG``).
+"""
+from __future__ import annotations
+
+import ctypes
+import os
+import queue
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import traceback
+from multiprocessing.connection import Connection
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+PR_SET_PDEATHSIG = 1
+
+
+@dataclass
+class LoopConfig:
+    """What the child needs to build the loop (picklable)."""
+
+    robot_config: str
+    executor_params: Any                   # ExecutorParams
+    supervisor: Any                        # SupervisorConfig
+    dual_arm: dict | None = None           # regression, workspace, max_speed_mps (None: no dual-arm engine)
+    node_name: str = "reach_executor_loop"
+    namespace: str = "/"
+    command_topic: str = "/joint_command"
+    metrics_topic: str = "/executor/metrics"
+    map_frame: str = "world"
+    metrics_decimation: int = 1
+    rt_priority: int = 80
+    lock_memory: bool = True
+    status_period_s: float = 0.05
+    domain_id: int | None = None
+    ros_args: list[str] = field(default_factory=list)
+
+
+# ---------------------------------------------------------------- parent side
+class LoopProcess:
+    """Start the loop process and exchange commands and events with it."""
+
+    def __init__(self, config: LoopConfig, on_event: Callable[[tuple], None]) -> None:
+        # a fresh interpreter (not multiprocessing's spawn, which re-imports the caller's __main__),
+        # one end of a socket pair as a multiprocessing Connection; stdout/stderr shared with the node
+        ours, theirs = socket.socketpair()
+        self.proc = subprocess.Popen([sys.executable, "-m", "humanoid_reach_ros.execution.loop_process",
+                                      str(theirs.fileno())], pass_fds=[theirs.fileno()], stdin=subprocess.DEVNULL,
+                                     env=dict(os.environ))
+        theirs.close()
+        self._conn = Connection(ours.detach())
+        self._send_lock = threading.Lock()
+        self.on_event = on_event
+        self.send(config)
+        self._ready = threading.Event()
+        self.info: dict[str, Any] = {}
+        self.failure = ""
+        self._reader = threading.Thread(target=self._read, name="executor_loop_events", daemon=True)
+        self._reader.start()
+
+    def wait_ready(self, timeout: float) -> dict[str, Any]:
+        """Block until the child reports ready (its info) or failed (RuntimeError)."""
+        if not self._ready.wait(timeout):
+            raise RuntimeError(f"the control loop process did not start within {timeout:g} s")
+        if self.failure:
+            raise RuntimeError(f"the control loop process failed to start: {self.failure}")
+        return self.info
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def send(self, command: tuple) -> None:
+        with self._send_lock:
+            self._conn.send(command)
+
+    def close(self, timeout: float = 3.0) -> None:
+        try:
+            self.send(("close",))
+        except (OSError, EOFError, BrokenPipeError):
+            pass
+        try:
+            self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.terminate()
+            try:
+                self.proc.wait(2.0)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(2.0)
+
+    def _read(self) -> None:
+        while True:
+            try:
+                event = self._conn.recv()
+            except (EOFError, OSError):
+                self.on_event(("exited", self.proc.poll()))
+                self._ready.set()
+                return
+            if event[0] == "ready":
+                self.info = event[1]
+                self._ready.set()
+            elif event[0] == "failed":
+                self.failure = event[1]
+                self._ready.set()
+            try:
+                self.on_event(event)
+            except Exception:  # a handler's failure must not stop the events
+                traceback.print_exc()
+
+
+# ---------------------------------------------------------------- child side
+def _die_with_parent() -> None:
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    except OSError:
+        pass
+
+
+def child_main(conn, config: LoopConfig) -> None:
+    """Entry point of the loop process."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _die_with_parent()
+    out: queue.SimpleQueue = queue.SimpleQueue()
+    try:
+        loop, sup, node, rt = _build(config, out)
+    except Exception as exc:
+        conn.send(("failed", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"))
+        conn.close()
+        return
+    stop = threading.Event()
+
+    def sender() -> None:
+        next_status = time.monotonic()
+        while not stop.is_set():
+            try:
+                event = out.get(timeout=config.status_period_s / 2)
+            except queue.Empty:
+                event = None
+            try:
+                if event is not None:
+                    conn.send(event)
+                if time.monotonic() >= next_status:
+                    next_status = time.monotonic() + config.status_period_s
+                    conn.send(("status", sup.status()))
+            except (OSError, EOFError, BrokenPipeError):
+                stop.set()
+
+    conn.send(("ready", rt))
+    send_thread = threading.Thread(target=sender, name="executor_loop_sender", daemon=True)
+    send_thread.start()
+    try:
+        while not stop.is_set():
+            try:
+                cmd = conn.recv()
+            except (EOFError, OSError):
+                break
+            kind = cmd[0]
+            if kind == "close":
+                break
+            if kind == "start":
+                sup.submit(cmd[1])
+            elif kind == "stop":
+                sup.stop(cmd[1], cmd[2], cmd[3])
+            elif kind == "map":
+                sup.set_map(cmd[1])
+    finally:
+        sup.close()
+        loop.stop()
+        stop.set()
+        send_thread.join(1.0)
+        # the last outcomes (e.g. ABORTED on shutdown) still reach the parent
+        while True:
+            try:
+                conn.send(out.get_nowait())
+            except (queue.Empty, OSError, EOFError, BrokenPipeError):
+                break
+        try:
+            node.destroy_node()
+        finally:
+            import rclpy
+            rclpy.try_shutdown()
+        conn.close()
+
+
+def _build(config: LoopConfig, out: queue.SimpleQueue):
+    """Engines, supervisor, publish-only node and the running loop; returns (loop, sup, node, rt info)."""
+    import numpy as np
+    import rclpy
+    from humanoid_reach_interfaces.msg import ExecutorMetrics
+    from rclpy.signals import SignalHandlerOptions
+    from sensor_msgs.msg import JointState
+
+    from humanoid_reach_ros.control.executor import WholeBodyExecutor
+    from humanoid_reach_ros.execution.engines import DualArmEngine, TrajectoryEngine
+    from humanoid_reach_ros.execution.loop import ControlLoop
+    from humanoid_reach_ros.execution.realtime import lock_memory
+    from humanoid_reach_ros.execution.supervisor import ExecutionSupervisor
+    from humanoid_reach_ros.io import exec_msgs, msgs
+    from humanoid_reach_ros.robot.model import RobotModel
+    from humanoid_reach_ros.robot.shapes import load_collision_model
+
+    t0 = time.perf_counter()
+    robot = RobotModel(config.robot_config)
+    cm = load_collision_model(None, robot)
+    executor = WholeBodyExecutor(robot, cm, config.executor_params)
+    executor.warm_up()
+    _warm_up_cluttered(WholeBodyExecutor(robot, cm, config.executor_params), robot)
+    dual = None
+    if config.dual_arm is not None:
+        from humanoid_reach_ros.reach.controller import ControllerConfig, DualArmReachController
+        from humanoid_reach_ros.reach.torso_regression import ReachWorkspace, TorsoRegression
+        d = config.dual_arm
+        ctl = DualArmReachController(RobotModel(config.robot_config), TorsoRegression.load(d["regression"]),
+                                     ReachWorkspace.load(d["workspace"]),
+                                     ControllerConfig(period_s=config.supervisor.period_s,
+                                                      max_speed_mps=d["max_speed_mps"]))
+        _warm_up_dual(ctl, robot)
+        dual = DualArmEngine(ctl, RobotModel(config.robot_config))
+    warm_s = time.perf_counter() - t0
+
+    rclpy.init(args=["--ros-args", *config.ros_args] if config.ros_args else None,
+               signal_handler_options=SignalHandlerOptions.NO,
+               **({"domain_id": config.domain_id} if config.domain_id is not None else {}))
+    node = rclpy.create_node(config.node_name, namespace=config.namespace, start_parameter_services=False,
+                             use_global_arguments=False)
+    command_pub = node.create_publisher(JointState, config.command_topic, 10)
+    metrics_pub = node.create_publisher(ExecutorMetrics, config.metrics_topic, 10)
+    command = msgs.joint_state(robot.joint_names, np.zeros(robot.n_joints))
+    clock = node.get_clock()
+    counter = [0]
+
+    def sink(joints, metrics, overruns) -> None:
+        stamp = clock.now().to_msg()
+        command_pub.publish(msgs.fill_joint_state(command, joints, stamp=stamp))
+        if metrics is not None:
+            counter[0] += 1
+            if counter[0] % config.metrics_decimation == 0:
+                metrics_pub.publish(exec_msgs.executor_metrics(metrics, overruns, stamp, config.map_frame))
+
+    def on_finish(m) -> None:
+        summary = m.summary(time.monotonic())
+        summary["progress"] = float(m.last.progress) if m.last is not None else 0.0
+        out.put(("finished", m.id, int(m.code), m.message, summary, m.note))
+
+    def on_start(m) -> None:
+        out.put(("started", m.id, m.note, m.source))
+
+    def log(level: str, text: str) -> None:
+        out.put(("log", level, text))
+
+    sup = ExecutionSupervisor(TrajectoryEngine(executor), dual, config.supervisor, time.monotonic, sink,
+                              on_finish, on_start, log)
+    loop = ControlLoop(sup, config.supervisor.period_s, config.rt_priority,
+                       on_error=lambda text: log("error", text))
+    rt = {"warm_up_s": warm_s}
+    if config.lock_memory and config.rt_priority > 0:
+        rt["memory"] = lock_memory()[1]
+    rt.update(loop.start())
+    return loop, sup, node, rt
+
+
+def _warm_up_cluttered(executor, robot) -> None:
+    """A few steps of a throw-away executor among many spheres within the distance bound, so
+    that no first step of a real motion pays a first-call cost (seen: 18 ms)."""
+    import numpy as np
+
+    from humanoid_reach_ros.geometry.sphere_tree import SphereTree
+    from humanoid_reach_ros.planning.trajectory import SplineTrajectory
+    q = robot.half_sitting()
+    hand = robot.frame_pose(q, robot.limbs["right_arm"].tip).translation
+    g = np.mgrid[0.08:0.2:0.02, -0.1:0.1:0.02, -0.1:0.1:0.02].reshape(3, -1).T
+    executor.set_environment(SphereTree.from_voxels(np.ascontiguousarray(hand + g), 0.02))
+    joints = robot.half_sitting_joints
+    executor.start(q, SplineTrajectory(np.vstack([joints, joints]), np.array([0.0, 0.05])), "right")
+    for _ in range(20):
+        executor.step()
+
+
+def _warm_up_dual(ctl, robot) -> None:
+    """One target pair planned and stepped on the dual-arm controller (first-call costs)."""
+    ctl.reset(robot.half_sitting())
+    ws = ctl.ws
+    t = ws.targets(0.5 * (ws.right_lower + ws.right_upper), 0.5 * (ws.left_lower + ws.left_upper))
+    ctl.set_targets(t.p_right, t.R_right, t.p_left, t.R_left)
+    for _ in range(3):
+        ctl.step()
+    ctl.reset(robot.half_sitting())
+
+
+__all__ = ["LoopConfig", "LoopProcess", "child_main"]
+
+
+if __name__ == "__main__":
+    _conn = Connection(int(sys.argv[1]))
+    child_main(_conn, _conn.recv())

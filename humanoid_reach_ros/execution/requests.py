@@ -1,0 +1,337 @@
+"""Execution requests: what the node validated, turned into a supervisor :class:`Motion`.
+
+ROS-free (the node converts messages with ``io/exec_msgs.py`` first):
+
+* which arm a trajectory moves (:func:`arm_motion`, :func:`resolve_arm`: its hand is the task
+  of level 3) and the check that a requested arm is the one the trajectory moves;
+* dual-arm hand targets in ``world`` or ``base_link`` (:func:`targets_in_world` through the
+  waist of the measured joints);
+* the collision map: the scene file's voxels until a measured ``/voxel_map`` arrives, the
+  voxels within ``target_exclusion_radius_m`` of the motion's final hand position left out
+  (the object to be reached; ``geometry.voxels.without_target``), the sphere tree built
+  here, outside the control loop;
+* smooth reshaping (Yoshida et al., ``planning/reshape.py``) of a goal that asks for it,
+  seconds, in the caller's thread while the loop keeps running or holding;
+* :class:`ExecutionRequests`: the above plus the counters the node's diagnostics report.
+
+Every refusal is a :class:`~humanoid_reach_ros.codes.RequestError` whose code is the
+``ExecuteReach`` result and whose message says what is wrong.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+import pinocchio as pin
+
+from humanoid_reach_ros.codes import ARM_AUTO, ARM_NAMES, ExecuteCode as C, RequestError
+from humanoid_reach_ros.geometry.sphere_tree import SphereTree
+from humanoid_reach_ros.geometry.voxels import without_target
+from humanoid_reach_ros.paths import config_path
+from humanoid_reach_ros.robot.model import RobotModel
+
+HAND_LIMBS = {"right": "right_arm", "left": "left_arm"}
+
+# A requested arm whose joints travel less than this fraction of the other arm's, while the other
+# arm's travel more than WRONG_ARM_MIN_TRAVEL_RAD, is the wrong arm for the trajectory.
+WRONG_ARM_RATIO = 0.1
+WRONG_ARM_MIN_TRAVEL_RAD = 0.05
+
+@dataclass(frozen=True)
+class ArmMotion:
+    """How much one arm moves along a trajectory: the summed |delta q| of its joints [rad]
+    and the length of its hand's path [m] (standing on the feet)."""
+
+    joint_travel_rad: float
+    hand_travel_m: float
+
+
+def arm_motion(robot: RobotModel, positions: np.ndarray, samples: int = 12) -> dict[str, ArmMotion]:
+    """:class:`ArmMotion` of the right and left arm over ``positions`` (K, 30); the hand
+    path is measured at up to ``samples`` evenly spaced points."""
+    P = np.asarray(positions, dtype=float)
+    idx = np.unique(np.linspace(0, len(P) - 1, min(len(P), samples)).round().astype(int))
+    out = {}
+    for arm, limb in HAND_LIMBS.items():
+        spec = robot.limbs[limb]
+        joint = float(np.abs(np.diff(P[:, list(spec.joint_index)], axis=0)).sum())
+        pts = np.array([robot.frame_pose(robot.config(j, robot.base_on_feet(j)), spec.tip).translation
+                        for j in P[idx]])
+        out[arm] = ArmMotion(joint, float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum()))
+    return out
+
+
+def resolve_arm(code: int, motion: dict[str, ArmMotion]) -> str:
+    """The executor arm ('right' | 'left') of an ``ExecuteReach.arm`` code given each arm's
+    motion (:func:`arm_motion`). 0 = the arm whose joints move more (the planner moves only
+    the reaching arm; a tie, e.g. a trunk-only motion, goes to the hand that travels further).
+    1 / 2 = right / left, refused as the wrong arm when that arm's joints stay (almost) still
+    while the other arm's joints move (less than ``WRONG_ARM_RATIO`` of its travel, which
+    exceeds ``WRONG_ARM_MIN_TRAVEL_RAD``)."""
+    bad = C.INVALID_GOAL
+    if code == ARM_AUTO:
+        return max(("right", "left"), key=lambda a: (round(motion[a].joint_travel_rad, 6), motion[a].hand_travel_m))
+    if code not in ARM_NAMES:
+        raise RequestError(bad, f"arm {code} is unknown; use 0 (from the trajectory), 1 (right) or 2 (left)")
+    arm = ARM_NAMES[code]
+    other = "left" if arm == "right" else "right"
+    mine, theirs = motion[arm].joint_travel_rad, motion[other].joint_travel_rad
+    if theirs > WRONG_ARM_MIN_TRAVEL_RAD and mine < WRONG_ARM_RATIO * theirs:
+        raise RequestError(bad, f"wrong arm: the trajectory moves the {other} arm's joints ({theirs:.2f} rad in "
+                                  f"all) while the requested {arm} arm's move {mine:.2f} rad")
+    return arm
+
+
+
+@dataclass(frozen=True, eq=False)
+class HandTarget:
+    """One validated hand target: its pose in ``frame`` ('world' or 'base_link')."""
+
+    frame: str
+    pose: pin.SE3
+
+
+
+def needs_waist(targets: tuple[HandTarget, ...]) -> bool:
+    return any(t.frame == "base_link" for t in targets)
+
+
+def targets_in_world(targets: tuple[HandTarget, HandTarget], waist: pin.SE3 | None) -> tuple[pin.SE3, pin.SE3]:
+    """World poses of the targets; ``waist`` = the waist pose in world (``base_on_feet`` of
+    the measured joints) for base_link targets (``NO_JOINT_STATES`` when it is missing)."""
+    out = []
+    for t in targets:
+        if t.frame == "base_link":
+            if waist is None:
+                raise RequestError(C.NO_JOINT_STATES,
+                                     "a base_link hand target needs a recent /joint_states to place the waist")
+            out.append(waist * t.pose)
+        else:
+            out.append(t.pose)
+    return out[0], out[1]
+
+
+@dataclass
+class Counters:
+    goals: int = 0
+    goals_rejected: int = 0
+    trajectories: int = 0
+    trajectories_rejected: int = 0
+    successes: int = 0
+    last_rejection: str = ""
+    last_result: str = ""
+    maps_received: int = 0
+    maps_rejected: int = 0
+    map_source: str = "none"
+    map_voxels: int = 0
+    map_build_ms: float = 0.0
+    dual_arm_goals: int = 0
+    dual_arm_infeasible: int = 0
+    last_infeasible: str = ""
+    target_messages: int = 0
+    target_messages_rejected: int = 0
+    target_messages_ignored: int = 0
+    target_messages_unchanged: int = 0
+
+
+class ExecutionRequests:
+    """Builds motions from validated inputs; owns the map the loop gets (see the module doc).
+
+    ``p``: the node's parameter values (a live dict: run-time changes apply)."""
+
+    def __init__(self, robot: RobotModel, p: dict[str, Any]) -> None:
+        self.robot = robot
+        self.p = p
+        self.counters = Counters()
+        self._fk_lock = threading.Lock()
+        self._map_points: np.ndarray | None = None
+        self._scene_voxels: np.ndarray | None = None
+        self._target_p: np.ndarray | None = None
+        self._tree: SphereTree | None = None
+        self._reshaper = None
+        self._reshape_lock = threading.Lock()
+        self._sampler = None
+        self._sampler_lock = threading.Lock()
+        self._map_lock = threading.Lock()
+        self.send_map: Callable[[SphereTree], None] = lambda tree: None   # set by the node: to the loop
+
+    # ------------------------------------------------------------ map
+    def _build(self, voxels: np.ndarray) -> SphereTree:
+        V = np.ascontiguousarray(np.asarray(voxels, dtype=float).reshape(-1, 3))
+        t0 = time.perf_counter()
+        tree = SphereTree.from_voxels(V, self.p["resolution_m"], self.p["safety_margin_m"])
+        self.counters.map_voxels, self.counters.map_build_ms = len(V), (time.perf_counter() - t0) * 1e3
+        self._tree = tree
+        return tree
+
+    def scene_map(self) -> tuple[SphereTree | None, str]:
+        """The scene file's map (until a /voxel_map arrives) and a log line."""
+        if not self.p["scene_file"]:
+            return None, ("map source: none yet (scene_file is empty): executing without environment until "
+                          "/voxel_map arrives")
+        from humanoid_reach_ros.sim.scene import load_scene
+        path = config_path(self.p["scene_file"])
+        voxels = load_scene(str(path)).voxelize(self.p["resolution_m"],
+                                                exclude_groups=tuple(self.p["scene_exclude_groups"]))
+        tree = self._build(voxels)
+        self.counters.map_source = f"scene file {path}"
+        return tree, (f"map source: scene file {path} ({len(voxels)} voxels without groups "
+                      f"{list(self.p['scene_exclude_groups'])}, sphere tree built in "
+                      f"{self.counters.map_build_ms:.1f} ms); a /voxel_map replaces it")
+
+    def measured_map(self, cloud) -> tuple[SphereTree, str, bool]:
+        """A parsed /voxel_map (``msgs.points_from_cloud``) -> (tree, log line, source changed)."""
+        if cloud.frame_id not in ("", self.p["map_frame"]):
+            raise ValueError(f"frame_id {cloud.frame_id!r} is not the map frame {self.p['map_frame']!r}")
+        with self._map_lock:
+            self._map_points = cloud.points
+            kept = self._carved(cloud.points)
+            tree = self._build(kept)
+        c = self.counters
+        previous, changed = c.map_source, c.map_source != "/voxel_map"
+        c.maps_received += 1
+        c.map_source = "/voxel_map"
+        dropped = f", {cloud.dropped_nonfinite} NaN/inf points dropped" if cloud.dropped_nonfinite else ""
+        return tree, (f"map source: /voxel_map ({len(cloud.points)} voxels{dropped}, sphere tree built in "
+                      f"{c.map_build_ms:.1f} ms; replaces {previous})"), changed
+
+    def reject_map(self, exc: Exception) -> None:
+        self.counters.maps_rejected += 1
+        self.counters.last_rejection = f"/voxel_map: {type(exc).__name__}: {exc}"
+
+    def _carved(self, points: np.ndarray) -> np.ndarray:
+        if self._target_p is None:
+            return points
+        return without_target(points, self._target_p, float(self.p["target_exclusion_radius_m"]))
+
+    def _aim_map_at(self, positions: np.ndarray, arm: str, log: Callable[[str], None] | None) -> None:
+        """Before a motion: leave the voxels around its final hand position out of a measured map."""
+        end = positions[-1]
+        with self._fk_lock:
+            q_end = self.robot.config(end, self.robot.base_on_feet(end))
+            target = self.robot.frame_pose(q_end, self.robot.limbs[HAND_LIMBS[arm]].tip).translation.copy()
+        with self._map_lock:
+            self._target_p, points = target, self._map_points
+            if points is None:
+                return
+            kept = self._carved(points)
+            tree = self._build(kept)
+        self.send_map(tree)
+        if len(kept) < len(points) and log is not None:
+            log(f"/voxel_map: {len(points) - len(kept)} of {len(points)} voxels within "
+                f"{self.p['target_exclusion_radius_m']:g} m of the final hand position "
+                f"{np.round(target, 3).tolist()} left out (the object to be reached)")
+
+    # ------------------------------------------------------------ motions
+    def measured_start(self, joints: np.ndarray | None, reason: str) -> np.ndarray:
+        if joints is None:
+            raise RequestError(C.NO_JOINT_STATES, reason)
+        with self._fk_lock:
+            return self.robot.config(joints, self.robot.base_on_feet(joints))
+
+    def trajectory(self, mid: int, label: str, ref, frame_id: str, arm_code: int, no_avoidance: bool,
+                   no_com: bool, reshaping: bool, joints: np.ndarray | None, reason: str,
+                   log: Callable[[str], None] | None = None):
+        """A whole-body executor motion along ``ref`` (an ``exec_msgs.Reference``)."""
+        from humanoid_reach_ros.execution.supervisor import Motion
+        if frame_id not in ("", self.p["map_frame"]):
+            raise RequestError(C.INVALID_GOAL, f"trajectory frame_id {frame_id!r} is not the map frame "
+                                               f"{self.p['map_frame']!r}")
+        with self._fk_lock:
+            arm = resolve_arm(int(arm_code), arm_motion(self.robot, ref.positions))
+        q0 = self.measured_start(joints, reason)
+        self._aim_map_at(ref.positions, arm, log)
+        spline, note = ref.spline, ""
+        if reshaping:
+            spline, note = self._reshape(ref.spline, arm)
+            if log is not None:
+                log(f"{label}: {note}")
+        params = dataclasses.replace(self._executor_params(), collision_avoidance=not no_avoidance,
+                                     com_compensation=not no_com, smooth_reshaping=False)
+        return Motion(mid, label, "trajectory", spline=spline, arm=arm, params=params, q_measured=q0, note=note)
+
+    def _executor_params(self):
+        from humanoid_reach_ros.control.executor import ExecutorParams
+        known = {f.name for f in dataclasses.fields(ExecutorParams)}
+        return ExecutorParams(**{k: v for k, v in self.p.items() if k in known})
+
+    def dual(self, mid: int, label: str, targets, joints: np.ndarray | None, reason: str, follow: bool = False):
+        """A dual-arm motion to validated hand targets; feasibility is the controller's, at the start."""
+        from humanoid_reach_ros.execution.supervisor import Motion
+        waist = None
+        if needs_waist(targets) and joints is not None:
+            with self._fk_lock:
+                waist = self.robot.base_on_feet(joints)
+        right, left = targets_in_world(targets, waist)
+        q0 = self.measured_start(joints, reason)
+        return Motion(mid, label, "dual", arm="both", targets=(right, left), follow=follow, q_measured=q0)
+
+    def sequential(self, mid: int, label: str, count: int, seed: int, joints: np.ndarray | None, reason: str):
+        """Sequential random targets (Sec. 5.4): ``count`` pairs the method reaches, drawn here
+        (~30 ms a pair) by a controller of its own, built on the first call."""
+        from humanoid_reach_ros.execution.supervisor import Motion
+        q0 = self.measured_start(joints, reason)
+        with self._sampler_lock:
+            if self._sampler is None:
+                from humanoid_reach_ros.reach.controller import ControllerConfig, DualArmReachController
+                from humanoid_reach_ros.reach.torso_regression import ReachWorkspace, TorsoRegression
+                self._sampler = DualArmReachController(
+                    RobotModel(self.p["robot_config"]), TorsoRegression.load(self.p["dual_arm_regression"]),
+                    ReachWorkspace.load(self.p["dual_arm_workspace"]),
+                    ControllerConfig(period_s=self.p["period_s"], max_speed_mps=self.p["dual_arm_max_speed_mps"]))
+            pairs = self._sampler.sample_reachable(np.random.default_rng(seed), count)
+        return Motion(mid, label, "sequential", arm="both", sequential=(count, seed, pairs), q_measured=q0)
+
+    def unchanged(self, targets, current) -> bool:
+        """The dual-arm controller already runs to / holds at (nearly) these targets."""
+        if current is None:
+            return False
+        p_tol, r_tol = self.p["dual_arm_retarget_threshold_m"], self.p["dual_arm_retarget_threshold_rad"]
+        return all(np.linalg.norm(a.translation - b.translation) <= p_tol
+                   and np.linalg.norm(pin.log3(a.rotation.T @ b.rotation)) <= r_tol
+                   for a, b in zip(targets, current))
+
+    def _reshape(self, spline, arm: str):
+        """Smooth reshaping of ``spline`` against the current map (one at a time)."""
+        from humanoid_reach_ros.robot.shapes import load_collision_model
+        tree = self._tree
+        if tree is None or tree.n_spheres == 0:
+            return spline, "smooth reshaping: no map, trajectory unchanged"
+        t0 = time.perf_counter()
+        if not self._reshape_lock.acquire(blocking=False):
+            raise RequestError(C.ABORTED, "smooth reshaping busy: another goal is being reshaped; send it again "
+                                          "when that one has started")
+        try:
+            if self._reshaper is None:
+                from humanoid_reach_ros.planning.reshape import SmoothReshaper
+                robot = RobotModel(self.p["robot_config"])   # its own pinocchio data: thread safety
+                self._reshaper = SmoothReshaper(robot, load_collision_model(None, robot))
+            out = self._reshaper.reshape(spline, tree, arm)
+        except Exception as exc:
+            raise RequestError(C.ABORTED, f"smooth reshaping failed: {type(exc).__name__}: {exc}") from None
+        finally:
+            self._reshape_lock.release()
+        before = float(np.min(out.distance_before)) if len(out.distance_before) else math.inf
+        after = float(np.min(out.distance_after)) if len(out.distance_after) else math.inf
+        return out.trajectory, (f"smooth reshaping: {len(out.portions)} portion(s) reshaped in "
+                                f"{time.perf_counter() - t0:.2f} s, min distance {before:.4f} -> {after:.4f} m"
+                                f"{'' if out.success else ' (collisions remain)'}")
+
+    @staticmethod
+    def describe(motion) -> str:
+        """One line on an accepted motion."""
+        if motion.kind == "sequential":
+            return f"{motion.sequential[0]} sequential random target pairs (seed {motion.sequential[1]})"
+        if motion.kind == "dual":
+            r, l_ = motion.targets
+            return (f"dual-arm reach, right hand to {np.round(r.translation, 3).tolist()}, left hand to "
+                    f"{np.round(l_.translation, 3).tolist()} (world)")
+        s, p = motion.spline, motion.params
+        return (f"{motion.arm}-arm trajectory, {len(s.times)} points over {s.duration:.2f} s; collision "
+                f"avoidance {'on' if p.collision_avoidance else 'OFF'}, COM compensation "
+                f"{'on' if p.com_compensation else 'OFF'}" + (f"; {motion.note}" if motion.note else ""))

@@ -1,0 +1,463 @@
+"""Execution supervisor: accept, execute, cancel, preempt, hold the last safe command.
+
+ROS-free and thread-free: a clock (``clock() -> seconds``, monotonic) and a command sink
+(``sink(joints, metrics, overruns)``) are injected, and two callers drive it:
+
+* the **solver side** calls :meth:`work` whenever :meth:`has_work` (it applies the queued
+  commands -- start, stop, map -- and computes the next step of the running engine);
+* the **tick side** calls :meth:`tick` at every deadline ``t_0 + k period_s``: it hands the
+  step the solver finished to the sink; when the solver has not finished (the step overran
+  its period) the last safe command goes out again, an overrun is counted, and the late
+  step follows at the next deadline: a half-computed command is never sent.
+
+States: ``idle`` (nothing commanded yet, or the hold timed out: nothing is published),
+``running``, ``settling`` (after a cancel / abort the engine keeps solving in its hold mode
+for ``hold_settle_s``; a dual-arm motion brakes on its path), ``holding`` (the last command
+is republished every period, for ``hold_timeout_s``; 0 = until the next motion).
+
+Continuity: every start begins from the last *commanded* configuration (the measured one
+only when nothing was commanded yet); a new motion preempts the running one (PREEMPTED),
+and the engine blends its reference in.
+
+The reference follows the clock: the step computed for a deadline evaluates the reference
+at that deadline's time since the motion's start (``WholeBodyExecutor.step(t)``), so a late
+step never stretches the motion; the next step catches up within the velocity limits over
+the elapsed time, every constraint (feet, COG, dampers, joint limits) still enforced.
+
+Starts are reported through ``on_start(motion)``, outcomes through ``on_finish(motion)``
+once per motion (``motion.code`` is an
+:class:`~humanoid_reach_ros.codes.ExecuteCode`).
+"""
+from __future__ import annotations
+
+import math
+import threading
+import traceback
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from humanoid_reach_ros.codes import ExecuteCode as C
+from humanoid_reach_ros.execution.engines import StepOutcome
+
+IDLE, RUN, SETTLE, HOLD = "idle", "running", "settling", "holding"
+
+
+@dataclass(frozen=True)
+class SupervisorConfig:
+    period_s: float = 0.005
+    hold_settle_s: float = 0.25       # after a cancel / abort the engine keeps solving this long [s]
+    hold_timeout_s: float = 0.0       # republish the held command this long after a motion; 0 = forever
+    dual_arm_brake_s: float = 0.2     # a stopped dual-arm motion brakes on its path over this long [s]
+    step_history: int = 4000          # step times kept for the percentiles
+
+
+@dataclass(eq=False)
+class Motion:
+    """One execution request and its figures. ``kind``: trajectory | dual | sequential."""
+
+    id: int
+    label: str                                  # "goal #3" | "/reach_trajectory #2" | ...
+    kind: str = "trajectory"
+    spline: Any = None                          # SplineTrajectory (trajectory)
+    arm: str = "right"                          # "right" | "left" | "both"
+    params: Any = None                          # ExecutorParams (trajectory)
+    targets: Any = None                         # (right, left) pin.SE3 in world (dual)
+    sequential: tuple | None = None             # (count, seed, pairs) (sequential)
+    follow: bool = False                        # dual arm from /dual_arm/targets
+    q_measured: np.ndarray | None = None        # start when nothing was commanded yet
+    note: str = ""
+    # ---- figures
+    started: float = math.nan
+    ended: float = math.nan
+    steps: int = 0
+    overruns: int = 0
+    max_com_error_m: float = 0.0
+    min_distance_m: float = math.inf
+    pairs_reached: int = 0
+    pairs_skipped: int = 0
+    last: Any = None                            # metrics of the last published step
+    code: int | None = None
+    message: str = ""
+    source: str = ""                            # "the last command" | "/joint_states"
+    t_origin: float = math.nan                  # clock time of reference t = 0
+
+    @property
+    def dual(self) -> bool:
+        return self.kind in ("dual", "sequential")
+
+    def summary(self, now: float) -> dict[str, float]:
+        last = self.last
+        end = self.ended if math.isfinite(self.ended) else now
+        return {"duration_s": end - self.started if math.isfinite(self.started) else 0.0,
+                "steps": self.steps, "overruns": self.overruns, "max_com_error_m": self.max_com_error_m,
+                "min_distance_m": self.min_distance_m,
+                "final_hand_error_m": last.hand_error_m if last is not None else 0.0,
+                "final_hand_error_rad": last.hand_error_rad if last is not None else 0.0}
+
+
+@dataclass
+class LoopStats:
+    """Counters of the tick side (diagnostics)."""
+
+    ticks: int = 0
+    published: int = 0
+    steps: int = 0
+    overruns: int = 0
+    missed_deadlines: int = 0
+    step_times: deque = field(default_factory=lambda: deque(maxlen=4000))
+    hold_step_times: deque = field(default_factory=lambda: deque(maxlen=4000))
+
+
+class ExecutionSupervisor:
+    """The state machine of execution (see the module docstring)."""
+
+    def __init__(self, trajectory_engine, dual_engine=None, config: SupervisorConfig = SupervisorConfig(),
+                 clock: Callable[[], float] | None = None,
+                 sink: Callable[[np.ndarray, Any, int], None] | None = None,
+                 on_finish: Callable[[Motion], None] | None = None,
+                 on_start: Callable[[Motion], None] | None = None,
+                 log: Callable[[str, str], None] | None = None) -> None:
+        import time
+        self.engines = {"executor": trajectory_engine}
+        if dual_engine is not None:
+            self.engines["dual"] = dual_engine
+        self.config = config
+        self.clock = clock or time.monotonic
+        self.sink = sink or (lambda joints, metrics, overruns: None)
+        self.on_finish = on_finish or (lambda motion: None)
+        self.on_start = on_start or (lambda motion: None)
+        self.log = log or (lambda level, text: None)
+        self._cond = threading.Condition()
+        self._pending: list[tuple] = []
+        self.mode = IDLE
+        self.engine = "executor"                 # which engine made the last command
+        self.motion: Motion | None = None        # running (RUN) or None
+        self._ready: tuple[Motion | None, StepOutcome] | None = None
+        self._starting = False                   # inside an engine start: ticks hold, no overrun
+        self.last_q: np.ndarray | None = None
+        self.last_joints: np.ndarray | None = None
+        self._settle_until = 0.0
+        self.hold_since = 0.0
+        self._next_deadline = math.nan           # time of the next tick (set by the tick side)
+        self.stats = LoopStats(step_times=deque(maxlen=config.step_history),
+                               hold_step_times=deque(maxlen=config.step_history))
+        self.last_finished: Motion | None = None
+        self.closed = False
+
+    # ------------------------------------------------------------ inputs (any thread)
+    def submit(self, motion: Motion) -> None:
+        """Queue ``motion``; it starts at the solver's next turn and preempts the running one."""
+        self._queue(("start", motion))
+
+    def stop(self, motion_id: int | None, code: int, message: str) -> None:
+        """Stop motion ``motion_id`` (``None``: whichever runs) with ``code`` and hold."""
+        self._queue(("stop", motion_id, int(code), message))
+
+    def set_map(self, tree) -> None:
+        """New environment (a ``SphereTree`` or None), applied before the next step."""
+        self._queue(("map", tree))
+
+    def close(self, message: str = "the executor is shutting down") -> None:
+        with self._cond:
+            self.closed = True
+            if self.motion is not None:
+                self._finish(self.motion, C.ABORTED, message)
+                self.motion = None
+            self._cond.notify_all()
+
+    def _queue(self, command: tuple) -> None:
+        with self._cond:
+            self._pending.append(command)
+            self._cond.notify_all()
+
+    # ------------------------------------------------------------ state (any thread)
+    def status(self) -> dict[str, Any]:
+        """A copy of the state for feedback and diagnostics (plain values, picklable)."""
+        with self._cond:
+            m = self.motion
+            st = self.stats
+            times = np.array(st.step_times) if st.step_times else np.zeros(0)
+            hold = np.array(st.hold_step_times) if st.hold_step_times else np.zeros(0)
+            dual = self.engines.get("dual")
+            return {"mode": self.mode, "engine": self.engine,
+                    "motion_id": m.id if m is not None else None, "motion_label": m.label if m is not None else "",
+                    "progress": float(m.last.progress) if m is not None and m.last is not None else 0.0,
+                    "last": m.last if m is not None else None,
+                    "dual_targets": dual.targets if dual is not None and self.engine == "dual"
+                    and self.mode != IDLE else None,
+                    "ticks": st.ticks, "published": st.published, "steps": st.steps, "overruns": st.overruns,
+                    "missed_deadlines": st.missed_deadlines,
+                    "step_p50_ms": float(np.percentile(times, 50)) * 1e3 if len(times) else 0.0,
+                    "step_p99_ms": float(np.percentile(times, 99)) * 1e3 if len(times) else 0.0,
+                    "step_max_ms": float(times.max()) * 1e3 if len(times) else 0.0,
+                    "hold_step_p99_ms": float(np.percentile(hold, 99)) * 1e3 if len(hold) else 0.0,
+                    "last_joints": None if self.last_joints is None else self.last_joints.copy()}
+
+    # ------------------------------------------------------------ solver side
+    def has_work(self) -> bool:
+        return bool(self._pending) or (self.mode in (RUN, SETTLE) and self._ready is None)
+
+    def wait_for_work(self, timeout: float) -> bool:
+        with self._cond:
+            if not self.closed and not self.has_work():
+                self._cond.wait(timeout)
+            return not self.closed and self.has_work()
+
+    def wake(self) -> None:
+        with self._cond:
+            self._cond.notify_all()
+
+    def work(self) -> None:
+        """Apply the queued commands, then compute the next step if one is due."""
+        with self._cond:
+            commands, self._pending = self._pending, []
+        try:
+            for cmd in commands:
+                self._apply(cmd)
+            self._maybe_step()
+        except Exception as exc:  # an engine error must not kill the loop: stop and hold
+            self.log("error", f"executor step failed: {type(exc).__name__}: {exc}\n{traceback.format_exc()}")
+            with self._cond:
+                if self.motion is not None:
+                    self._finish(self.motion, C.ABORTED, f"executor error: {type(exc).__name__}: {exc}")
+                self.motion = None
+                self._ready = None
+                self.mode = HOLD if self.last_q is not None else IDLE
+                self.hold_since = self.clock()
+                self._starting = False
+
+    def _apply(self, cmd: tuple) -> None:
+        kind = cmd[0]
+        if kind == "map":
+            self.engines["executor"].set_environment(cmd[1])
+        elif kind == "start":
+            self._start(cmd[1])
+        elif kind == "stop":
+            _, motion_id, code, message = cmd
+            with self._cond:
+                current = self.motion
+                if motion_id is not None and (current is None or current.id != motion_id):
+                    return    # finished or replaced already
+                self.motion = None
+                if current is not None:
+                    self._finish(current, code, message + "; holding the last command")
+                if self.mode == IDLE or self.last_q is None:
+                    return
+                self.mode = SETTLE
+                self._settle_until = self.clock() + self.config.hold_settle_s
+            self.engines[self.engine].stop(self.config.dual_arm_brake_s)
+
+    def _begin_start(self, motion: Motion):
+        """Common part of a start: the start configuration and its source, or None (finished)."""
+        with self._cond:
+            if motion.code is not None:
+                return None
+            previous = self.motion
+            if self.last_q is not None and self.mode != IDLE:
+                q0, source = self.last_q.copy(), "the last command"
+            else:
+                q0, source = motion.q_measured, "/joint_states"
+            mode_before = self.mode
+            self._ready = None       # a step of the previous motion not yet sent is dropped
+            self.motion = None
+            self._starting = True    # ticks republish the last command meanwhile (not an overrun)
+            if q0 is None:
+                self._starting = False
+                self._finish(motion, C.NO_JOINT_STATES, "no recent /joint_states to start from")
+                if previous is not None:
+                    self.motion = previous
+                return None
+        motion.source = source
+        return q0, previous, mode_before
+
+    def _start(self, motion: Motion) -> None:
+        """Start ``motion`` from the last commanded configuration (measured when none)."""
+        begun = self._begin_start(motion)
+        if begun is None:
+            return
+        q0, previous, mode_before = begun
+        if motion.dual:
+            was_running = self.engine == "dual"
+            plan = self.engines["dual"].start(q0, motion, was_running)
+            if not plan.feasible:
+                with self._cond:
+                    self._starting = False
+                    self._finish(motion, C.INVALID_GOAL, f"infeasible target pair: {plan.reason}; holding")
+                    if previous is not None:
+                        self._finish(previous, C.PREEMPTED, f"preempted by {motion.label}, which is infeasible; "
+                                                            "stopping smoothly and holding")
+                        self.mode = SETTLE
+                        self._settle_until = self.clock() + self.config.hold_settle_s
+                    elif mode_before in (RUN, SETTLE):
+                        self.mode = mode_before
+                if previous is not None:
+                    self.engines[self.engine].stop(self.config.dual_arm_brake_s)
+                return
+            motion.note = plan.note
+            engine = "dual"
+        else:
+            try:
+                self.engines["executor"].start(q0, motion)
+            except Exception as exc:
+                with self._cond:
+                    self._starting = False
+                    self._finish(motion, C.ABORTED, f"executor refused the reference: {type(exc).__name__}: {exc}")
+                    if previous is not None:
+                        self._finish(previous, C.PREEMPTED, f"replaced by {motion.label}, which failed to start")
+                        self.mode = SETTLE
+                        self._settle_until = self.clock() + self.config.hold_settle_s
+                if previous is not None:
+                    self.engines[self.engine].stop(self.config.dual_arm_brake_s)
+                return
+            engine = "executor"
+        with self._cond:
+            if previous is not None:
+                self._finish(previous, C.PREEMPTED, f"preempted by {motion.label} (from the last command)")
+            motion.started = self.clock()
+            # reference time origin: the step for the next deadline is at t = one period
+            nxt = self._next_deadline if math.isfinite(self._next_deadline) else motion.started
+            motion.t_origin = nxt - self.config.period_s
+            self.motion = motion
+            self.mode = RUN
+            self._starting = False
+            self.engine = engine
+            self.on_start(motion)
+
+    def _step_time(self, motion: Motion | None) -> float | None:
+        """Reference time of the step being computed: that of the deadline it will be sent at
+        (the first deadline after now when the solver runs late)."""
+        if motion is None or not math.isfinite(motion.t_origin):
+            return None
+        period = self.config.period_s
+        deadline = self._next_deadline
+        now = self.clock()
+        if not math.isfinite(deadline):
+            deadline = now
+        elif now > deadline:  # late: the step goes out at the first deadline after now
+            deadline += math.ceil((now - deadline) / period) * period
+        return max(deadline - motion.t_origin, period)
+
+    def _maybe_step(self) -> None:
+        with self._cond:
+            if self.mode not in (RUN, SETTLE) or self._ready is not None:
+                return
+            engine = self.engine
+            settled = self.clock() >= self._settle_until if engine == "executor" \
+                else not self.engines["dual"].busy
+            if self.mode == SETTLE and settled:
+                self.mode = HOLD
+                self.hold_since = self.clock()
+                return
+            motion = self.motion
+            t = self._step_time(motion) if self.mode == RUN else None
+        if engine == "executor":
+            result = self.engines["executor"].step(t)
+        else:
+            result = self.engines["dual"].step(t, motion.steps if motion is not None else 0,
+                                               motion.last if motion is not None else None)
+        with self._cond:
+            if motion is self.motion and self.mode in (RUN, SETTLE):
+                self._ready = (motion, result)
+
+    # ------------------------------------------------------------ tick side
+    def tick(self, next_deadline: float | None = None) -> None:
+        """One deadline: hand the finished step (or the last safe command) to the sink.
+        ``next_deadline``: when the following tick is due (the reference time of the step
+        the solver computes next)."""
+        out = None
+        with self._cond:
+            st = self.stats
+            st.ticks += 1
+            if next_deadline is not None:
+                self._next_deadline = next_deadline
+            mode = self.mode
+            if mode == IDLE:
+                return
+            cfg = self.config
+            if mode == HOLD and cfg.hold_timeout_s > 0 and self.clock() - self.hold_since > cfg.hold_timeout_s:
+                self.mode = IDLE
+                self.log("info", f"held the last command for {cfg.hold_timeout_s:g} s: stop publishing")
+                return
+            ready, self._ready = self._ready, None
+            metrics, overruns = None, 0
+            if ready is not None:
+                motion, res = ready
+                self.last_q, self.last_joints = res.q, res.joints
+                m = metrics = res.metrics
+                st.steps += 1
+                st.step_times.append(m.solve_time_s)
+                if motion is None or mode == SETTLE or getattr(m, "progress", 0.0) >= 1.0:
+                    st.hold_step_times.append(m.solve_time_s)
+                if motion is not None:
+                    motion.steps += 1
+                    motion.last = m
+                    motion.max_com_error_m = max(motion.max_com_error_m, m.com_error_m)
+                    motion.min_distance_m = min(motion.min_distance_m, m.min_distance_m)
+                    overruns = motion.overruns
+                    self._after_step(motion, res)
+            elif mode in (RUN, SETTLE) and self.last_q is not None and not self._starting:
+                # the step for this deadline is not ready (it overran): hold the last safe command
+                st.overruns += 1
+                if self.motion is not None:
+                    self.motion.overruns += 1
+            joints = self.last_joints
+            st.published += 1
+            self._cond.notify_all()
+            if joints is not None:
+                out = (joints, metrics, overruns)
+        if out is not None:
+            self.sink(*out)
+
+    def _after_step(self, motion: Motion, res: StepOutcome) -> None:
+        """Outcome of a published step (caller holds the lock)."""
+        if motion is not self.motion:
+            return
+        if motion.kind == "sequential":
+            if res.pair_done:
+                motion.pairs_reached += int(res.ok)
+                motion.pairs_skipped += int(not res.ok)
+            if not res.done:
+                return
+            n = motion.sequential[0]
+            self._finish(motion, C.SUCCESS, f"{n} random target pairs: {motion.pairs_reached} reached, "
+                                            f"{motion.pairs_skipped} infeasible (skipped)")
+        elif motion.kind == "dual":
+            if not (res.done or not res.ok):
+                return
+            if res.ok:
+                self._finish(motion, C.SUCCESS, "both hands at their targets")
+            else:
+                self._finish(motion, C.ABORTED, f"dual-arm step failed: {res.reason}; holding")
+                self.engines["dual"].targets = None
+        else:
+            if not res.done:
+                return
+            conv = self.engines["executor"].converge_position_m
+            self._finish(motion, C.SUCCESS, "trajectory executed, hand converged" if res.metrics.hand_error_m <= conv
+                         else "trajectory executed (settle timeout before the hand converged)")
+        self.motion = None
+        self.mode = HOLD
+        self.hold_since = self.clock()
+
+    def missed(self, count: int) -> None:
+        """The tick side skipped ``count`` deadlines (it fell more than a period behind)."""
+        with self._cond:
+            self.stats.missed_deadlines += count
+
+    # ------------------------------------------------------------ outcomes
+    def _finish(self, motion: Motion, code: int, message: str) -> None:
+        """Record the outcome of ``motion`` once (caller holds the lock) and report it."""
+        if motion.code is not None:
+            return
+        motion.code, motion.message, motion.ended = int(code), message, self.clock()
+        self.last_finished = motion
+        try:
+            self.on_finish(motion)
+        except Exception as exc:  # a reporting failure must not break the state machine
+            self.log("error", f"on_finish failed: {type(exc).__name__}: {exc}")
+
+
+__all__ = ["ExecutionSupervisor", "SupervisorConfig", "Motion", "LoopStats", "IDLE", "RUN", "SETTLE", "HOLD"]

@@ -1,0 +1,106 @@
+"""Declared parameters of ``reach_executor`` (defaults match config/reach_executor.yaml,
+checked by test_reach_executor_node) and their mapping onto the core's configurations."""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from humanoid_reach_ros.control.executor import ExecutorParams
+from humanoid_reach_ros.execution.supervisor import SupervisorConfig
+from humanoid_reach_ros.nodes.common import ParamSpec
+
+SOLVERS = ("nullspace", "osqp")
+
+# Defaults match config/reach_executor.yaml (checked by test_reach_executor_node). The first
+# group maps one to one onto ``ExecutorParams`` fields and takes its defaults from it.
+_D = ExecutorParams()
+#: upper bound of dual_arm_sequential_count (the pairs are drawn in the service call, ~30 ms each)
+MAX_SEQUENTIAL = 1000
+
+EXECUTOR_PARAMETERS: dict[str, ParamSpec] = {
+    "period_s": ParamSpec(_D.period_s, "control period dt [s]: one executor step and one /joint_command each",
+                          (0.001, 0.1)),
+    "distance_bound_m": ParamSpec(_D.distance_bound_m, "d_i: environment spheres / self pairs closer than this "
+                                  "enter level 1 as velocity dampers [m]", (0.001, 1.0)),
+    "security_distance_m": ParamSpec(_D.security_distance_m, "d_s of the velocity damper [m]", (0.0, 0.5)),
+    "damper_xi": ParamSpec(_D.damper_xi, "xi of the velocity damper (per-step fraction)", (0.001, 1.0)),
+    "hand_gain": ParamSpec(_D.hand_gain, "per-step gain of the hand task (level 3)", (0.001, 1.0)),
+    "com_gain": ParamSpec(_D.com_gain, "per-step gain of the exact-COG task (level 2)", (0.001, 1.0)),
+    "feet_gain": ParamSpec(_D.feet_gain, "per-step gain of the feet tasks (level 2)", (0.001, 1.0)),
+    "posture_gain": ParamSpec(_D.posture_gain, "per-step gain of the posture task (level 4)", (0.001, 1.0)),
+    "velocity_scale": ParamSpec(_D.velocity_scale, "fraction of the URDF joint velocity limits allowed", (0.01, 1.0)),
+    "com_recenter_speed_mps": ParamSpec(_D.com_recenter_speed_mps, "mean speed of the COG target back to its "
+                                        "nominal point after a start away from it [m/s]", (0.001, 1.0)),
+    "blend_min_s": ParamSpec(_D.blend_min_s, "shortest blend of a reference that starts away from the last "
+                             "command [s]", (0.0, 10.0)),
+    "settle_timeout_s": ParamSpec(_D.settle_timeout_s, "a motion ends at most this long after its reference "
+                                  "[s] even if the hand has not converged", (0.0, 60.0)),
+    "solver": ParamSpec(_D.solver, "prioritized IK solver", constraints=f"one of {', '.join(SOLVERS)}"),
+}
+
+NODE_PARAMETERS: dict[str, ParamSpec] = {
+    "robot_config": ParamSpec("robots/hrp2.yaml", "robot semantic YAML, relative to config/ or absolute"),
+    "resolution_m": ParamSpec(0.02, "voxel size of the environment map [m] (sphere radius = resolution / 2)",
+                              (0.001, 1.0)),
+    "safety_margin_m": ParamSpec(0.0, "extra radius added to every environment sphere [m]", (0.0, 0.5)),
+    "scene_file": ParamSpec("scenes/plant.yaml", "scene whose voxels are the map until /voxel_map arrives, "
+                            "relative to config/ or absolute; empty = no map until /voxel_map"),
+    "scene_exclude_groups": ParamSpec(["valve"], "scene primitive groups left out of the scene-file map "
+                                      "(the object to be grasped)"),
+    "map_frame": ParamSpec("world", "frame of /voxel_map and of the metrics"),
+    "target_exclusion_radius_m": ParamSpec(0.15, "voxels of a /voxel_map within this distance of the motion's "
+                                           "final hand position are the object to be reached and left out of "
+                                           "the collision map [m]; 0 = keep all (as reach_planner)", (0.0, 1.0)),
+    "joint_states_timeout_s": ParamSpec(0.5, "/joint_states older than this [s]: a start is refused (NO_JOINT_STATES)",
+                                        (0.001, 3600.0), read_only=False),
+    "joint_states_abort_s": ParamSpec(2.0, "/joint_states older than this [s] while a motion runs: it is aborted "
+                                      "(ABORTED) and the last command held", (0.001, 3600.0), read_only=False),
+    "hold_settle_s": ParamSpec(0.25, "after a cancel or abort the executor keeps solving in hold mode this long [s]",
+                               (0.0, 10.0)),
+    "hold_timeout_s": ParamSpec(0.0, "republish the held command this long after a motion [s]; 0 = until the "
+                                "next motion", (0.0, 1e6)),
+    "rt_priority": ParamSpec(80, "SCHED_FIFO priority of the control loop's tick thread (solver: one below) where "
+                             "the OS allows it; 0 = normal scheduling"),
+    "lock_memory": ParamSpec(True, "mlockall the control loop process (with rt_priority > 0) where the OS allows it"),
+    "loop_start_timeout_s": ParamSpec(120.0, "the control loop process must be ready within this long [s]",
+                                      (1.0, 3600.0)),
+    "metrics_decimation": ParamSpec(1, "publish /executor/metrics every this many published steps (>= 1)"),
+    "feedback_period_s": ParamSpec(0.05, "period of the action feedback [s]", (0.005, 10.0)),
+    "diagnostics_period_s": ParamSpec(1.0, "period of /diagnostics [s]", (0.05, 60.0)),
+    "max_overrun_fraction": ParamSpec(0.02, "diagnostics WARN when more than this fraction of the steps of the "
+                                      "last window overran", (0.0, 1.0)),
+    "warn_throttle_s": ParamSpec(1.0, "minimum interval between repeated warnings [s]", (0.0, 3600.0)),
+    # ---- dual-arm mode (MODE_DUAL_ARM goals, /dual_arm/targets)
+    "dual_arm_regression": ParamSpec("torso_regression/hrp2_torso_svr", "torso regression model stem (.npz + "
+                                     ".yaml), relative to config/ or absolute"),
+    "dual_arm_workspace": ParamSpec("torso_regression/workspace.yaml", "workspace / eq. 6 YAML of the dual-arm "
+                                    "controller, relative to config/ or absolute"),
+    "dual_arm_max_speed_mps": ParamSpec(0.38, "speed limit of the hands and the CoM in dual-arm mode [m/s]",
+                                        (0.01, 2.0)),
+    "dual_arm_brake_s": ParamSpec(0.2, "a canceled / preempted dual-arm motion stops on its path over this "
+                                  "long [s]", (0.0, 5.0)),
+    "dual_arm_follow": ParamSpec(False, "follow /dual_arm/targets: each message retargets the dual-arm "
+                                 "controller (settable at run time)", read_only=False),
+    "dual_arm_retarget_threshold_m": ParamSpec(0.005, "/dual_arm/targets whose hand positions are all within "
+                                               "this of the current targets are ignored [m]", (0.0, 1.0),
+                                               read_only=False),
+    "dual_arm_retarget_threshold_rad": ParamSpec(0.02, "... and whose hand orientations are within this [rad]",
+                                                 (0.0, 3.2), read_only=False),
+    "dual_arm_sequential_count": ParamSpec(10, "random target pairs of one ~/dual_arm_sequential run (1..1000)",
+                                           read_only=False),
+    "dual_arm_sequential_seed": ParamSpec(0, "seed of the random target pairs of ~/dual_arm_sequential",
+                                          read_only=False),
+}
+
+PARAMETERS: dict[str, ParamSpec] = {**EXECUTOR_PARAMETERS, **NODE_PARAMETERS}
+
+
+def executor_params(values: dict[str, Any]) -> ExecutorParams:
+    """``ExecutorParams`` from the declared parameters (validated)."""
+    known = {f.name for f in dataclasses.fields(ExecutorParams)}
+    return ExecutorParams(**{k: values[k] for k in EXECUTOR_PARAMETERS if k in known}).validate()
+
+
+def supervisor_config(values: dict[str, Any]) -> SupervisorConfig:
+    return SupervisorConfig(period_s=values["period_s"], hold_settle_s=values["hold_settle_s"],
+                            hold_timeout_s=values["hold_timeout_s"], dual_arm_brake_s=values["dual_arm_brake_s"])

@@ -1,0 +1,238 @@
+"""The execution supervisor without ROS and without threads: an injected clock, a recording
+command sink and a scripted engine; the solver and tick sides are called by the test in the
+order the loop would call them (or out of it, to make a step late)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from humanoid_reach_ros.codes import ExecuteCode as C
+from humanoid_reach_ros.execution.engines import StepOutcome
+from humanoid_reach_ros.execution.supervisor import HOLD, IDLE, RUN, SETTLE, ExecutionSupervisor, Motion, SupervisorConfig
+
+DT = 0.005
+NQ = 7 + 3
+
+
+@dataclass(frozen=True)
+class M:
+    """Metrics of the scripted engine (the fields the supervisor reads)."""
+
+    t: float
+    progress: float
+    solve_time_s: float = 1e-4
+    com_error_m: float = 0.0
+    min_distance_m: float = 1.0
+    hand_error_m: float = 0.0
+    hand_error_rad: float = 0.0
+
+
+class FakeEngine:
+    """Joints = start joints + v * t (reference time); done at ``duration``; ``fail_at`` raises."""
+
+    name = "executor"
+    converge_position_m = 1e-3
+
+    def __init__(self) -> None:
+        self.q0 = None
+        self.duration = 0.0
+        self.t = 0.0
+        self.holding = False
+        self.times: list[float | None] = []
+        self.fail_at: int | None = None
+        self.maps = []
+        self.v = 1.0
+
+    def start(self, q0, motion) -> None:
+        if motion.spline == "refuse":
+            raise ValueError("bad reference")
+        self.q0, self.duration, self.t, self.holding = np.array(q0, float), float(motion.spline), 0.0, False
+
+    def step(self, t):
+        self.times.append(t)
+        if self.fail_at is not None and len(self.times) >= self.fail_at:
+            raise RuntimeError("boom")
+        if not self.holding:
+            self.t = self.t + DT if t is None else t
+        q = self.q0.copy()
+        q[7:] += self.v * min(self.t, self.duration)
+        done = self.holding or self.t >= self.duration
+        return StepOutcome(q, q[7:].copy(), M(self.t, min(self.t / self.duration, 1.0) if self.duration else 1.0),
+                           done)
+
+    def stop(self, brake_s) -> None:
+        self.holding = True
+        self.q0[7:] += self.v * min(self.t, self.duration)
+        self.t = 0.0
+        self.duration = 0.0
+
+    def set_environment(self, tree) -> None:
+        self.maps.append(tree)
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+class Harness:
+    def __init__(self, **cfg) -> None:
+        self.clock = Clock()
+        self.engine = FakeEngine()
+        self.sent: list[np.ndarray] = []
+        self.finished: list[Motion] = []
+        self.started: list[Motion] = []
+        self.sup = ExecutionSupervisor(self.engine, None, SupervisorConfig(period_s=DT, **cfg), self.clock,
+                                       lambda j, m, o: self.sent.append(np.array(j)), self.finished.append,
+                                       self.started.append)
+        self.k = 0
+
+    def deadline(self) -> float:
+        return 100.0 + self.k * DT
+
+    def cycle(self, solve: bool = True) -> None:
+        """One period as the loop runs it: the solver works (if ``solve``), then the tick at the deadline."""
+        if solve:
+            self.sup.work()
+        self.k += 1
+        self.clock.now = self.deadline()
+        self.sup.tick(self.deadline() + DT)
+
+    def motion(self, mid: int, duration: float = 0.1, q=None) -> Motion:
+        q = np.zeros(NQ) if q is None else q
+        return Motion(mid, f"m{mid}", "trajectory", spline=duration, arm="right", q_measured=q)
+
+
+def test_runs_a_motion_to_success_and_holds_the_last_command() -> None:
+    h = Harness()
+    h.sup.tick(h.deadline() + DT)                 # the loop is ticking before anything is sent
+    assert h.sup.mode == IDLE and not h.sent      # nothing commanded: nothing published
+    h.sup.submit(h.motion(1, duration=0.1))
+    for _ in range(40):
+        h.cycle()
+    assert [m.id for m in h.started] == [1]
+    assert len(h.finished) == 1 and h.finished[0].code == C.SUCCESS
+    m = h.finished[0]
+    assert m.steps == pytest.approx(0.1 / DT, abs=1) and m.overruns == 0
+    assert h.sup.mode == HOLD
+    assert np.allclose(h.sent[-1], 0.1) and np.allclose(h.sent[-5], 0.1)   # held: the same command every period
+    # the reference time of every step is that of the deadline it was sent at
+    t = np.array([x for x in h.engine.times[:20]])
+    assert np.allclose(np.diff(t), DT)
+
+
+def test_overrun_republishes_the_last_command_and_the_motion_is_not_stretched() -> None:
+    h = Harness()
+    h.sup.submit(h.motion(1, duration=0.2))
+    for i in range(60):
+        h.cycle(solve=(i % 10 != 5))          # every 10th period the solver misses its deadline
+    m = h.finished[0]
+    assert m.code == C.SUCCESS
+    assert m.overruns >= 4 and h.sup.stats.overruns == m.overruns
+    J = np.array(h.sent)
+    repeats = int(np.sum(np.all(np.diff(J, axis=0) == 0.0, axis=1)))
+    assert repeats >= m.overruns                     # a missed deadline re-sends the last command exactly
+    # the reference follows the clock: finished at the same deadline as without overruns (not stretched)
+    t = [x for x in h.engine.times if x is not None]
+    assert max(t) == pytest.approx(0.2, abs=DT + 1e-9)
+    assert m.steps < 0.2 / DT                        # fewer steps, not a longer motion
+
+
+def test_late_solver_evaluates_at_the_deadline_it_will_be_sent_at() -> None:
+    h = Harness()
+    h.sup.submit(h.motion(1, duration=1.0))
+    h.cycle()                                   # start
+    h.cycle()
+    t_before = h.engine.times[-1]
+    # the solver runs 2.5 periods after the last tick's deadline: its step goes out at the 3rd deadline
+    h.clock.now = h.deadline() + 2.5 * DT
+    h.sup.work()
+    assert h.engine.times[-1] == pytest.approx(t_before + 3 * DT)
+
+
+def test_cancel_settles_then_holds_and_hold_timeout_goes_idle() -> None:
+    h = Harness(hold_settle_s=0.02, hold_timeout_s=0.05)
+    h.sup.submit(h.motion(1, duration=1.0))
+    for _ in range(10):
+        h.cycle()
+    h.sup.stop(1, C.CANCELED, "canceled by the client")
+    h.cycle()
+    assert h.finished[0].code == C.CANCELED and "holding" in h.finished[0].message
+    assert h.sup.mode == SETTLE and h.engine.holding
+    for _ in range(8):
+        h.cycle()
+    assert h.sup.mode == HOLD
+    n = len(h.sent)
+    for _ in range(15):
+        h.cycle()
+    assert h.sup.mode == IDLE and len(h.sent) < n + 15   # stopped publishing after hold_timeout_s
+    # a stop for a motion that is not running is a no-op
+    h.sup.stop(7, C.CANCELED, "late")
+    h.cycle()
+    assert len(h.finished) == 1
+
+
+def test_preemption_starts_from_the_last_command() -> None:
+    h = Harness()
+    h.sup.submit(h.motion(1, duration=1.0))
+    for _ in range(20):
+        h.cycle()
+    last = h.sent[-1].copy()
+    h.sup.submit(h.motion(2, duration=0.05, q=np.full(NQ, 9.0)))   # its measured start is ignored
+    for _ in range(3):
+        h.cycle()
+    assert h.finished[0].id == 1 and h.finished[0].code == C.PREEMPTED
+    assert h.started[-1].id == 2 and h.started[-1].source == "the last command"
+    assert np.allclose(h.engine.q0[7:], last)      # continuity: from the last command, not the measured 9.0
+    for _ in range(20):
+        h.cycle()
+    assert h.finished[-1].id == 2 and h.finished[-1].code == C.SUCCESS
+
+
+def test_engine_error_aborts_and_holds_and_a_refused_start_aborts_only_itself() -> None:
+    h = Harness()
+    h.engine.fail_at = 5
+    h.sup.submit(h.motion(1, duration=1.0))
+    for _ in range(10):
+        h.cycle()
+    assert h.finished[0].code == C.ABORTED and "executor error: RuntimeError: boom" in h.finished[0].message
+    assert h.sup.mode == HOLD
+    h.engine.fail_at = None
+    bad = h.motion(2)
+    bad.spline = "refuse"
+    h.sup.submit(bad)
+    h.cycle()
+    assert h.finished[-1].code == C.ABORTED and "refused the reference" in h.finished[-1].message
+    h.sup.submit(h.motion(3, duration=0.02))
+    for _ in range(10):
+        h.cycle()
+    assert h.finished[-1].id == 3 and h.finished[-1].code == C.SUCCESS
+
+
+def test_idle_start_needs_a_measured_configuration_and_close_aborts() -> None:
+    h = Harness()
+    m = h.motion(1)
+    m.q_measured = None
+    h.sup.submit(m)
+    h.cycle()
+    assert h.finished[0].code == C.NO_JOINT_STATES and h.sup.mode == IDLE and not h.sent
+    h.sup.submit(h.motion(2, duration=1.0))
+    h.cycle()
+    h.cycle()
+    h.sup.close("shutting down")
+    assert h.finished[-1].code == C.ABORTED
+    st = h.sup.status()
+    assert st["mode"] == RUN and st["motion_id"] is None and math.isfinite(st["step_p99_ms"])
+
+
+def test_maps_reach_the_engine_before_the_next_step() -> None:
+    h = Harness()
+    h.sup.set_map("tree-1")
+    h.sup.work()
+    assert h.engine.maps == ["tree-1"]
