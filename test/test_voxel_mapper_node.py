@@ -341,10 +341,16 @@ def test_stereo_front_end_and_bad_images(start_node, ros_probe, model) -> None:
             pubs[(side, "image_raw")].publish(_image(im if img is None else img, encoding, CAMERA_FRAME, stamp))
 
     # unsupported encoding, then a pair before any camera_info: warnings, no map
-    send_pair("16UC1", np.zeros((240, 320), np.uint16))
-    proc.wait_for_log(r"unsupported encoding '16UC1'")
-    send_pair()
-    proc.wait_for_log(r"no camera_info yet for left, right")
+    def send_until_logged(pattern: str, *args) -> None:
+        """Best-effort images: the first after discovery can be lost; send again until logged."""
+        def logged() -> bool:
+            send_pair(*args)
+            ros_probe.spin_for(0.2)
+            return bool(proc.log_lines(pattern))
+        ros_probe.spin_until(logged, 30.0, f"voxel_mapper to log {pattern!r}", on_timeout=proc.log_tail)
+
+    send_until_logged(r"unsupported encoding '16UC1'", "16UC1", np.zeros((240, 320), np.uint16))
+    send_until_logged(r"no camera_info yet for left, right")
     f.wait_counter("stereo_rejected", 3)
     assert msgs.diagnostic_level(f.status(": inputs")) == msgs.LEVEL_WARN
     assert f.counter("clouds_integrated") == 0

@@ -102,3 +102,43 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
     finally:
         rclpy.try_shutdown()
     return 0
+
+
+class LatestOnDemand:
+    """The latest message of a topic, taken when asked for, never delivered by an executor.
+
+    A depth-1 subscription on a hidden helper node (``_<node>_<topic>``) that no executor
+    spins: the middleware keeps the newest message and :meth:`latest` takes it. A node that
+    needs the current joint state only now and then (a start posture, a staleness check)
+    then costs nothing per message, instead of a wake-up per 200 Hz ``/joint_states``.
+    ``age_s()`` is the time since the newest message was *taken* (resolution: how often
+    :meth:`latest` is called).
+    """
+
+    def __init__(self, node: Node, msg_type, topic: str, qos: QoSProfile | None = None) -> None:
+        qos = qos or QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+        name = "_" + (node.get_name() + "_" + topic.strip("/").replace("/", "_"))
+        self._node = rclpy.create_node(name, namespace=node.get_namespace(), context=node.context,
+                                       start_parameter_services=False, enable_rosout=False)
+        self._sub = self._node.create_subscription(msg_type, node.resolve_topic_name(topic), lambda _m: None, qos)
+        self._msg_type = msg_type
+        self._msg = None
+        self._time = -float("inf")
+        self.received = 0
+
+    def latest(self):
+        """The newest message (taken now if one arrived since the last call), or None."""
+        while True:   # depth 1: at most one waits; loop in case the middleware kept more
+            taken = self._sub.handle.take_message(self._msg_type, False)
+            if taken is None:
+                break
+            self._msg, self._time = taken[0], time.monotonic()
+            self.received += 1
+        return self._msg
+
+    def age_s(self) -> float:
+        self.latest()
+        return time.monotonic() - self._time
+
+    def destroy(self) -> None:
+        self._node.destroy_node()

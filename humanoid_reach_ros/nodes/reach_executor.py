@@ -58,7 +58,7 @@ from humanoid_reach_ros.execution.loop_process import LoopConfig, LoopProcess
 from humanoid_reach_ros.execution.requests import ExecutionRequests
 from humanoid_reach_ros.execution.supervisor import IDLE, Motion
 from humanoid_reach_ros.io import exec_msgs, msgs
-from humanoid_reach_ros.nodes.common import LATCHED, RELIABLE_LATEST, declare_parameters, run_node
+from humanoid_reach_ros.nodes.common import LATCHED, RELIABLE_LATEST, LatestOnDemand, declare_parameters, run_node
 from humanoid_reach_ros.nodes.reach_executor_params import (MAX_SEQUENTIAL, PARAMETERS, SOLVERS, executor_params,
                                                             supervisor_config)
 from humanoid_reach_ros.robot.model import RobotModel
@@ -102,7 +102,6 @@ class ReachExecutorNode(Node):
         self._lock = threading.Lock()
         self.status: dict = {"mode": IDLE}
         self.last_result: Pending | None = None
-        self._joint_msg, self._joint_time = None, -math.inf
         self._aborted_id = None
 
         t0 = time.perf_counter()
@@ -132,8 +131,8 @@ class ReachExecutorNode(Node):
         state, inputs, actions = (MutuallyExclusiveCallbackGroup(), MutuallyExclusiveCallbackGroup(),
                                   ReentrantCallbackGroup())
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(JointState, "joint_states", self._on_joint_states, qos_profile_sensor_data,
-                                 callback_group=state)
+        # the start posture and a staleness check only: taken when needed, no 200 Hz callbacks
+        self.joint_states = LatestOnDemand(self, JointState, "joint_states", qos_profile_sensor_data)
         self.create_subscription(PointCloud2, "voxel_map", self._on_map, LATCHED, callback_group=inputs)
         self.create_subscription(JointTrajectory, "reach_trajectory", self._on_trajectory, RELIABLE_LATEST,
                                  callback_group=inputs)
@@ -216,14 +215,11 @@ class ReachExecutorNode(Node):
         return pend
 
     # ------------------------------------------------------------ inputs
-    def _on_joint_states(self, msg: JointState) -> None:
-        self._joint_msg, self._joint_time = msg, time.monotonic()
-
     def current_joints(self) -> tuple[np.ndarray | None, str]:
-        msg, t = self._joint_msg, self._joint_time
+        msg = self.joint_states.latest()
         if msg is None:
             return None, "no /joint_states received"
-        age = time.monotonic() - t
+        age = self.joint_states.age_s()
         if age > self._p["joint_states_timeout_s"]:
             return None, f"/joint_states is stale ({age:.2f} s > {self._p['joint_states_timeout_s']:g} s)"
         return msgs.model_joints(msg, self.robot)
@@ -232,7 +228,7 @@ class ReachExecutorNode(Node):
         """A running motion whose /joint_states went stale is aborted (the loop holds)."""
         st = self.status
         mid = st.get("motion_id")
-        age = time.monotonic() - self._joint_time
+        age = self.joint_states.age_s()
         if mid is not None and mid != self._aborted_id and age > self._p["joint_states_abort_s"]:
             self._aborted_id = mid
             self.loop.send(("stop", mid, int(C.ABORTED), f"stopped: /joint_states stale ({age:.2f} s > "
@@ -407,7 +403,7 @@ class ReachExecutorNode(Node):
         out.append(msgs.diagnostic_status(f"{name}: loop", level, message, values, hw))
         joints, reason = self.current_joints()
         last = st.get("last_joints")
-        values = {"joint_states_age_s": time.monotonic() - self._joint_time if self._joint_msg is not None
+        values = {"joint_states_age_s": self.joint_states.age_s() if self.joint_states.latest() is not None
                   else "never", "tracking_error_rad": float(np.max(np.abs(joints - last)))
                   if joints is not None and last is not None else 0.0,
                   **{k: v for k, v in dataclasses.asdict(c).items() if k.startswith("map")}}
@@ -421,6 +417,7 @@ class ReachExecutorNode(Node):
 
     def destroy_node(self) -> None:
         self.loop.close()
+        self.joint_states.destroy()
         try:
             self.action_server.destroy()
         except Exception:
