@@ -159,6 +159,8 @@ class ExecutionRequests:
         self._sampler_lock = threading.Lock()
         self._map_lock = threading.Lock()
         self.send_map: Callable[[SphereTree], None] = lambda tree: None   # set by the node: to the loop
+        from humanoid_reach_ros.geometry import sphere_tree
+        sphere_tree.warm_up()    # the first /voxel_map must not pay the tree kernels' first call (1.3 s seen)
 
     # ------------------------------------------------------------ map
     def _build(self, voxels: np.ndarray) -> SphereTree:
