@@ -193,6 +193,45 @@ def test_plant_right_reach_feet_cog_distance(robot, cm, plant):
     assert all(len(x.level_slack) == 4 for x in m)
 
 
+def test_late_steps_follow_the_clock_within_the_limits(robot, cm, plant):
+    """Every 10th step comes 3 periods late (step(t) with the deadline's time): the motion ends
+    at the same reference time as a regular run (not stretched), never exceeds the joint
+    velocity limits over the elapsed time, and feet, COG, joint limits and distance hold."""
+    tree, ref = plant
+    j0 = ref.position(0.0)
+    q0 = robot.config(j0, robot.base_on_feet(j0))
+    soles0 = _sole_poses(robot, q0)
+    runs = {}
+    for late in (False, True):
+        ex = WholeBodyExecutor(robot, cm, ExecutorParams())
+        ex.set_environment(tree)
+        ex.start(q0, ref, "right")
+        t, out = 0.0, []
+        while not (out and out[-1][1].done) and len(out) < 2000:
+            dt = 4 * DT if late and len(out) % 10 == 9 else DT
+            t += dt
+            out.append((dt, ex.step(t)))
+        runs[late] = out
+    regular, late = runs[False], runs[True]
+    assert late[-1][1].done and regular[-1][1].done
+    # not stretched: done at the same reference time (within the settling of a step or two)
+    assert abs(late[-1][1].metrics.t - regular[-1][1].metrics.t) <= 3 * DT
+    assert len(late) < len(regular)
+    v = robot.velocity_limit
+    prev = j0
+    for dt, r in late:
+        assert np.all(np.abs(r.joints - prev) <= v * dt * (1 + 1e-9) + 1e-12)   # within v over the elapsed time
+        assert np.all(r.joints >= robot.lower) and np.all(r.joints <= robot.upper)
+        prev = r.joints
+    m = [r.metrics for _, r in late]
+    assert min(x.min_distance_m for x in m) >= ExecutorParams().security_distance_m - 2e-3
+    assert max(x.com_error_m for x in m) < 1e-3
+    for _, r in late[::25] + [late[-1]]:
+        for s0, s in zip(soles0, _sole_poses(robot, r.q)):
+            assert np.linalg.norm(s.translation - s0.translation) < 1e-4
+    assert m[-1].hand_error_m < 1e-3
+
+
 def test_without_com_compensation_the_cog_moves(robot, cm):
     ref = _arm_reference(robot, {"RARM_JOINT0": -1.2, "LARM_JOINT0": -1.2}, duration=1.0)
     drift = {}

@@ -103,6 +103,7 @@ class ExecutorParams:
     blas_threads: int = 1                   # process-wide BLAS thread limit set by the executor (0: leave)
     smooth_reshaping: bool = False          # reshape the reference (planning/reshape.py) in start()
     com_recenter_speed_mps: float = 0.05    # mean speed of the COG target back to its nominal point
+    max_catch_up_periods: float = 4.0       # a late step may cover at most this many periods (step(t))
 
     def validate(self) -> "ExecutorParams":
         checks = [
@@ -113,7 +114,8 @@ class ExecutorParams:
             ("posture_gain", 0 < self.posture_gain <= 1), ("velocity_scale", 0 < self.velocity_scale <= 1),
             ("blend_min_s", self.blend_min_s >= 0), ("settle_timeout_s", self.settle_timeout_s >= 0),
             ("max_saturation_iter", self.max_saturation_iter >= 1),
-            ("com_recenter_speed_mps", self.com_recenter_speed_mps > 0), ("blas_threads", self.blas_threads >= 0), ("osqp_max_iter", self.osqp_max_iter >= 1),
+            ("com_recenter_speed_mps", self.com_recenter_speed_mps > 0),
+            ("max_catch_up_periods", self.max_catch_up_periods >= 1), ("blas_threads", self.blas_threads >= 0), ("osqp_max_iter", self.osqp_max_iter >= 1),
         ]
         for name, ok in checks:
             v = getattr(self, name)
@@ -176,6 +178,7 @@ class WholeBodyExecutor:
         self._ref: SplineTrajectory | None = None
         self._arm = "right"
         self._t = 0.0
+        self._dt = params.period_s              # elapsed time covered by the current step
         self._active = False
         self._holding = False
         self._end_t = 0.0
@@ -398,14 +401,27 @@ class WholeBodyExecutor:
         return self._sole_targets[0].act(hand_in_sole)
 
     # ------------------------------------------------------------ step
-    def step(self) -> StepResult:
-        """One ``dt``: reference at ``t`` -> distances -> prioritized solve -> integrate."""
+    def step(self, t: float | None = None) -> StepResult:
+        """One step: reference at ``t`` -> distances -> prioritized solve -> integrate.
+
+        ``t``: the reference time of this step (seconds since :meth:`start`); default the
+        previous step's plus ``period_s``. A control loop that missed deadlines passes the
+        time of the deadline the step will be sent at, so the motion follows the clock and
+        is never stretched: the step covers the elapsed ``dt = t - t_prev`` (clamped to
+        ``[period_s, max_catch_up_periods * period_s]``) and its joint velocity rows allow
+        ``v dt``, so it catches up within the velocity limits; feet, COG, dampers and joint
+        position limits stay rows of the step as always. In hold mode ``t`` is ignored.
+        """
         if not self._active or self._q is None:
             raise ValueError("executor is not active: call start() or hold(q) first")
         p = self.params
         t0 = time.perf_counter()
         model, data, q = self.model, self.data, self._q
-        t_next = self._t + p.period_s
+        dt = p.period_s
+        if t is not None and not self._holding:
+            dt = min(max(float(t) - self._t, p.period_s), p.max_catch_up_periods * p.period_s)
+        self._dt = dt
+        t_next = self._t + dt
         # ---- kinematics (one pass: joint Jacobians + frames)
         pin.computeJointJacobians(model, data, q)
         pin.updateFramePlacements(model, data)
@@ -457,7 +473,7 @@ class WholeBodyExecutor:
         # level 1: joint limits + velocity limits (selected joints) and dampers
         js = self._joint_sel
         qj = q[N_BASE_Q + js]
-        vdt = self.robot.velocity_limit[js] * p.velocity_scale * p.period_s
+        vdt = self.robot.velocity_limit[js] * p.velocity_scale * self._dt
         up = np.maximum(np.minimum(self.robot.upper[js] - p.limit_margin_rad - qj, vdt), -vdt)
         lo = np.maximum(np.minimum(qj - self.robot.lower[js] - p.limit_margin_rad, vdt), -vdt)
         k = len(js)

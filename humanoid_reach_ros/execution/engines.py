@@ -81,8 +81,7 @@ class TrajectoryEngine:
         self.executor.start(q0, motion.spline, motion.arm, motion.params)
 
     def step(self, t: float | None) -> StepOutcome:
-        import inspect
-        r = self.executor.step(t) if "t" in inspect.signature(self.executor.step).parameters else self.executor.step()
+        r = self.executor.step(t)
         return StepOutcome(r.q, r.joints, r.metrics, r.done)
 
     def stop(self, brake_s: float) -> None:
