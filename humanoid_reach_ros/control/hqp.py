@@ -449,7 +449,14 @@ class SaturatedNullSpaceHQP:
        those rows, ``x_1`` the closed-form solution of the first equality level alone
        when it meets level 1, else ``0`` (task scaling: ``x_1`` resp. ``x = 0`` is
        feasible for them), so joint limits and dampers hold even then and the first
-       level (feet, COG) keeps its exact solution whenever it can.
+       level (feet, COG) keeps its exact solution whenever it can;
+    6. lexicographic order among level-1 points: when a fallback candidate holds the first
+       equality level only approximately (OSQP's tolerance, or saturated rows held as
+       equalities above it), the step is scaled from the first level's own solution
+       (closed form, its level-1 rows saturated if needed) toward the candidate moved onto
+       that level's solution set, so the feet and the COG never keep a residual while a
+       lower level is infeasible (their error does not accumulate: position feedback
+       removes the linearisation error of the previous step exactly).
 
     Simplifications with respect to Kanoun's lexicographic QP (named as required):
     rows are only ever *added* to the saturated set within a step (no release test on
@@ -535,6 +542,32 @@ class SaturatedNullSpaceHQP:
                 stack.append((G[S[k + 1]], h[S[k + 1]]))
             stack.append(lv)
         return self.equality_cascade(stack, n, exact_first=bool(np.any(S[0])))
+
+    def _scale_into(self, G: np.ndarray, h: np.ndarray, base: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """``base + alpha (x - base)`` with the largest ``alpha`` in [0, 1] keeping the rows with
+        ``h >= 0`` that ``base`` satisfies (``x`` itself when none is violated)."""
+        g0 = G @ base
+        dg = G @ x - g0
+        over = (g0 + dg > h + self.tol) & (h >= -self.tol) & (dg > 0.0)
+        if not np.any(over):
+            return x
+        alpha = float(np.min(np.maximum(h[over] - g0[over], 0.0) / dg[over]))
+        return base + min(max(alpha, 0.0), 1.0) * (x - base)
+
+    @staticmethod
+    def _onto_first_level(x: np.ndarray, levels) -> np.ndarray:
+        """``x`` moved (least norm) onto the solution set of the first equality level
+        ``A_1 x = b_1`` (the feet and the COG in the executor): an approximate answer
+        (OSQP's tolerance, or one found with the lower levels pulling hard) must not leave
+        a residual on the top task, which would show as a foot drifting while a lower task
+        is infeasible. No-op without levels."""
+        if not levels or levels[0][0] is None or not len(levels[0][0]):
+            return x
+        A, b = levels[0]
+        r = A @ x - b
+        if not np.any(np.abs(r) > 0.0):
+            return x
+        return x - np.linalg.lstsq(A, r, rcond=1e-10)[0]
 
     def _new_rows(self, viol, W, groups):
         new = (viol > self.tol) & ~W
@@ -652,12 +685,31 @@ class SaturatedNullSpaceHQP:
             Wf[near[Gn @ res.x - hn >= -2.0 * self.fallback_tighten]] = True
             x_f, v_f, it_f, W_f = self._saturate(G, h, levels, n, Wf, groups)
             it += it_f
-            v_o = float((G @ res.x - h).max(initial=-np.inf))
+            x_o = self._onto_first_level(res.x, levels)
+            v_o = float((G @ x_o - h).max(initial=-np.inf))
             if v_f <= self.tol or v_f <= v_o:
                 if v_f < best_v:
                     best_x, best_v, W = x_f, v_f, W_f
             elif v_o < best_v:
-                best_x, best_v = res.x, v_o
+                best_x, best_v = x_o, v_o
+        first = None    # the first level's own solution on level 1 (closed form, rows saturated if needed)
+        if (used_fallback or best_v > self.tol) and states and len(states) == len(levels):
+            first = states[0][0]
+            if len(h) and float((G @ first - h).max()) > self.tol:
+                x1, v1, _, _ = self._saturate(G, h, levels[:1], n, np.zeros(len(h), dtype=bool), groups)
+                first = x1 if x1 is not None and v1 <= self.tol else None
+        if first is not None and best_v <= self.tol:
+            # lexicographic order: among points of level 1, the first equality level (feet,
+            # COG) comes before everything below it. A fallback candidate may hold it only
+            # approximately (OSQP's tolerance; saturated rows held as equalities above it):
+            # then scale from the first level's own solution toward the candidate moved onto
+            # that level's solution set, which keeps the first level exactly.
+            A1, b1 = levels[0]
+            if float(np.linalg.norm(A1 @ best_x - b1)) > self.tol:
+                x_s = self._scale_into(G, h, first, self._onto_first_level(best_x, levels))
+                v_s = float((G @ x_s - h).max()) if len(h) else 0.0
+                if v_s <= self.tol:
+                    best_x, best_v = x_s, v_s
         if best_v > self.tol and len(h):
             # last resort, task scaling: x = 0 satisfies every row with h >= 0, so the
             # largest alpha in [0, 1] keeping those rows gives a point of level 1 (rows
@@ -665,14 +717,11 @@ class SaturatedNullSpaceHQP:
             # the step is scaled from the first level's own solution when that one meets
             # level 1 (the feet/COG then stay exact and only the lower levels are scaled)
             base = np.zeros(n)
-            if states and len(states) == len(levels) and float((G @ states[0][0] - h).max()) <= self.tol:
-                base = states[0][0]
-            g0 = G @ base
-            dg = G @ best_x - g0
-            over = (g0 + dg > h + self.tol) & (h >= -self.tol) & (dg > 0.0)
-            if np.any(over):
-                alpha = float(np.min(np.maximum(h[over] - g0[over], 0.0) / dg[over]))
-                x_s = base + min(max(alpha, 0.0), 1.0) * (best_x - base)
+            if first is not None:
+                base = first
+                best_x = self._onto_first_level(best_x, levels)   # both ends on the first level's set
+            x_s = self._scale_into(G, h, base, best_x)
+            if x_s is not best_x:
                 # rows with h >= 0 (joint limits, dampers outside d_s) are kept exactly; a
                 # damper already inside d_s may miss its push-away for this step
                 best_x, best_v = x_s, float((G @ x_s - h).max())
