@@ -23,6 +23,7 @@ scan poses. Nothing here asserts on timing.
 """
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
@@ -276,8 +277,15 @@ def test_stereo_map_agrees_with_the_scene_and_the_depth_map(start_node, ros_prob
                          "3 stereo pairs and 3 depth maps integrated",
                          on_timeout=lambda: stereo_mapper.log_tail() + g.logs())
     depth_occ = g.settled_map()
-    n = len(stereo_maps)
-    ros_probe.spin_until(lambda: len(stereo_maps) > n, 30.0, "a newer /stereo_map", on_timeout=stereo_mapper.log_tail)
+    # the mapper publishes only when a voxel changed: the map has settled when none came for a while
+    last_change = [len(stereo_maps), time.monotonic()]
+
+    def stereo_settled() -> bool:
+        if len(stereo_maps) != last_change[0]:
+            last_change[:] = [len(stereo_maps), time.monotonic()]
+        return len(stereo_maps) > 0 and time.monotonic() - last_change[1] > 1.5
+
+    ros_probe.spin_until(stereo_settled, 60.0, "a settled /stereo_map", on_timeout=stereo_mapper.log_tail)
     stereo_occ = msgs.points_from_cloud(stereo_maps.last).points
     gt = scene.voxelize(H, extent=GT_EXTENT, include_floor=True)
     on_gt, on_depth = near(stereo_occ, gt).mean(), near(stereo_occ, depth_occ).mean()

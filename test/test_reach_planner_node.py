@@ -331,13 +331,13 @@ def test_stale_inputs_in_order(ros_env) -> None:
     try:
         node = reach_planner.ReachPlannerNode(context=ctx)
         model = node.model
-        node._joint_msg = msgs.joint_state(model.joint_names, model.half_sitting_joints)
-        node._joint_time = time.monotonic() - 2.0 * node._p["joint_states_timeout_s"]
+        node.joint_states.put(msgs.joint_state(model.joint_names, model.half_sitting_joints),
+                              time.monotonic() - 2.0 * node._p["joint_states_timeout_s"])
         resp = node._on_plan_reach(valve_request(), PlanReach.Response())
         assert resp.error_code == E.NO_JOINT_STATES and "stale" in resp.message, resp.message
         resp = node._on_plan_reach(valve_request(use_marker_target=True), PlanReach.Response())
         assert resp.error_code == E.NO_TARGET and "/target_pose" in resp.message, resp.message
-        node._joint_time = time.monotonic()
+        node.joint_states.put(msgs.joint_state(model.joint_names, model.half_sitting_joints))
         joints, reason = node.current_joints()
         assert reason == "" and np.allclose(joints, model.half_sitting_joints)
         node.destroy_node()

@@ -257,6 +257,43 @@ def test_head_scan_map_clearing_bad_input_and_clear(start_node, ros_probe, model
     assert len(occ3) > 300 and near_keys(occ3, gt).all()
 
 
+@pytest.mark.node
+def test_still_camera_integrates_once_per_period(start_node, ros_probe, model) -> None:
+    """A still camera (the robot standing): depth maps are integrated at most once per
+    still_integration_period_s and the others counted as skipped; a moved head integrates at once."""
+    params = {**FAST, "still_integration_period_s": 60.0}
+    proc = start_node("voxel_mapper", params_file=PARAMS_FILE, params=params, ready_log=READY)
+    f = Feeder(ros_probe, proc, model)
+    rng = np.random.default_rng(1)
+    points = rng.uniform([-0.3, -0.3, 0.8], [0.3, 0.3, 1.2], (2000, 3))
+
+    def feed(joints: np.ndarray, t: float) -> None:
+        f.publish_joints(joints, t - 0.02)
+        f.publish_joints(joints, t + 0.02)
+        f.cloud_pub.publish(msgs.cloud_from_points(points, CAMERA_FRAME, msgs.time_from_seconds(t)))
+        ros_probe.spin_for(0.1)
+
+    still = f.joints(0.0, 0.5)
+    k = [0]
+
+    def skipped_some() -> bool:
+        k[0] += 1
+        feed(still, T0 + 0.1 * k[0])
+        return f.counter("clouds_integrated") >= 1 and f.counter("clouds_skipped_still") >= 3
+
+    ros_probe.spin_until(skipped_some, 30.0, "one integrated and three skipped depth maps", on_timeout=proc.log_tail)
+    assert f.counter("clouds_integrated") == 1
+    moved = f.joints(0.3, 0.5)
+
+    def integrated_again() -> bool:
+        k[0] += 1
+        feed(moved, T0 + 0.1 * k[0])
+        return f.counter("clouds_integrated") >= 2
+
+    ros_probe.spin_until(integrated_again, 30.0, "the depth map of the moved head integrated", on_timeout=proc.log_tail)
+    assert proc.alive()
+
+
 def _rss_kb(pid: int) -> int:
     with open(f"/proc/{pid}/status") as fh:
         for line in fh:
@@ -268,7 +305,9 @@ def _rss_kb(pid: int) -> int:
 @pytest.mark.node
 def test_flood_is_dropped_not_queued(start_node, ros_probe, model) -> None:
     """Clouds far faster than the node integrates them: drops are counted, memory stays bounded."""
-    params = {**FAST, "extent_min_m": [0.0, -0.5, 0.0], "extent_max_m": [1.0, 0.5, 1.6]}
+    # every cloud integrated while the camera is still (the flood must exceed the integration rate)
+    params = {**FAST, "extent_min_m": [0.0, -0.5, 0.0], "extent_max_m": [1.0, 0.5, 1.6],
+              "still_integration_period_s": 0.0}
     proc = start_node("voxel_mapper", params_file=PARAMS_FILE, params=params, ready_log=READY)
     f = Feeder(ros_probe, proc, model)
     joints = f.joints(0.0, 0.5)

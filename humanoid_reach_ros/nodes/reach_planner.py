@@ -62,7 +62,7 @@ from visualization_msgs.msg import MarkerArray
 
 from humanoid_reach_ros.geometry.voxels import without_target
 from humanoid_reach_ros.io import msgs
-from humanoid_reach_ros.nodes.common import LATCHED, RELIABLE_LATEST, ParamSpec, declare_parameters, run_node
+from humanoid_reach_ros.nodes.common import LATCHED, LatestOnDemand, RELIABLE_LATEST, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner
 from humanoid_reach_ros.robot.model import RobotModel
@@ -168,8 +168,6 @@ class ReachPlannerNode(Node):
         self._state_lock = threading.Lock()  # latest joint state / target
         self._map_points: np.ndarray | None = None   # the last /voxel_map (uncarved)
         self._carved_for: tuple | None = None          # (map, target) the planner's map is carved for
-        self._joint_msg: JointState | None = None
-        self._joint_time = -math.inf
         self._target_msg: PoseStamped | None = None
         self._target_time = -math.inf
         self.map_info = MapInfo()
@@ -195,8 +193,10 @@ class ReachPlannerNode(Node):
         self.markers_pub = self.create_publisher(MarkerArray, "planning/markers", LATCHED)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(PointCloud2, "voxel_map", self._on_map, LATCHED, callback_group=self._map_group)
-        self.create_subscription(JointState, "joint_states", self._on_joint_states, qos_profile_sensor_data,
-                                 callback_group=self._state_group)
+        # the start posture only: the latest joint state taken when needed (no 200 Hz callbacks); a 10 Hz
+        # take keeps its age (staleness) exact to 0.1 s
+        self.joint_states = LatestOnDemand(self, JointState, "joint_states", qos_profile_sensor_data)
+        self.create_timer(0.1, self.joint_states.latest, callback_group=self._state_group)
         self.create_subscription(PoseStamped, "target_pose", self._on_target, qos_profile_sensor_data,
                                  callback_group=self._state_group)
         self.create_service(PlanReach, "plan_reach", self._on_plan_reach, callback_group=self._service_group)
@@ -216,10 +216,6 @@ class ReachPlannerNode(Node):
                 f"seed {p['seed']}")
 
     # ------------------------------------------------------------ subscriptions
-    def _on_joint_states(self, msg: JointState) -> None:
-        with self._state_lock:
-            self._joint_msg, self._joint_time = msg, time.monotonic()
-
     def _on_target(self, msg: PoseStamped) -> None:
         with self._state_lock:
             self._target_msg, self._target_time = msg, time.monotonic()
@@ -244,8 +240,12 @@ class ReachPlannerNode(Node):
         self.map_info = MapInfo("/voxel_map", int(len(cloud.points)), build_s, info.received + 1, info.rejected,
                                 cloud.dropped_nonfinite, info.last_rejection)
         dropped = f", {cloud.dropped_nonfinite} NaN/inf points dropped" if cloud.dropped_nonfinite else ""
-        log.info(f"map source: /voxel_map ({self.map_info.voxels} voxels{dropped}, sphere tree built in "
-                 f"{build_s * 1e3:.1f} ms; replaces {info.source})")
+        line = (f"map source: /voxel_map ({self.map_info.voxels} voxels{dropped}, sphere tree built in "
+                f"{build_s * 1e3:.1f} ms; replaces {info.source})")
+        if info.source != "/voxel_map":   # state changes at INFO, repetition at DEBUG
+            log.info(line)
+        else:
+            log.debug(line)
         if cloud.dropped_nonfinite:
             log.warning(f"/voxel_map had {cloud.dropped_nonfinite} points with NaN/inf coordinates (dropped)")
         self._publish_diagnostics()
@@ -274,11 +274,10 @@ class ReachPlannerNode(Node):
     # ------------------------------------------------------------ inputs
     def current_joints(self) -> tuple[np.ndarray | None, str]:
         """The latest valid 30 joint angles, or None and the reason."""
-        with self._state_lock:
-            msg, t = self._joint_msg, self._joint_time
+        msg = self.joint_states.latest()
         if msg is None:
             return None, "no /joint_states received"
-        age = time.monotonic() - t
+        age = self.joint_states.age_s()
         if age > self._p["joint_states_timeout_s"]:
             return None, f"/joint_states is stale ({age:.2f} s > {self._p['joint_states_timeout_s']:g} s)"
         return msgs.model_joints(msg, self.model)
@@ -502,9 +501,10 @@ class ReachPlannerNode(Node):
 
         joints, reason = self.current_joints()
         with self._state_lock:
-            jt, tt = self._joint_time, self._target_time
+            tt = self._target_time
         now = time.monotonic()
-        values = {"joint_states_age_s": now - jt if math.isfinite(jt) else "never",
+        js_age = self.joint_states.age_s()
+        values = {"joint_states_age_s": js_age if math.isfinite(js_age) else "never",
                   "target_pose_age_s": now - tt if math.isfinite(tt) else "never"}
         level, message = (msgs.LEVEL_OK, "joint_states current") if joints is not None else (msgs.LEVEL_WARN, reason)
         statuses.append(msgs.diagnostic_status(f"{name}: inputs", level, message, values, self.hardware_id))

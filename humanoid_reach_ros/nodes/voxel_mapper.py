@@ -39,6 +39,7 @@ config/voxel_mapper.yaml`` (``ros2 run humanoid_reach_ros voxel_mapper`` on an i
 """
 from __future__ import annotations
 
+import math
 import sys
 import threading
 import time
@@ -59,7 +60,7 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
 from humanoid_reach_ros.io import msgs
-from humanoid_reach_ros.nodes.common import LATCHED, ParamSpec, declare_parameters, run_node
+from humanoid_reach_ros.nodes.common import JointStateStream, LATCHED, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.perception.markers import JointStateBuffer, camera_pose, joint_vector
 from humanoid_reach_ros.perception.stereo import StereoCalibration, StereoMatcher, StereoParams, image_to_gray
 from humanoid_reach_ros.perception.voxel_map import FusionParams, VoxelMap
@@ -111,6 +112,10 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "joint_states_max_gap_s": ParamSpec(0.1, "a cloud stamp may lie this far outside the buffered joint states [s]",
                                         (0.0, 10.0)),
     "use_stereo": ParamSpec(False, "also map the stereo pair /stereo/{left,right}/image_raw + camera_info"),
+    "still_integration_period_s": ParamSpec(1.0, "while the camera has not moved (1 mm, 1 mrad) since the last "
+                                            "integrated depth map, integrate at most one per this period [s] (a "
+                                            "static view adds nothing new; a changed scene still shows within it); "
+                                            "0 = every depth map", (0.0, 60.0)),
     "publish_period_s": ParamSpec(0.5, "period of /voxel_map and /voxel_map/markers when the map changed [s]",
                                   (0.01, 60.0)),
     "markers_enabled": ParamSpec(True, "publish /voxel_map/markers (a CUBE_LIST of the occupied voxels)"),
@@ -188,6 +193,7 @@ class Counters:
     stereo_pairs: int = 0
     stereo_rejected: int = 0
     joint_states_rejected: int = 0
+    clouds_skipped_still: int = 0
     last_integration_s: float = 0.0
     integration_time_s: float = 0.0
     last_problem: str = ""
@@ -236,6 +242,8 @@ class VoxelMapperNode(Node):
         self._stereo_right: Image | None = None
         self._stereo_infos: dict[str, CameraInfo] = {}
         self._newest_joint_stamp = 0.0
+        self._last_integrated: tuple[np.ndarray, float] | None = None   # camera pose and time of the last map update
+        self._published_centres: np.ndarray | None = None
 
         t0 = time.perf_counter()   # compile / load the numba kernels before the first cloud
         self.map.integrate(np.array([[0.0, 0.0, 1.0]]), np.eye(4))
@@ -250,8 +258,8 @@ class VoxelMapperNode(Node):
         output = MutuallyExclusiveCallbackGroup()
         self.create_subscription(PointCloud2, "head_camera/points", self._on_cloud, qos_profile_sensor_data,
                                  callback_group=inputs)
-        self.create_subscription(JointState, "joint_states", self._on_joint_states, qos_profile_sensor_data,
-                                 callback_group=inputs)
+        # joint states: stored by a callback of their own group, parsed by the worker when a cloud needs them
+        self.joint_stream = JointStateStream(self, MutuallyExclusiveCallbackGroup())
         if p["use_stereo"]:
             for side in ("left", "right"):
                 self.create_subscription(Image, f"stereo/{side}/image_raw",
@@ -293,6 +301,7 @@ class VoxelMapperNode(Node):
 
     # ------------------------------------------------------------ inputs
     def _on_joint_states(self, msg: JointState) -> None:
+        """One /joint_states message into the look-up buffer (the worker, via :meth:`_absorb_joint_states`)."""
         joints, reason = joint_vector(self.model.joint_index, list(msg.name), msg.position)
         if joints is None:
             self._problem("bad_joint_states", f"/joint_states ignored: {reason}", "joint_states_rejected")
@@ -300,6 +309,10 @@ class VoxelMapperNode(Node):
         with self._state_lock:
             self._newest_joint_stamp = msgs.seconds_from_time(msg.header.stamp)
             self.joint_buffer.push(self._newest_joint_stamp, joints)
+
+    def _absorb_joint_states(self) -> None:
+        for msg in self.joint_stream.drain():
+            self._on_joint_states(msg)
 
     def _post(self, item: Any) -> None:
         with self._cond:
@@ -385,6 +398,7 @@ class VoxelMapperNode(Node):
 
     def _sensor_pose(self, frame: str, stamp_s: float) -> tuple[np.ndarray | None, str]:
         """World pose (4x4) of a URDF frame at a stamp by forward kinematics, or None and the reason."""
+        self._absorb_joint_states()
         with self._state_lock:
             if stamp_s == 0.0 and len(self.joint_buffer):   # unstamped: the newest joint state
                 joints, reason = self.joint_buffer.at(self._newest_joint_stamp, 0.0)
@@ -414,6 +428,10 @@ class VoxelMapperNode(Node):
                           f"{self.map_frame!r} or a frame of the robot model, e.g. {self._p['sensor_frame']!r})",
                           "unknown_frame")
             return
+        if pose is not None and self._still(pose):
+            with self._state_lock:
+                self.counters.clouds_skipped_still += 1
+            return
         t0 = time.perf_counter()
         with self._map_lock:
             if world is None:
@@ -434,6 +452,20 @@ class VoxelMapperNode(Node):
             c.last_integration_s = dt
             c.integration_time_s += dt
 
+    def _still(self, pose: np.ndarray) -> bool:
+        """The camera is where it was at the last integration (1 mm, 1 mrad) and that was less
+        than ``still_integration_period_s`` ago: skip this depth map."""
+        period = self._p["still_integration_period_s"]
+        now = time.monotonic()
+        last = self._last_integrated
+        if period > 0 and last is not None and now - last[1] < period:
+            dp = float(np.linalg.norm(pose[:3, 3] - last[0][:3, 3]))
+            cos = (np.trace(last[0][:3, :3].T @ pose[:3, :3]) - 1.0) / 2.0
+            if dp < 1e-3 and math.acos(min(1.0, max(-1.0, cos))) < 1e-3:
+                return True
+        self._last_integrated = (pose.copy(), now)
+        return False
+
     # ------------------------------------------------------------ outputs
     def _on_clear(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
         with self._map_lock:
@@ -453,6 +485,10 @@ class VoxelMapperNode(Node):
                 return
             version = self._version
             centres = self.map.occupied_centers()
+            if self._published_centres is not None and np.array_equal(centres, self._published_centres):
+                self._published_version = version      # integrated, but no voxel changed: nothing to send
+                return
+            self._published_centres = centres
         stamp = self.get_clock().now().to_msg()
         self.map_pub.publish(msgs.cloud_from_points(centres, self.map_frame, stamp))
         if self._p["markers_enabled"]:
@@ -462,6 +498,7 @@ class VoxelMapperNode(Node):
 
     def diagnostic_statuses(self) -> list:
         name = self.get_name()
+        self._absorb_joint_states()
         with self._map_lock:
             occupied, depth_maps = self.map.occupied_count(), self.map.depth_maps
             version, published = self._version, self._published_version
@@ -481,6 +518,8 @@ class VoxelMapperNode(Node):
                                            f"{occupied} occupied voxels from {depth_maps} depth maps", values)]
         values = {k: v for k, v in vars(c).items() if isinstance(v, int)}
         values["joint_states_buffered"] = buffered
+        values["joint_states_max_gap_ms"] = self.joint_stream.window_gap_ms()
+        values["joint_states_max_gap_ms_since_start"] = self.joint_stream.max_gap_ms
         values["last_problem"] = c.last_problem
         for kind, n in sorted(c.problems.items()):
             values[f"problem_{kind}"] = n
