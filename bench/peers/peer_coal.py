@@ -80,6 +80,7 @@ class CoalChecker:
         for o, f, Ml in zip(self.objs, self.frame_of, self.local):
             M = self.d.oMf[f] * Ml
             o.setTransform(coal.Transform3s(M.rotation, M.translation))
+            o.computeAABB()
         self.rob_mgr.update()
         cb = coal.CollisionCallBackDefault()
         self.rob_mgr.collide(self.env_mgr, cb)
