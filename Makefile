@@ -4,7 +4,7 @@ SHELL := /bin/bash
 ENV := . tools/env.sh &&
 PYTEST_ARGS ?=
 
-.PHONY: setup test demo bench bags clean urdf
+.PHONY: setup test demo bench bags clean urdf bench-peers
 
 setup:
 	@tools/setup.sh
@@ -17,6 +17,11 @@ demo: setup
 
 bench: setup
 	@$(ENV) for b in bench/*.py; do echo "== $$b"; python $$b || exit 1; done
+
+# Peers side by side (bench/peers, docs/peers.md): own venvs .venv-peers/.venv-placo, never part of setup/test.
+bench-peers: setup
+	@bench/peers/setup.sh
+	@$(ENV) python bench/peers/run.py $(PEERS_ARGS)
 
 bags: setup
 	@$(ENV) python tools/record_bags.py
