@@ -4,7 +4,7 @@ SHELL := /bin/bash
 ENV := . tools/env.sh &&
 PYTEST_ARGS ?=
 
-.PHONY: setup test demo bench bags clean urdf bench-peers
+.PHONY: setup test demo bench bench-graph bags clean urdf bench-peers
 
 setup:
 	@tools/setup.sh
@@ -16,7 +16,10 @@ demo: setup
 	@$(ENV) python -m humanoid_reach_ros.demo
 
 bench: setup
-	@$(ENV) for b in bench/*.py; do echo "== $$b"; python $$b || exit 1; done
+	@$(ENV) for b in bench/graph.py $$(ls bench/*.py | grep -v '^bench/graph.py$$'); do echo "== $$b"; python $$b || exit 1; done
+
+bench-graph: setup
+	@$(ENV) python bench/graph.py
 
 # Peers side by side (bench/peers, docs/peers.md): own venvs .venv-peers/.venv-placo, never part of setup/test.
 bench-peers: setup
