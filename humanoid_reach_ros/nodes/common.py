@@ -136,6 +136,20 @@ class LatestOnDemand:
             self.received += 1
         return self._msg
 
+    def take_all(self) -> list:
+        """Every message queued since the last take, oldest first (up to the QoS depth: a node
+        that needs a history, e.g. the head pose at a sensor stamp, takes them in its worker)."""
+        out = []
+        while True:
+            taken = self._sub.handle.take_message(self._msg_type, False)
+            if taken is None:
+                break
+            out.append(taken[0])
+        if out:
+            self._msg, self._time = out[-1], time.monotonic()
+            self.received += len(out)
+        return out
+
     def age_s(self) -> float:
         """Seconds since the newest message was taken (inf: none yet)."""
         self.latest()
@@ -149,59 +163,3 @@ class LatestOnDemand:
     def destroy(self) -> None:
         self._node.destroy_node()
 
-
-class JointStateStream:
-    """Every ``/joint_states`` message, stored by a callback that does nothing else.
-
-    For nodes that need a short history (the head pose at a sensor stamp): the callback appends
-    ``(arrival time, message)`` to a bounded deque and tracks the largest gap between arrivals;
-    the node parses the messages later, in its own worker, with :meth:`drain`. Subscribe it in a
-    callback group of its own (a long callback elsewhere must not delay it) with a queue deep
-    enough for the longest stall (``depth``; best effort, as sensor data).
-
-    ``max_gap_ms`` (since start) and :meth:`window_gap_ms` (since the last call, for diagnostics)
-    are what ``/diagnostics`` reports as ``joint_states_max_gap_ms``.
-    """
-
-    def __init__(self, node: Node, callback_group=None, depth: int = 100, keep: int = 400) -> None:
-        from collections import deque
-
-        from sensor_msgs.msg import JointState
-        self._pending: "deque" = deque(maxlen=keep)
-        self._lock = __import__("threading").Lock()
-        self._last = None
-        self.max_gap_ms = 0.0
-        self._window_gap_ms = 0.0
-        self.received = 0
-        qos = QoSProfile(depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT)
-        self.subscription = node.create_subscription(JointState, "joint_states", self._on_msg, qos,
-                                                     callback_group=callback_group)
-
-    def _on_msg(self, msg) -> None:
-        now = time.monotonic()
-        with self._lock:
-            if self._last is not None:
-                gap = (now - self._last) * 1e3
-                if gap > self._window_gap_ms:
-                    self._window_gap_ms = gap
-                    self.max_gap_ms = max(self.max_gap_ms, gap)
-            self._last = now
-            self.received += 1
-            self._pending.append(msg)
-
-    def drain(self) -> list:
-        """The messages received since the last call, oldest first."""
-        with self._lock:
-            out = list(self._pending)
-            self._pending.clear()
-        return out
-
-    def window_gap_ms(self) -> float:
-        """Largest gap since the previous call (then reset)."""
-        with self._lock:
-            g, self._window_gap_ms = self._window_gap_ms, 0.0
-        return g
-
-    def age_s(self) -> float:
-        with self._lock:
-            return float("inf") if self._last is None else time.monotonic() - self._last

@@ -53,7 +53,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_
 from sensor_msgs.msg import CameraInfo, Image, JointState
 
 from humanoid_reach_ros.io import msgs
-from humanoid_reach_ros.nodes.common import ParamSpec, declare_parameters, run_node
+from humanoid_reach_ros.nodes.common import LatestOnDemand, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.perception.markers import (JointStateBuffer, MarkerDetector, camera_pose, joint_vector,
                                                    marker_table, object_pose)
 from humanoid_reach_ros.robot.model import RobotModel
@@ -210,13 +210,17 @@ class MarkerLocalizer(Node):
         self._window = {"start": time.monotonic(), "images": 0, "localized": 0, "max_process_s": 0.0}
 
         sensor = qos_profile_sensor_data
-        joint_qos = QoSProfile(depth=50, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.BEST_EFFORT)
         self.target_pub = self.create_publisher(PoseStamped, "target_pose", sensor)
         self.markers_pub = self.create_publisher(PoseArray, "markers", sensor)
         self.hands_pub = (self.create_publisher(PoseArray, "dual_arm/targets", sensor)
                           if self.hand_ids is not None else None)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(JointState, "joint_states", self._on_joint_states, joint_qos)
+        # no joint-state callbacks: every queued message is taken when an image needs the head pose
+        self.joint_queue = LatestOnDemand(self, JointState, "joint_states",
+                                          QoSProfile(depth=400, history=HistoryPolicy.KEEP_LAST,
+                                                     reliability=ReliabilityPolicy.BEST_EFFORT))
+        self._js_gap_ms = self._js_gap_ms_total = 0.0
+        self._js_newest = 0.0
         self.create_subscription(CameraInfo, "head_camera/camera_info", self._on_camera_info, sensor)
         self.create_subscription(Image, "head_camera/image_raw", self._on_image, sensor)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -240,7 +244,16 @@ class MarkerLocalizer(Node):
         if joints is None:
             self._skip("joint_states", reason)
             return
-        self.joints.push(msgs.seconds_from_time(msg.header.stamp), joints)
+        stamp = msgs.seconds_from_time(msg.header.stamp)
+        if self._js_newest > 0.0 and stamp > self._js_newest:
+            gap = (stamp - self._js_newest) * 1e3
+            self._js_gap_ms, self._js_gap_ms_total = max(self._js_gap_ms, gap), max(self._js_gap_ms_total, gap)
+        self._js_newest = max(self._js_newest, stamp)
+        self.joints.push(stamp, joints)
+
+    def _absorb_joint_states(self) -> None:
+        for msg in self.joint_queue.take_all():
+            self._on_joint_states(msg)
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         try:
@@ -272,6 +285,7 @@ class MarkerLocalizer(Node):
             self._skip("image", f"image is {gray.shape[1]} x {gray.shape[0]} but camera_info says "
                                 f"{cam.width} x {cam.height}")
             return
+        self._absorb_joint_states()
         joints, reason = self.joints.at(stamp_s, p["max_stamp_gap_s"])
         if joints is None:
             self._skip("image", f"no camera pose at the image stamp: {reason}")
@@ -324,6 +338,7 @@ class MarkerLocalizer(Node):
 
     # ------------------------------------------------------------ diagnostics
     def _publish_diagnostics(self) -> None:
+        self._absorb_joint_states()
         now = time.monotonic()
         w, self._window = self._window, {"start": now, "images": 0, "localized": 0, "max_process_s": 0.0}
         dt = max(now - w["start"], 1e-9)
@@ -335,7 +350,9 @@ class MarkerLocalizer(Node):
                   "image_rate_hz": w["images"] / dt, "localization_rate_hz": w["localized"] / dt,
                   "max_process_ms": 1e3 * w["max_process_s"], "last_reprojection_error_px": self.last_error_px,
                   "last_skip_reason": self.last_skip_reason, "last_rejection": self.last_rejection,
-                  "joint_states_buffered": len(self.joints)}
+                  "joint_states_buffered": len(self.joints), "joint_states_max_gap_ms": self._js_gap_ms,
+                  "joint_states_max_gap_ms_since_start": self._js_gap_ms_total}
+        self._js_gap_ms = 0.0
         if self.hand_ids is not None:
             values.update({"hand_pairs_total": c["hand_pairs"], "hand_pair_incomplete_total": c["hand_pair_incomplete"],
                            "skipped_hand_targets_total": c["hand targets"]})

@@ -49,7 +49,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, JointState, PointCloud2
 
 from humanoid_reach_ros.io import msgs
-from humanoid_reach_ros.nodes.common import ParamSpec, declare_parameters, run_node
+from humanoid_reach_ros.nodes.common import LatestOnDemand, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.perception.markers import camera_pose, joint_vector
 from humanoid_reach_ros.robot.model import RobotModel
@@ -146,8 +146,9 @@ class SceneSim(Node):
         self.scene = self._scene_without(p["disabled_primitives"])
         self.hardware_id = str(self.model.semantic.get("robot_name", "robot")) + " head sensors"
 
-        self._joint_msg: JointState | None = None
-        self._joint_time = -math.inf
+        self._frame_cache: tuple | None = None     # (camera pose + scene key, hits, Image) of the last frame
+        self._stereo_cache: dict[str, tuple] = {}
+        self.cached_frames = 0
         self._last_stamp_ns: int | None = None
         self.frames = 0
         self.bad_joint_states = 0
@@ -165,7 +166,8 @@ class SceneSim(Node):
                                       self.create_publisher(CameraInfo, f"stereo/{side}/camera_info", sensor))
                                      for side in ("left", "right"))
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(JointState, "joint_states", self._on_joint_states, sensor)
+        # the camera pose at each frame only: the latest joint state taken per frame (no 200 Hz callbacks)
+        self.joint_states = LatestOnDemand(self, JointState, "joint_states", sensor)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -209,10 +211,11 @@ class SceneSim(Node):
 
     # ------------------------------------------------------------ callbacks
     def _on_joint_states(self, msg: JointState) -> None:
-        self._joint_msg, self._joint_time = msg, time.monotonic()
+        """A joint state as if it had arrived (in-process use)."""
+        self.joint_states.put(msg)
 
     def _tick(self) -> None:
-        msg, age = self._joint_msg, time.monotonic() - self._joint_time
+        msg, age = self.joint_states.latest(), self.joint_states.age_s()
         if msg is None or age > self._p["joint_states_timeout_s"]:
             return
         stamp_ns = msgs.nanoseconds_from_time(msg.header.stamp)
@@ -240,9 +243,19 @@ class SceneSim(Node):
         """Render and publish one frame of every enabled sensor at camera pose ``T_wc``."""
         p, frame = self._p, self._p["camera_frame_id"]
         scene = self.scene
-        hits = cam.cast(scene, self.camera, T_wc, max_range_m=100.0, threads=p["render_threads"])
-        img = cam.render_image(scene, hits, self.marker, self.style, p["image_encoding"])
-        self.image_pub.publish(image_msg(img, p["image_encoding"], frame, stamp))
+        # a still head in an unchanged scene sees the same image: the ray cast and the image are
+        # reused (new stamp); the depth noise is drawn anew for every frame, as a sensor's
+        key = (np.round(T_wc, 9).tobytes(), id(scene), p["image_encoding"])
+        if self._frame_cache is not None and self._frame_cache[0] == key:
+            _, hits, image = self._frame_cache
+            image.header.stamp = stamp
+            self.cached_frames += 1
+        else:
+            hits = cam.cast(scene, self.camera, T_wc, max_range_m=100.0, threads=p["render_threads"])
+            img = cam.render_image(scene, hits, self.marker, self.style, p["image_encoding"])
+            image = image_msg(img, p["image_encoding"], frame, stamp)
+            self._frame_cache = (key, hits, image)
+        self.image_pub.publish(image)
         self.info_pub.publish(camera_info_msg(self.camera, frame, stamp))
         if self.points_pub is not None:
             pts = cam.depth_points(hits, self.noise, self.rng)
@@ -256,9 +269,17 @@ class SceneSim(Node):
             frames = (frame, p["stereo_right_frame_id"])
             for (img_pub, info_pub), T, fid, tx in zip(self.stereo_pubs, (left, right), frames,
                                                        (0.0, p["stereo_baseline_m"])):
-                h = cam.cast(scene, self.camera, T, max_range_m=100.0, threads=p["render_threads"])
-                im = cam.render_image(scene, h, self.marker, self.stereo_style, "mono8")
-                img_pub.publish(image_msg(im, "mono8", fid, stamp))
+                skey = (key, fid)
+                cached = self._stereo_cache.get(fid)
+                if cached is not None and cached[0] == skey:
+                    msg = cached[1]
+                    msg.header.stamp = stamp
+                else:
+                    h = cam.cast(scene, self.camera, T, max_range_m=100.0, threads=p["render_threads"])
+                    im = cam.render_image(scene, h, self.marker, self.stereo_style, "mono8")
+                    msg = image_msg(im, "mono8", fid, stamp)
+                    self._stereo_cache[fid] = (skey, msg)
+                img_pub.publish(msg)
                 info_pub.publish(camera_info_msg(self.camera, fid, stamp, tx))
 
     # ------------------------------------------------------------ diagnostics
@@ -266,16 +287,16 @@ class SceneSim(Node):
         now = time.monotonic()
         w, self._window = self._window, {"start": now, "frames": 0, "max_render_s": 0.0, "sum_render_s": 0.0}
         name, p = self.get_name(), self._p
-        age = now - self._joint_time
+        age = self.joint_states.age_s()
         rate = w["frames"] / max(now - w["start"], 1e-9)
         values = {"frames_total": self.frames, "rate_hz": rate, "nominal_rate_hz": 1.0 / p["period_s"],
                   "mean_render_ms": 1e3 * w["sum_render_s"] / w["frames"] if w["frames"] else 0.0,
                   "max_render_ms": 1e3 * w["max_render_s"], "joint_states_age_s": age if math.isfinite(age) else "never",
-                  "bad_joint_states_total": self.bad_joint_states, "last_bad_joint_states": self.last_bad_reason,
+                  "bad_joint_states_total": self.bad_joint_states, "frames_from_cache": self.cached_frames, "last_bad_joint_states": self.last_bad_reason,
                   "disabled_primitives": ",".join(n for n in p["disabled_primitives"] if n) or "none",
                   "width": self.camera.width, "height": self.camera.height}
         level, message = msgs.LEVEL_OK, f"publishing at {rate:.1f} Hz"
-        if self._joint_msg is None:
+        if self.joint_states.latest() is None:
             level, message = msgs.LEVEL_WARN, "no /joint_states yet: camera pose unknown, nothing published"
         elif age > p["joint_states_timeout_s"]:
             level, message = msgs.LEVEL_WARN, f"/joint_states stale ({age:.1f} s): nothing published"

@@ -52,15 +52,14 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Point
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, JointState, PointCloud2
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import Marker, MarkerArray
 
 from humanoid_reach_ros.io import msgs
-from humanoid_reach_ros.nodes.common import JointStateStream, LATCHED, ParamSpec, declare_parameters, run_node
+from humanoid_reach_ros.nodes.common import LatestOnDemand, LATCHED, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.perception.markers import JointStateBuffer, camera_pose, joint_vector
 from humanoid_reach_ros.perception.stereo import StereoCalibration, StereoMatcher, StereoParams, image_to_gray
 from humanoid_reach_ros.perception.voxel_map import FusionParams, VoxelMap
@@ -242,6 +241,7 @@ class VoxelMapperNode(Node):
         self._stereo_right: Image | None = None
         self._stereo_infos: dict[str, CameraInfo] = {}
         self._newest_joint_stamp = 0.0
+        self._absorb_lock = threading.Lock()   # worker and diagnostics both take joint states
         self._last_integrated: tuple[np.ndarray, float] | None = None   # camera pose and time of the last map update
         self._published_centres: np.ndarray | None = None
 
@@ -258,8 +258,12 @@ class VoxelMapperNode(Node):
         output = MutuallyExclusiveCallbackGroup()
         self.create_subscription(PointCloud2, "head_camera/points", self._on_cloud, qos_profile_sensor_data,
                                  callback_group=inputs)
-        # joint states: stored by a callback of their own group, parsed by the worker when a cloud needs them
-        self.joint_stream = JointStateStream(self, MutuallyExclusiveCallbackGroup())
+        # joint states: no callbacks; the worker takes every queued message when a depth map needs the
+        # head pose (depth 400: 2 s at 200 Hz), so the executor never wakes at 200 Hz
+        self.joint_queue = LatestOnDemand(self, JointState, "joint_states",
+                                          QoSProfile(depth=400, reliability=ReliabilityPolicy.BEST_EFFORT))
+        self._js_gap_ms = 0.0            # largest gap between consecutive joint-state stamps (diagnostics window)
+        self._js_gap_ms_total = 0.0
         if p["use_stereo"]:
             for side in ("left", "right"):
                 self.create_subscription(Image, f"stereo/{side}/image_raw",
@@ -311,8 +315,14 @@ class VoxelMapperNode(Node):
             self.joint_buffer.push(self._newest_joint_stamp, joints)
 
     def _absorb_joint_states(self) -> None:
-        for msg in self.joint_stream.drain():
-            self._on_joint_states(msg)
+        with self._absorb_lock:
+            for msg in self.joint_queue.take_all():
+                previous = self._newest_joint_stamp
+                self._on_joint_states(msg)
+                if previous > 0.0 and self._newest_joint_stamp > previous:
+                    gap = (self._newest_joint_stamp - previous) * 1e3
+                    self._js_gap_ms = max(self._js_gap_ms, gap)
+                    self._js_gap_ms_total = max(self._js_gap_ms_total, gap)
 
     def _post(self, item: Any) -> None:
         with self._cond:
@@ -518,8 +528,8 @@ class VoxelMapperNode(Node):
                                            f"{occupied} occupied voxels from {depth_maps} depth maps", values)]
         values = {k: v for k, v in vars(c).items() if isinstance(v, int)}
         values["joint_states_buffered"] = buffered
-        values["joint_states_max_gap_ms"] = self.joint_stream.window_gap_ms()
-        values["joint_states_max_gap_ms_since_start"] = self.joint_stream.max_gap_ms
+        values["joint_states_max_gap_ms"], self._js_gap_ms = self._js_gap_ms, 0.0   # between stamps seen
+        values["joint_states_max_gap_ms_since_start"] = self._js_gap_ms_total
         values["last_problem"] = c.last_problem
         for kind, n in sorted(c.problems.items()):
             values[f"problem_{kind}"] = n
@@ -547,7 +557,9 @@ class VoxelMapperNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the node until Ctrl-C / SIGTERM (exit 0); a configuration error exits 2."""
-    return run_node(VoxelMapperNode, NODE_NAME, args, executor=lambda: MultiThreadedExecutor(num_threads=3))
+    # single-threaded: every callback only stores (the worker thread integrates); a MultiThreadedExecutor
+    # spent a whole core on its own dispatching here
+    return run_node(VoxelMapperNode, NODE_NAME, args)
 
 
 if __name__ == "__main__":
