@@ -128,6 +128,8 @@ class Bench:
         sizes = {n: len(p.log()) for n, p in procs.items()}
         sampler = CpuSampler({n: p.pid for n, p in procs.items()})
         self.js_times.clear()
+        self.op.spin_for(1.5)       # the nodes' diagnostics windows that began before the idle window
+        self.gaps.clear()           # (start-up, the scan) are not part of the figure
         self.js_record = True
         sampler.start()
         t0 = time.monotonic()

@@ -104,6 +104,7 @@ class ExecutorParams:
     smooth_reshaping: bool = False          # reshape the reference (planning/reshape.py) in start()
     com_recenter_speed_mps: float = 0.05    # mean speed of the COG target back to its nominal point
     max_catch_up_periods: float = 4.0       # a late step may cover at most this many periods (step(t))
+    com_recenter_min_m: float = 0.005       # a start this close to the nominal COG holds it where it is
 
     def validate(self) -> "ExecutorParams":
         checks = [
@@ -155,6 +156,29 @@ class StepResult:
     joints: np.ndarray          # the 30 joint positions to command (model.joint_names order)
     metrics: StepMetrics
     done: bool                  # reference finished and the hand has converged (or hold mode)
+
+
+def one_row_per_direction(shape_idx: np.ndarray, normals: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Indices of the damper pairs kept: per robot shape and per direction bin of the normal
+    (``rint(2 n)``: 125 bins, about 30 degrees wide), the nearest sphere only.
+
+    Named simplification of the paper's level 1 (every sphere within ``d_i`` a row): the
+    2 cm voxels of one pipe give tens of nearly parallel rows per capsule, which made the
+    saturation sets inconsistent and every step fall back to OSQP (10-20 ms, 400 rows in the
+    dense scene). The nearest sphere of a bin bounds the approach toward all of them to first
+    order; the set is re-selected every step, so a sphere becomes a row as soon as it is the
+    nearest of its direction, well before ``d_s`` at the velocity limits of one step.
+    """
+    if len(dist) == 0:
+        return np.zeros(0, dtype=np.intp)
+    q = np.rint(np.asarray(normals) * 2.0).astype(np.int64) + 2
+    key = np.asarray(shape_idx, dtype=np.int64) * 125 + q[:, 0] * 25 + q[:, 1] * 5 + q[:, 2]
+    order = np.lexsort((dist, key))
+    ks = key[order]
+    first = np.empty(len(ks), dtype=bool)
+    first[0] = True
+    np.not_equal(ks[1:], ks[:-1], out=first[1:])
+    return order[first]
 
 
 def _smoothstep5(s: float) -> float:
@@ -363,7 +387,7 @@ class WholeBodyExecutor:
         nominal = self._sole_targets[0].act(self._com_nominal_in_sole)[:2]
         offset = self._com_target - nominal
         dist = float(np.linalg.norm(offset))
-        if dist <= 1e-4:
+        if dist <= self.params.com_recenter_min_m:   # e.g. the head turned: the paper holds the initial COG
             return
         self._com_target = nominal
         self._com_offset = offset
@@ -537,9 +561,11 @@ class WholeBodyExecutor:
                 dmin_env = float(dist.min())
                 if p.collision_avoidance:
                     pts, nrm = env_pair_geometry(P0, P1, s_idx, tree.centers[k_idx])
-                    rows_G.append(world_point_rows(J, self._shape_masks, pts, nrm, s_idx))
-                    rows_h.append(damper_bound(dist, p.security_distance_m, p.damper_xi))
-                    rows_g.append(np.asarray(s_idx, dtype=np.int64))
+                    keep = one_row_per_direction(s_idx, nrm, dist)
+                    s_k = np.asarray(s_idx, dtype=np.int64)[keep]
+                    rows_G.append(world_point_rows(J, self._shape_masks, pts[keep], nrm[keep], s_k))
+                    rows_h.append(damper_bound(dist[keep], p.security_distance_m, p.damper_xi))
+                    rows_g.append(s_k)
             else:
                 dmin_env = float(tree.min_distance_batch(P0, P1, R).min())
         dmin_self = math.inf

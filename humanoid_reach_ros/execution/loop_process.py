@@ -171,6 +171,12 @@ def child_main(conn, config: LoopConfig) -> None:
             except (OSError, EOFError, BrokenPipeError):
                 stop.set()
 
+    # no collector pause inside a deadline: everything built so far is frozen out of the collector's
+    # view, and the young generation is collected rarely (the loop allocates few cyclic objects)
+    import gc
+    gc.collect()
+    gc.freeze()
+    gc.set_threshold(100_000, 50, 1000)
     conn.send(("ready", rt))
     send_thread = threading.Thread(target=sender, name="executor_loop_sender", daemon=True)
     send_thread.start()

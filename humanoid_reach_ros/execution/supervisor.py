@@ -398,8 +398,10 @@ class ExecutionSupervisor:
                     motion.min_distance_m = min(motion.min_distance_m, m.min_distance_m)
                     overruns = motion.overruns
                     self._after_step(motion, res)
-            elif mode in (RUN, SETTLE) and self.last_q is not None and not self._starting:
+            elif mode in (RUN, SETTLE) and self.last_q is not None and not self._starting and not (
+                    self.motion is not None and self.motion.steps == 0):
                 # the step for this deadline is not ready (it overran): hold the last safe command
+                # (a motion whose first step is not out yet is still starting: its start IS the last command)
                 st.overruns += 1
                 if self.motion is not None:
                     self.motion.overruns += 1
