@@ -125,11 +125,11 @@ class Bench:
     # ------------------------------------------------------------ measurements
     def idle(self, seconds: float) -> dict[str, Any]:
         procs = self.procs()
+        self.js_times.clear()
+        self.op.spin_for(1.5)       # what the last head command started (the driver going idle, the nodes'
+        self.gaps.clear()           # diagnostics windows of the scan) is not part of the idle figures
         sizes = {n: len(p.log()) for n, p in procs.items()}
         sampler = CpuSampler({n: p.pid for n, p in procs.items()})
-        self.js_times.clear()
-        self.op.spin_for(1.5)       # the nodes' diagnostics windows that began before the idle window
-        self.gaps.clear()           # (start-up, the scan) are not part of the figure
         self.js_record = True
         sampler.start()
         t0 = time.monotonic()
@@ -138,7 +138,7 @@ class Bench:
         dt = time.monotonic() - t0
         self.js_record = False
         lines = {n: log_lines_at_or_above(p.log()[sizes[n]:]) * 60.0 / dt for n, p in procs.items()}
-        return {"cpu": cpu, "info_lines_per_min": lines, "probe_gap_ms": max_gap_ms(self.js_times), "window_s": dt}
+        return {"gaps": dict(self.gaps), "cpu": cpu, "info_lines_per_min": lines, "probe_gap_ms": max_gap_ms(self.js_times), "window_s": dt}
 
     def plan_request(self, arm: str, target: tuple[float, float, float] | None, budget: float = 5.0):
         from humanoid_reach_ros.demo import arm_code
@@ -263,6 +263,8 @@ def session(out: Path, scene: Path, executions, idle_s: float, plan_calls: int, 
             log(f"{plan_calls} /plan_reach calls")
             res["plan_wait_ms"] = b.plan_waits(plan_calls)
         res["executions"] = []
+        b.op.spin_for(1.5)
+        b.gaps.clear()              # joint-state gaps while executing (start-up and scan excluded)
         for name, arm, target in executions:
             log(f"execution {name} (and back)")
             for r in b.reach_and_return(name, arm, target):
@@ -270,7 +272,7 @@ def session(out: Path, scene: Path, executions, idle_s: float, plan_calls: int, 
                     f"{r['wall_over_duration']:.3f}, p99 {r['step_ms_p99']:.2f} ms, feet {r['feet_drift_mm']:.4f} mm, COG {r['com_drift_mm']:.3f} mm, "
                     f"hand {r.get('hand_error_final_mm', float('nan')):.3f} mm")
                 res["executions"].append(r)
-        res["joint_states_gap_ms_by_node"] = dict(b.gaps)
+        res["joint_states_gap_ms_by_node"] = {**res.get("idle", {}).get("gaps", {}), **dict(b.gaps)}
     finally:
         res["exit_codes"] = b.close()
     return res

@@ -34,6 +34,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
+from humanoid_reach_ros.execution.realtime import make_thread_realtime
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes.common import LATCHED, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.robot.model import RobotModel
@@ -66,6 +67,8 @@ PARAMETERS: dict[str, ParamSpec] = {
                                       "overran", (0.0, 1.0)),
     "left_foot_slip_warn_m": ParamSpec(0.005, "diagnostics WARN when the left sole is this far from its stance "
                                        "pose [m]", (0.0, 10.0)),
+    "rt_priority": ParamSpec(70, "SCHED_FIFO priority of the 200 Hz loop thread where the OS allows it (the "
+                             "simulated hardware loop); 0 = normal scheduling"),
     "world_frame_id": ParamSpec("world", "frame of /base_pose (the stance frame on the floor)"),
     "base_frame_id": ParamSpec("base_link", "frame whose pose /base_pose carries (the waist)"),
 }
@@ -137,6 +140,10 @@ class JointDriver(Node):
 
     # ------------------------------------------------------------ callbacks
     def _run_loop(self) -> None:
+        # the simulated hardware loop: real-time priority where the OS allows (one warning otherwise)
+        ok, text = make_thread_realtime(self._p["rt_priority"])
+        if self._p["rt_priority"] > 0 and not ok:
+            self.get_logger().warning(f"joint loop without real-time priority: {text}")
         t0, k = time.monotonic(), 0
         while not self._stop.is_set():
             k += 1
