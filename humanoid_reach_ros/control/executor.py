@@ -158,42 +158,6 @@ class StepResult:
     done: bool                  # reference finished and the hand has converged (or hold mode)
 
 
-def segment_param(P0: np.ndarray, P1: np.ndarray, shape_idx: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Where along its capsule's segment each closest point lies, in [0, 1]."""
-    a, b = P0[shape_idx], P1[shape_idx]
-    ab = b - a
-    den = np.einsum("ij,ij->i", ab, ab)
-    t = np.einsum("ij,ij->i", np.asarray(points) - a, ab) / np.where(den > 0.0, den, 1.0)
-    return np.clip(t, 0.0, 1.0)
-
-
-def one_row_per_direction(shape_idx: np.ndarray, normals: np.ndarray, dist: np.ndarray,
-                          along: np.ndarray | None = None) -> np.ndarray:
-    """Indices of the damper pairs kept: per robot shape, per third of its segment (``along``,
-    the closest point's parameter) and per direction bin of the normal (``rint(2 n)``: 125
-    bins, about 30 degrees wide), the nearest sphere only.
-
-    Named simplification of the paper's level 1 (every sphere within ``d_i`` a row): the
-    2 cm voxels of one pipe give tens of nearly parallel rows per capsule, which made the
-    saturation sets inconsistent and every step fall back to OSQP (10-20 ms, 400 rows in the
-    dense scene). The nearest sphere of a bin bounds the approach toward all of them to first
-    order; the set is re-selected every step, so a sphere becomes a row as soon as it is the
-    nearest of its direction, well before ``d_s`` at the velocity limits of one step.
-    """
-    if len(dist) == 0:
-        return np.zeros(0, dtype=np.intp)
-    q = np.rint(np.asarray(normals) * 2.0).astype(np.int64) + 2
-    key = np.asarray(shape_idx, dtype=np.int64) * 125 + q[:, 0] * 25 + q[:, 1] * 5 + q[:, 2]
-    if along is not None:   # the two ends of a long capsule are separate contacts (a rotation about one)
-        key = key * 3 + np.minimum((np.asarray(along) * 3.0).astype(np.int64), 2)
-    order = np.lexsort((dist, key))
-    ks = key[order]
-    first = np.empty(len(ks), dtype=bool)
-    first[0] = True
-    np.not_equal(ks[1:], ks[:-1], out=first[1:])
-    return order[first]
-
-
 def _smoothstep5(s: float) -> float:
     s = min(max(s, 0.0), 1.0)
     return s * s * s * (10.0 + s * (-15.0 + 6.0 * s))
@@ -574,11 +538,9 @@ class WholeBodyExecutor:
                 dmin_env = float(dist.min())
                 if p.collision_avoidance:
                     pts, nrm = env_pair_geometry(P0, P1, s_idx, tree.centers[k_idx])
-                    keep = one_row_per_direction(s_idx, nrm, dist, segment_param(P0, P1, s_idx, pts))
-                    s_k = np.asarray(s_idx, dtype=np.int64)[keep]
-                    rows_G.append(world_point_rows(J, self._shape_masks, pts[keep], nrm[keep], s_k))
-                    rows_h.append(damper_bound(dist[keep], p.security_distance_m, p.damper_xi))
-                    rows_g.append(s_k)
+                    rows_G.append(world_point_rows(J, self._shape_masks, pts, nrm, s_idx))
+                    rows_h.append(damper_bound(dist, p.security_distance_m, p.damper_xi))
+                    rows_g.append(np.asarray(s_idx, dtype=np.int64))
             else:
                 dmin_env = float(tree.min_distance_batch(P0, P1, R).min())
         dmin_self = math.inf
