@@ -23,11 +23,13 @@ matching, left-right consistency check):
   changed, and ``/diagnostics``;
 * serves ``~/clear`` (std_srvs/Trigger): forget the map.
 
-Throughput policy: the subscription callbacks only store the newest cloud (or stereo pair)
-in a one-slot mailbox; a worker thread converts it and integrates it in the numba kernel.
-A cloud that arrives while the previous one is still waiting replaces it and is counted as
-dropped: the node never queues without bound, and the map's memory is fixed by the
-extent (``VoxelMap`` is a dense array over it), whatever the input rate.
+Throughput policy: the subscription callbacks only store clouds (or stereo pairs) in a
+bounded mailbox of ``input_queue_depth``; a worker thread converts them in arrival order and
+integrates them in the numba kernel. A short stall (a busy core, the first integrations) is
+absorbed, so no view of a head scan is lost; a cloud that arrives when the mailbox is full
+pushes out the oldest waiting one, counted as dropped: the node never queues without bound,
+and the map's memory is fixed by the extent (``VoxelMap`` is a dense array over it), whatever
+the input rate.
 
 Bad input -- malformed clouds (missing x/y/z, non-float fields, wrong point_step or data
 length), NaN points (dropped and counted), unknown frames, no joint states at the stamp,
@@ -39,6 +41,7 @@ config/voxel_mapper.yaml`` (``ros2 run humanoid_reach_ros voxel_mapper`` on an i
 """
 from __future__ import annotations
 
+import collections
 import math
 import sys
 import threading
@@ -111,6 +114,8 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "joint_states_max_gap_s": ParamSpec(0.1, "a cloud stamp may lie this far outside the buffered joint states [s]",
                                         (0.0, 10.0)),
     "use_stereo": ParamSpec(False, "also map the stereo pair /stereo/{left,right}/image_raw + camera_info"),
+    "input_queue_depth": ParamSpec(4, "clouds (or stereo pairs) waiting for the worker at most; when full, the "
+                                   "oldest waiting one is dropped and counted (clouds_dropped_busy)", (1, 100)),
     "still_integration_period_s": ParamSpec(1.0, "while the camera has not moved (1 mm, 1 mrad) since the last "
                                             "integrated depth map, integrate at most one per this period [s] (a "
                                             "static view adds nothing new; a changed scene still shows within it); "
@@ -232,7 +237,8 @@ class VoxelMapperNode(Node):
         self._map_lock = threading.Lock()
         self._state_lock = threading.Lock()
         self._cond = threading.Condition()
-        self._mailbox: Any = None        # newest PointCloud2 or stereo tuple not yet taken by the worker
+        # PointCloud2s or stereo tuples not yet taken by the worker, oldest first
+        self._mailbox: collections.deque[Any] = collections.deque()
         self._stop = False
         self._version = 0                # map changes
         self._published_version = -1
@@ -326,9 +332,10 @@ class VoxelMapperNode(Node):
 
     def _post(self, item: Any) -> None:
         with self._cond:
-            if self._mailbox is not None:
+            while len(self._mailbox) >= self._p["input_queue_depth"]:
+                self._mailbox.popleft()
                 self.counters.clouds_dropped_busy += 1
-            self._mailbox = item
+            self._mailbox.append(item)
             self._cond.notify()
 
     def _on_cloud(self, msg: PointCloud2) -> None:
@@ -366,11 +373,11 @@ class VoxelMapperNode(Node):
     def _work(self) -> None:
         while True:
             with self._cond:
-                while self._mailbox is None and not self._stop:
+                while not self._mailbox and not self._stop:
                     self._cond.wait(0.2)
                 if self._stop:
                     return
-                item, self._mailbox = self._mailbox, None
+                item = self._mailbox.popleft()
             try:
                 job = self._stereo_job(item) if isinstance(item, tuple) else self._cloud_job(item)
                 if job is not None:
