@@ -58,6 +58,7 @@ import numpy as np
 import pinocchio as pin
 from threadpoolctl import threadpool_limits
 
+from humanoid_reach_ros.control.active_set import ActiveSetCascade
 from humanoid_reach_ros.control.hqp import HierarchicalQP, Level, SaturatedNullSpaceHQP
 from humanoid_reach_ros.control.limits import (damper_bound, env_pair_geometry, pair_point_rows, self_pair_geometry,
                                                support_masks, world_point_rows)
@@ -97,6 +98,9 @@ class ExecutorParams:
     limit_margin_rad: float = 1e-9          # joint rows keep q this far inside the URDF range
     solver: str = "nullspace"               # "nullspace" (closed form + saturation) or "osqp" (reference)
     max_saturation_iter: int = 30           # active-set iterations of the closed-form solver
+    active_set: bool = True                 # exact dual active-set cascade (DAQP, control/active_set.py) for
+    active_set_min_rows: int = 24           # steps with at least this many damper rows (False: saturation
+                                            # and its OSQP fallback always)
     feasibility_tol: float = 1e-9           # level-1 rows count as satisfied within this
     osqp_eps: float = 1e-6
     osqp_max_iter: int = 400
@@ -115,6 +119,7 @@ class ExecutorParams:
             ("posture_gain", 0 < self.posture_gain <= 1), ("velocity_scale", 0 < self.velocity_scale <= 1),
             ("blend_min_s", self.blend_min_s >= 0), ("settle_timeout_s", self.settle_timeout_s >= 0),
             ("max_saturation_iter", self.max_saturation_iter >= 1),
+            ("active_set_min_rows", self.active_set_min_rows >= 0),
             ("com_recenter_speed_mps", self.com_recenter_speed_mps > 0),
             ("max_catch_up_periods", self.max_catch_up_periods >= 1), ("blas_threads", self.blas_threads >= 0), ("osqp_max_iter", self.osqp_max_iter >= 1),
         ]
@@ -217,9 +222,11 @@ class WholeBodyExecutor:
 
     def _make_solvers(self) -> None:
         p = self.params
-        self._ns = SaturatedNullSpaceHQP(max_iter=p.max_saturation_iter, tol=p.feasibility_tol)
+        self._ns = SaturatedNullSpaceHQP(max_iter=p.max_saturation_iter, tol=p.feasibility_tol,
+                                         active_set_min_rows=p.active_set_min_rows)
         self._osqp = HierarchicalQP(eps=p.osqp_eps, max_iter=p.osqp_max_iter, polish=False)
         self._ns_fallback = None if p.solver == "osqp" else self._osqp
+        self._active_set = ActiveSetCascade() if p.active_set else None
 
     # ------------------------------------------------------------ state
     @property
@@ -441,7 +448,8 @@ class WholeBodyExecutor:
             x, slacks, n_act, fallback = res.x, res.slacks, res.n_active_inequalities, False
         else:
             r = self._ns.solve(levels[0][2], levels[0][3], [(A, b) for A, b, _, _ in levels[1:]],
-                               fallback=self._osqp, groups=np.concatenate([self._joint_groups, groups_d]))
+                               fallback=self._osqp, groups=np.concatenate([self._joint_groups, groups_d]),
+                               active_set=self._active_set)
             x, slacks, n_act, fallback = r.x, r.slacks, r.n_active, r.fallback
         dq = self.sel.expand(x)
         q_new = pin.integrate(model, q, dq)

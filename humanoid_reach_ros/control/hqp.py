@@ -40,6 +40,8 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
+from humanoid_reach_ros.control.active_set import ActiveSetCascade
+
 _INF = 1e30
 
 
@@ -402,7 +404,8 @@ class SaturatedResult:
 
     ``slacks``: level 1 ``|max(G x - h, 0)|`` then ``|A_k x - b_k|`` per equality level;
     ``n_active``: level-1 rows at their bound; ``iterations``: saturation passes;
-    ``fallback``: the OSQP cascade produced ``x``.
+    ``fallback``: the OSQP cascade produced ``x``; ``active_set``: the dual active-set
+    cascade did (``iterations`` are then its active-set iterations).
     """
 
     x: np.ndarray
@@ -411,6 +414,7 @@ class SaturatedResult:
     iterations: int
     saturated: int
     fallback: bool
+    active_set: bool = False
 
 
 class SaturatedNullSpaceHQP:
@@ -471,7 +475,9 @@ class SaturatedNullSpaceHQP:
 
     def __init__(self, max_iter: int = 30, tol: float = 1e-9, rank_tol: float = 1e-8,
                  damping: float = 1e-6, active_tol: float = 1e-7, saturated_rank_tol: float = 1e-2,
-                 fallback_margin: float = 0.01, fallback_tighten: float = 1e-5, max_add: int = 3) -> None:
+                 fallback_margin: float = 0.01, fallback_tighten: float = 1e-5, max_add: int = 3,
+                 active_set_min_rows: int = 24) -> None:
+        self.active_set_min_rows = int(active_set_min_rows)
         self.max_iter = int(max_iter)
         self.saturated_rank_tol = float(saturated_rank_tol)
         self.fallback_margin = float(fallback_margin)
@@ -542,6 +548,25 @@ class SaturatedNullSpaceHQP:
                 stack.append((G[S[k + 1]], h[S[k + 1]]))
             stack.append(lv)
         return self.equality_cascade(stack, n, exact_first=bool(np.any(S[0])))
+
+    def _many_rows(self, h: np.ndarray, groups: np.ndarray | None) -> bool:
+        """Enough grouped (damper) rows that the saturation passes would be slow or cycle:
+        the active-set cascade goes first."""
+        n = len(h) if groups is None else int(np.count_nonzero(groups >= 0))
+        return n >= self.active_set_min_rows
+
+    def _try_active_set(self, active_set, G, h, levels) -> "SaturatedResult | None":
+        """The exact cascade's answer when it solved every level within ``tol``, else None."""
+        res = active_set.solve(G, h, levels)
+        if not res.ok:
+            return None
+        viol = G @ res.x - h
+        if len(h) and float(viol.max()) > self.tol:
+            return None
+        slacks = [float(np.linalg.norm(np.maximum(viol, 0.0)))]
+        slacks += [float(np.linalg.norm(A @ res.x - b)) for A, b in levels]
+        n_active = int(np.count_nonzero(viol >= -self.active_tol))
+        return SaturatedResult(res.x, tuple(slacks), n_active, res.iterations, 0, False, True)
 
     def _scale_into(self, G: np.ndarray, h: np.ndarray, base: np.ndarray, x: np.ndarray) -> np.ndarray:
         """``base + alpha (x - base)`` with the largest ``alpha`` in [0, 1] keeping the rows with
@@ -643,13 +668,25 @@ class SaturatedNullSpaceHQP:
         return best_x, best_v, it, W
 
     def solve(self, G: np.ndarray, h: np.ndarray, levels: Sequence[tuple[np.ndarray, np.ndarray]],
-              fallback: HierarchicalQP | None = None, groups: np.ndarray | None = None) -> SaturatedResult:
+              fallback: HierarchicalQP | None = None, groups: np.ndarray | None = None,
+              active_set: "ActiveSetCascade | None" = None) -> SaturatedResult:
         """Level 1 ``G x <= h`` above the equality ``levels`` (see the class docstring).
 
         ``groups`` (len(h),) ints: violated rows of the same group ``>= 0`` are saturated
         one per pass (the most violated first: e.g. the dampers of one robot shape, whose
         rows are nearly parallel), rows of group ``-1`` all at once (joint limits, which
-        never conflict with each other)."""
+        never conflict with each other).
+
+        ``active_set``: the exact lexicographic optimum by a cascade of dual active-set QPs
+        (:class:`~humanoid_reach_ros.control.active_set.ActiveSetCascade`). When the
+        closed-form hierarchy violates a level-1 row and there are at least
+        ``active_set_min_rows`` grouped (damper) rows -- a robot among many obstacles, whose
+        nearly parallel rows make the saturation passes cycle -- it replaces steps 3-6 (they
+        run only if it fails); with fewer rows the saturation passes and their OSQP fallback
+        run as before: cheaper there, and their task scaling damps a hierarchy pushed
+        against its limits, where the exact optimum of every step can alternate between two
+        postures at full joint speed (seen with a hand target 1.6 m out of reach: the COG
+        then moves the free arm along weak directions)."""
         n = G.shape[1] if G is not None and G.ndim == 2 and G.shape[1] else next(A.shape[1] for A, _ in levels)
         G = np.zeros((0, n)) if G is None else G
         h = np.zeros(0) if h is None else h
@@ -658,6 +695,9 @@ class SaturatedNullSpaceHQP:
         v0 = float((G @ x - h).max()) if len(h) else 0.0
         if v0 <= self.tol:       # no level-1 row active: the unconstrained hierarchy is the optimum
             best_x, best_v, it, W = x, v0, 1, np.zeros(len(h), dtype=bool)
+        elif active_set is not None and self._many_rows(h, groups) \
+                and (res_as := self._try_active_set(active_set, G, h, levels)) is not None:
+            return res_as
         else:
             ok = len(states) == len(levels)     # one state per (non-empty) level
             best_x, best_v, it, W = self._saturate(G, h, levels, n, np.zeros(len(h), dtype=bool), groups,
