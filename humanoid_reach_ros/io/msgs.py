@@ -102,7 +102,7 @@ def model_joints(msg: JointState, robot: RobotModel) -> tuple[np.ndarray | None,
     Policy for names: a ``/joint_states`` message may carry joints of other devices
     (grippers, a pan-tilt unit, another robot's ``joint_state_publisher``), so **names the
     model does not know are ignored**; but **every model joint is required**, finite: a
-    message that lacks one (or sends NaN/inf for it) is refused with the missing names, as
+    message missing one (or sending NaN/inf for it) is refused, naming the missing ones, as
     is one with mismatched name/position arrays or a repeated name. Velocities and efforts
     are not read. (Commands are stricter: ``/joint_command`` and trajectories refuse unknown
     names, ``JointSimulator.validate_command`` and ``exec_msgs``.)
@@ -123,7 +123,7 @@ def model_joints(msg: JointState, robot: RobotModel) -> tuple[np.ndarray | None,
         known = set(names)
         missing = [n for n in robot.joint_names if n not in known]
         nonfinite = [n for n in robot.joint_names if n in known and not math.isfinite(joints[index[n]])]
-        parts = [f"lacks {len(missing)} of the {robot.n_joints} model joints: {_some(missing)}"] if missing else []
+        parts = [f"is missing {len(missing)} of the {robot.n_joints} model joints: {_some(missing)}"] if missing else []
         parts += [f"has NaN/inf for {_some(nonfinite)}"] if nonfinite else []
         return None, f"joint state {'; '.join(parts)}"
     return joints, ""
