@@ -623,7 +623,7 @@ class LimbIK:
             q = [lo[i] - LIMIT_TOL + (q[i] - lo[i] + LIMIT_TOL) % TWO_PI for i in range(6)]
             if pairs:
                 for i, j, coef in pairs:
-                    _redistribute1(q, i, j, coef, ref, lo, hi)
+                    redistribute_pair.py_func(q, i, j, coef, ref, lo, hi)   # the same code, uncompiled
                 q = [lo[i] - LIMIT_TOL + (q[i] - lo[i] + LIMIT_TOL) % TWO_PI for i in range(6)]
             if not all(q[i] <= hi[i] + LIMIT_TOL for i in range(6)):   # NaN fails too
                 continue
@@ -750,28 +750,6 @@ def _rot_ok(R) -> bool:
     return det > 0.0
 
 
-def _redistribute1(q, i, j, coef, ref, lo, hi) -> None:
-    """Scalar twin of LimbIK._redistribute (in place on the list q)."""
-    c = 1.0 if coef >= 0.0 else -1.0
-    qi, qj = q[i], q[j]
-    best, d_best, qj_best = math.inf, 0.0, qj
-    for m in (-2, -1, 0, 1, 2):
-        qjm = qj + TWO_PI * m
-        e1, e2 = c * (lo[j] - qjm), c * (hi[j] - qjm)
-        a = max(lo[i] - qi, min(e1, e2))
-        b = min(hi[i] - qi, max(e1, e2))
-        if a > b:
-            continue
-        d = min(max(0.5 * ((ref[i] - qi) + c * (ref[j] - qjm)), a), b)
-        cost = (qi + d - ref[i]) ** 2 + (qjm + c * d - ref[j]) ** 2
-        if cost < best:
-            best, d_best, qj_best = cost, d, qjm
-    if math.isfinite(best):
-        q[i] = qi + d_best
-        q[j] = qj_best + c * d_best
-
-
-
 # ----------------------------------------------------------------- compiled leg IK
 # The leg solver of LimbIK._solve_leg + _select (+ _redistribute) as one numba kernel,
 # one pose at a time, no temporaries: the planner projects every RRT node / edge
@@ -787,7 +765,8 @@ def wrap_angle(x, lo):
 
 @nb.njit(**_JIT)
 def redistribute_pair(q, i, j, coef, ref, lo, hi):
-    """Compiled twin of :func:`_redistribute1` (in place on the array ``q``): at a gimbal
+    """Gimbal redistribution, in place on ``q`` (an array, or the scalar path's list through
+    ``redistribute_pair.py_func``; twin of :meth:`LimbIK._redistribute`): at a gimbal
     lock only ``q_i + coef q_j`` is fixed; move ``(q_i, q_j) += (d, sign(coef) d)`` (``q_j``
     also by whole turns) within the limits, closest to ``ref``. Legs and arms
     (``reach/fast_arms.py``) alike."""
