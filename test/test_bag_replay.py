@@ -64,7 +64,7 @@ def seen_surface_voxels(h: float, extent: tuple[np.ndarray, np.ndarray]) -> tupl
     """Voxels of the scene's surfaces (floor excluded) hit by noise-free rays from every
     recorded cloud's camera pose (the depth sensor's pixel grid, its range gate)."""
     from humanoid_reach_ros.paths import config_path
-    from humanoid_reach_ros.perception.markers import JointStateBuffer, camera_pose, joint_vector
+    from humanoid_reach_ros.perception.markers import JointStateBuffer, camera_pose
     from humanoid_reach_ros.robot.model import RobotModel
     from humanoid_reach_ros.sim import camera as cam
     from humanoid_reach_ros.sim.scene import load_scene
@@ -78,7 +78,7 @@ def seen_surface_voxels(h: float, extent: tuple[np.ndarray, np.ndarray]) -> tupl
         for m in r.messages(["/joint_states", "/head_camera/points"]):
             if m.topic == "/joint_states":
                 js = deserialize_message(m.data, JointState)
-                joints, _ = joint_vector(model.joint_index, list(js.name), js.position)
+                joints, _ = msgs.model_joints(js, model)
                 buffer.push(msgs.seconds_from_time(js.header.stamp), joints)
             else:
                 pc = deserialize_message(m.data, PointCloud2)

@@ -10,7 +10,7 @@ import pytest
 from humanoid_reach_ros.control.executor import ExecutorParams, StepResult, WholeBodyExecutor
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree
 from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner
-from humanoid_reach_ros.planning.trajectory import SplineTrajectory
+from humanoid_reach_ros.geometry.trajectory import SplineTrajectory
 from humanoid_reach_ros.planning.wgr import valve_region
 from humanoid_reach_ros.robot.model import N_BASE_Q
 from humanoid_reach_ros.sim.scene import load_scene

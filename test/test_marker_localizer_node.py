@@ -15,7 +15,7 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes import marker_localizer as ML
-from humanoid_reach_ros.nodes.scene_sim import camera_info_msg, image_msg
+from humanoid_reach_ros.nodes.scene_sim import camera_info_msg
 from humanoid_reach_ros.perception.markers import camera_pose
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.sim import camera as C
@@ -33,28 +33,6 @@ def test_config_matches_declared_defaults() -> None:
 
 
 # ---------------------------------------------------------------- parsers
-def test_gray_from_image_encodings_and_bad_sizes() -> None:
-    rgb = np.random.default_rng(0).integers(0, 255, (6, 5, 3), dtype=np.uint8)
-    gray = ML.gray_from_image(image_msg(rgb, "rgb8", "c", None))
-    assert gray.shape == (6, 5)
-    bgr = image_msg(rgb[:, :, ::-1], "bgr8", "c", None)
-    np.testing.assert_array_equal(ML.gray_from_image(bgr), gray)
-    mono = image_msg(gray, "mono8", "c", None)
-    np.testing.assert_array_equal(ML.gray_from_image(mono), gray)
-    padded = Image(height=6, width=5, encoding="mono8", step=8,
-                   data=np.pad(gray, ((0, 0), (0, 3))).tobytes())           # row padding
-    np.testing.assert_array_equal(ML.gray_from_image(padded), gray)
-    bad = {
-        "unsupported image encoding": Image(height=6, width=5, encoding="16UC1", step=10, data=bytes(60)),
-        "data has 29 bytes": Image(height=6, width=5, encoding="mono8", step=5, data=bytes(29)),
-        "step 4 < width 5": Image(height=6, width=5, encoding="mono8", step=4, data=bytes(24)),
-        "empty image": Image(height=0, width=5, encoding="mono8", step=5, data=b""),
-    }
-    for text, m in bad.items():
-        with pytest.raises(ValueError, match=text):
-            ML.gray_from_image(m)
-
-
 def test_intrinsics_from_camera_info() -> None:
     cam = C.PinholeCamera.from_fov(64, 48, 1.0)
     good = camera_info_msg(cam, "c", None)
@@ -162,7 +140,7 @@ def test_bad_images_and_camera_info_get_warnings_and_the_node_keeps_working(star
         ros_probe.spin_until(lambda: send(*make()) or len(loc.log_lines(pattern)) > n, 20.0,
                              f"warning {pattern!r}", on_timeout=loc.log_tail)
 
-    good_img = lambda: image_msg(frame, "rgb8", "head_camera_optical_frame", None)  # noqa: E731
+    good_img = lambda: msgs.image_msg(frame, "rgb8", "head_camera_optical_frame", None)  # noqa: E731
     good_info = lambda: camera_info_msg(cam, "head_camera_optical_frame", None)     # noqa: E731
 
     def zero_focal():
@@ -273,7 +251,7 @@ def test_two_hand_markers_give_dual_arm_targets(start_node, ros_probe) -> None:
         s = msgs.time_from_seconds(t[0])
         pubs["js"].publish(msgs.joint_state(model.joint_names, joints, stamp=s))
         pubs["info"].publish(camera_info_msg(cam, "head_camera_optical_frame", s))
-        pubs["img"].publish(image_msg(img, "rgb8", "head_camera_optical_frame", s))
+        pubs["img"].publish(msgs.image_msg(img, "rgb8", "head_camera_optical_frame", s))
 
     # one hand marker only: /markers, but no hand targets
     ros_probe.spin_until(lambda: send(one_marker) or len(markers) > 0, 30.0, "a /markers message",

@@ -253,17 +253,9 @@ def test_joint_state_buffer_window_and_time_jumps() -> None:
     assert len(buf) == 1 and buf.at(5.0, 0.0)[0][0] == 1.0
 
 
-def test_joint_vector_and_camera_pose() -> None:
+def test_camera_pose() -> None:
     model = RobotModel()
-    names = list(model.joint_names)
-    q, why = M.joint_vector(model.joint_index, names, model.half_sitting_joints)
-    np.testing.assert_allclose(q, model.half_sitting_joints)
-    assert M.joint_vector(model.joint_index, names[:-1], model.half_sitting_joints)[1].startswith("29 names")
-    assert "missing" in M.joint_vector(model.joint_index, names[:-1], model.half_sitting_joints[:-1])[1]
-    bad = model.half_sitting_joints.copy()
-    bad[3] = math.nan
-    assert "non-finite" in M.joint_vector(model.joint_index, names, bad)[1]
-    assert "duplicate" in M.joint_vector(model.joint_index, names[:-1] + names[:1], bad)[1]
+    q = model.half_sitting_joints
     T = M.camera_pose(model, q, "head_camera_optical_frame")
     np.testing.assert_allclose(T, model.frame_pose(model.half_sitting(), "head_camera_optical_frame").homogeneous,
                                atol=1e-12)

@@ -6,7 +6,7 @@ import pytest
 
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree
 from humanoid_reach_ros.planning.reshape import ReshapeParams, SmoothReshaper, _bump, _pinned_ends, _runs
-from humanoid_reach_ros.planning.trajectory import SplineTrajectory
+from humanoid_reach_ros.geometry.trajectory import SplineTrajectory
 
 DT = 0.005
 

@@ -36,7 +36,7 @@ def test_message_builders() -> None:
 
     cam = PinholeCamera.from_fov(64, 48, 1.0)
     img = np.arange(64 * 48 * 3, dtype=np.uint8).reshape(48, 64, 3)
-    m = scene_sim.image_msg(img, "rgb8", "cam", msgs.time_from_seconds(3.5))
+    m = msgs.image_msg(img, "rgb8", "cam", msgs.time_from_seconds(3.5))
     assert (m.width, m.height, m.step, len(m.data), m.header.frame_id) == (64, 48, 192, 64 * 48 * 3, "cam")
     info = scene_sim.camera_info_msg(cam, "right", None, tx_m=0.1)
     assert info.p[3] == pytest.approx(-cam.fx * 0.1) and info.k[0] == pytest.approx(cam.fx)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from humanoid_reach_ros.perception.stereo import (
-    StereoCalibration, StereoMatcher, StereoParams, image_to_gray, left_right_check, render_textured_pair)
+    StereoCalibration, StereoMatcher, StereoParams, left_right_check, render_textured_pair)
 
 
 @pytest.fixture(scope="module")
@@ -107,11 +107,6 @@ def test_bad_input(plane_pair) -> None:
         m.depth(plane_pair.left[:100], plane_pair.right)
     with pytest.raises(ValueError):
         m.depth(plane_pair.left.astype(np.float32), plane_pair.right)
-    with pytest.raises(ValueError):
-        image_to_gray(np.zeros((4, 4), np.uint16), "mono16")
-    with pytest.raises(ValueError):
-        image_to_gray(np.zeros((4, 4), np.uint8), "rgb8")
-    assert image_to_gray(np.zeros((4, 4, 3), np.uint8), "bgr8").shape == (4, 4)
     for bad in (dict(num_disparities=30), dict(block_size=4), dict(lr_max_diff_px=-1.0),
                 dict(min_depth_m=5.0, max_depth_m=1.0)):
         with pytest.raises(ValueError):

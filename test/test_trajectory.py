@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from hypothesis.extra.numpy import arrays
 
-from humanoid_reach_ros.planning.trajectory import (
+from humanoid_reach_ros.geometry.trajectory import (
     SplineTrajectory, TrajectoryOptions, path_to_trajectory, segment_durations,
 )
 

@@ -36,9 +36,9 @@ joint Jacobians in one numba kernel (no per-link Jacobian calls, no temporaries)
 constant joint-limit and posture rows built once; the closed-form solver needs no QP in the
 common case. The executor limits BLAS to ``blas_threads`` (default 1, process-wide):
 on these small matrices BLAS threads only add synchronisation (a 34x34 product took
-0.29 ms with threads on a loaded machine, 8 us without). ``smooth_reshaping`` runs
-:class:`~humanoid_reach_ros.planning.reshape.SmoothReshaper` inside :meth:`start`
-(seconds): a node should rather reshape outside its control loop and pass the result.
+0.29 ms with threads on a loaded machine, 8 us without). Smooth reshaping of the
+reference (``planning/reshape.py``, seconds) is the caller's, outside the control loop
+(``execution/requests.py``): control never imports planning.
 
 Continuity: ``start`` begins from the given (last commanded) configuration; when the
 reference's first point differs from it, the joint reference is blended in with a
@@ -65,7 +65,7 @@ from humanoid_reach_ros.control.limits import (damper_bound, env_pair_geometry, 
 from humanoid_reach_ros.control.tasks import DofSelection
 from humanoid_reach_ros.geometry.distance import RobotCollision
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree
-from humanoid_reach_ros.planning.trajectory import SplineTrajectory
+from humanoid_reach_ros.geometry.trajectory import SplineTrajectory
 from humanoid_reach_ros.robot.model import N_BASE_Q, N_BASE_V, RobotModel
 from humanoid_reach_ros.robot.shapes import CollisionModel
 
@@ -105,7 +105,6 @@ class ExecutorParams:
     osqp_eps: float = 1e-6
     osqp_max_iter: int = 400
     blas_threads: int = 1                   # process-wide BLAS thread limit set by the executor (0: leave)
-    smooth_reshaping: bool = False          # reshape the reference (planning/reshape.py) in start()
     com_recenter_speed_mps: float = 0.05    # mean speed of the COG target back to its nominal point
     max_catch_up_periods: float = 4.0       # a late step may cover at most this many periods (step(t))
     com_recenter_min_m: float = 0.005       # a start this close to the nominal COG holds it where it is
@@ -306,9 +305,6 @@ class WholeBodyExecutor:
                 self.params = p_new
                 self._make_solvers()
             self.params = p_new
-        if self.params.smooth_reshaping and self._tree is not None:
-            from humanoid_reach_ros.planning.reshape import SmoothReshaper
-            reference = SmoothReshaper(self.robot, self.cm).reshape(reference, self._tree, arm).trajectory
         self._fix_stance(q)
         self._recenter_com(q)
         self._q = q

@@ -178,6 +178,19 @@ _JIT = dict(cache=True, nogil=True, fastmath=False)
 
 
 @nb.njit(**_JIT)
+def _set_unit(out, row, x, y, z, length):
+    """``out[row] = (x, y, z) / length``, or ``+z`` for a (near) zero vector (coincident points)."""
+    if length > 1e-12:
+        out[row, 0] = x / length
+        out[row, 1] = y / length
+        out[row, 2] = z / length
+    else:
+        out[row, 0] = 0.0
+        out[row, 1] = 0.0
+        out[row, 2] = 1.0
+
+
+@nb.njit(**_JIT)
 def self_pair_geometry(P0, P1, R, pi, pj, bound):
     """Self-collision pairs (pi[k], pj[k]) of capsules P0, P1 (S, 3), R (S,).
 
@@ -217,14 +230,7 @@ def self_pair_geometry(P0, P1, R, pi, pj, bound):
             pb[m, 0] = bx
             pb[m, 1] = by
             pb[m, 2] = bz
-            if ln > 1e-12:
-                nrm[m, 0] = dx / ln
-                nrm[m, 1] = dy / ln
-                nrm[m, 2] = dz / ln
-            else:
-                nrm[m, 0] = 0.0
-                nrm[m, 1] = 0.0
-                nrm[m, 2] = 1.0
+            _set_unit(nrm, m, dx, dy, dz, ln)
             dist[m] = d
             m += 1
     return idx[:m].copy(), pa[:m].copy(), pb[:m].copy(), nrm[:m].copy(), dist[:m].copy(), dmin
@@ -259,14 +265,7 @@ def env_pair_geometry(P0, P1, s_idx, centers):
         ny = centers[k, 1] - py
         nz = centers[k, 2] - pz
         ln = math.sqrt(nx * nx + ny * ny + nz * nz)
-        if ln > 1e-12:
-            nrm[k, 0] = nx / ln
-            nrm[k, 1] = ny / ln
-            nrm[k, 2] = nz / ln
-        else:
-            nrm[k, 0] = 0.0
-            nrm[k, 1] = 0.0
-            nrm[k, 2] = 1.0
+        _set_unit(nrm, k, nx, ny, nz, ln)
     return pts, nrm
 
 

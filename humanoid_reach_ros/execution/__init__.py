@@ -6,6 +6,7 @@
   with an injected clock and command sink;
 * :mod:`loop`: the tick and solver threads at absolute deadlines (real-time priority
   where the OS allows, :mod:`realtime`);
-* :mod:`loop_process`: the loop in a process of its own, so the 5 ms deadlines never wait
-  on the ROS callbacks of the node (one interpreter lock per process).
+* the loop runs in a process of its own (``nodes/reach_executor_loop.py``: it publishes
+  through rclpy, so it lives with the nodes), so the 5 ms deadlines never wait on the ROS
+  callbacks of the node (one interpreter lock per process).
 """

@@ -254,7 +254,7 @@ class ExecutionRequests:
             if log is not None:
                 log(f"{label}: {note}")
         params = dataclasses.replace(self._executor_params(), collision_avoidance=not no_avoidance,
-                                     com_compensation=not no_com, smooth_reshaping=False)
+                                     com_compensation=not no_com)
         return Motion(mid, label, "trajectory", spline=spline, arm=arm, params=params, q_measured=q0, note=note)
 
     def _executor_params(self):

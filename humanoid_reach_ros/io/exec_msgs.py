@@ -3,7 +3,7 @@
 * :func:`reference_from_trajectory` validates a ``trajectory_msgs/JointTrajectory`` (from
   ``/reach_trajectory`` or an ``ExecuteReach`` goal) and turns it into the executor's
   reference: the 30 joints in model order as a clamped cubic ``SplineTrajectory``
-  (``planning/trajectory.py``) through the points at their ``time_from_start``, shifted so
+  (``geometry/trajectory.py``) through the points at their ``time_from_start``, shifted so
   that the first point is at ``t = 0``. Simplification: the paper's executor evaluates the
   planner's spline itself; here the reference is rebuilt from the transmitted samples
   (every ``output_period_s``, 50 ms), so between samples it differs from the planner's
@@ -45,7 +45,7 @@ from humanoid_reach_ros.execution.engines import DualArmMetrics  # noqa: F401 (r
 from humanoid_reach_ros.execution.requests import (ArmMotion, HandTarget, arm_motion, needs_waist,  # noqa: F401
                                                    resolve_arm, targets_in_world)
 from humanoid_reach_ros.io import msgs
-from humanoid_reach_ros.planning.trajectory import SplineTrajectory
+from humanoid_reach_ros.geometry.trajectory import SplineTrajectory
 from humanoid_reach_ros.robot.model import RobotModel
 
 

@@ -5,8 +5,8 @@ use it without a ROS graph. Conventions: stamps are ``builtin_interfaces/Time``;
 float seconds go through ``time_from_seconds`` / ``seconds_from_time``; poses are
 ``pin.SE3``; arrays are float64 numpy arrays.
 
-Sections: time, joint states, poses, diagnostics; then planning: durations, point clouds,
-joint trajectories, PlanReach requests, planning statistics, markers.
+Sections: time, joint states, images, poses, diagnostics; then planning: durations, point
+clouds, joint trajectories, PlanReach requests, planning statistics, markers.
 """
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ import pinocchio as pin
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose, PoseStamped
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import Image, JointState
 from std_msgs.msg import Header
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -96,19 +96,41 @@ def parse_joint_state(msg: JointState) -> JointStateArrays:
 
 
 def model_joints(msg: JointState, robot: RobotModel) -> tuple[np.ndarray | None, str]:
-    """The 30 joint angles of a ``sensor_msgs/JointState`` in model order, or ``None`` and
-    why not (mismatched arrays, unknown joint, a robot joint missing or NaN/inf)."""
-    js = parse_joint_state(msg)
-    if len(js.names) != len(js.positions):
-        return None, "/joint_states has mismatched name/position arrays"
-    try:
-        joints = robot.joints_from_dict(dict(zip(js.names, js.positions)), np.full(robot.n_joints, np.nan))
-    except KeyError as exc:
-        return None, f"/joint_states: {exc}"
+    """The robot's joint angles (``robot.n_joints``, model order) of a ``sensor_msgs/JointState``,
+    or ``None`` and why not. The one parser of measured joint states (``/joint_states``).
+
+    Policy for names: a ``/joint_states`` message may carry joints of other devices
+    (grippers, a pan-tilt unit, another robot's ``joint_state_publisher``), so **names the
+    model does not know are ignored**; but **every model joint is required**, finite: a
+    message missing one (or sending NaN/inf for it) is refused, naming the missing ones, as
+    is one with mismatched name/position arrays or a repeated name. Velocities and efforts
+    are not read. (Commands are stricter: ``/joint_command`` and trajectories refuse unknown
+    names, ``JointSimulator.validate_command`` and ``exec_msgs``.)
+    """
+    names, pos = list(msg.name), np.asarray(msg.position, dtype=float).ravel()
+    if len(names) != pos.size:
+        return None, f"joint state has {len(names)} names but {pos.size} positions"
+    if len(set(names)) != len(names):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        return None, f"joint state has duplicate joint names: {', '.join(dup)}"
+    joints = np.full(robot.n_joints, np.nan)
+    index = robot.joint_index
+    for name, v in zip(names, pos):
+        i = index.get(name)
+        if i is not None:
+            joints[i] = v
     if not np.all(np.isfinite(joints)):
-        missing = [n for n, v in zip(robot.joint_names, joints) if not math.isfinite(v)]
-        return None, f"/joint_states lacks (or has NaN for) {len(missing)} joint(s), e.g. {missing[0]}"
+        known = set(names)
+        missing = [n for n in robot.joint_names if n not in known]
+        nonfinite = [n for n in robot.joint_names if n in known and not math.isfinite(joints[index[n]])]
+        parts = [f"is missing {len(missing)} of the {robot.n_joints} model joints: {_some(missing)}"] if missing else []
+        parts += [f"has NaN/inf for {_some(nonfinite)}"] if nonfinite else []
+        return None, f"joint state {'; '.join(parts)}"
     return joints, ""
+
+
+def _some(names: Sequence[str], most: int = 6) -> str:
+    return ", ".join(names[:most]) + (f" ... ({len(names) - most} more)" if len(names) > most else "")
 
 
 def joint_state(
@@ -150,6 +172,51 @@ def fill_joint_state(
     if stamp is not None:
         msg.header.stamp = stamp
     return msg
+
+
+# ---------------------------------------------------------------- images
+#: 8-bit encodings :func:`gray_from_image` accepts: channels and the conversion to grey
+#: (cv2 colour-conversion code name; None: already grey)
+IMAGE_ENCODINGS: dict[str, tuple[int, str | None]] = {
+    "mono8": (1, None), "8UC1": (1, None), "rgb8": (3, "COLOR_RGB2GRAY"), "bgr8": (3, "COLOR_BGR2GRAY"),
+    "rgba8": (4, "COLOR_RGBA2GRAY"), "bgra8": (4, "COLOR_BGRA2GRAY"),
+}
+
+
+def gray_from_image(msg: Image) -> np.ndarray:
+    """8-bit grey (H, W) array of a ``sensor_msgs/Image`` (the package's one image decoder).
+
+    Accepts :data:`IMAGE_ENCODINGS` (mono8 / 8UC1 as they are; rgb8, bgr8, rgba8, bgra8 through
+    OpenCV's ``Y = 0.299 R + 0.587 G + 0.114 B``); rows may be padded (``step > width *
+    channels``). ``ValueError`` for another encoding, an empty image, a step shorter than a row
+    or a data size other than ``height * step``."""
+    enc = msg.encoding
+    if enc not in IMAGE_ENCODINGS:
+        raise ValueError(f"unsupported image encoding {enc!r}; accepted: {', '.join(IMAGE_ENCODINGS)}")
+    ch, code = IMAGE_ENCODINGS[enc]
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    if h <= 0 or w <= 0:
+        raise ValueError(f"empty image ({w} x {h})")
+    if step < w * ch:
+        raise ValueError(f"image step {step} < width {w} * {ch} channel(s)")
+    data = np.frombuffer(bytes(msg.data), dtype=np.uint8) if not isinstance(msg.data, np.ndarray) \
+        else np.asarray(msg.data, dtype=np.uint8)
+    if data.size != h * step:
+        raise ValueError(f"image data has {data.size} bytes, expected height {h} * step {step} = {h * step}")
+    img = data.reshape(h, step)[:, :w * ch].reshape(h, w, ch)
+    if code is None:
+        return np.ascontiguousarray(img[:, :, 0])
+    import cv2  # here: the decoder's only user of OpenCV, kept off the import of this module
+
+    return cv2.cvtColor(np.ascontiguousarray(img), getattr(cv2, code))
+
+
+def image_msg(img: np.ndarray, encoding: str, frame_id: str, stamp: Time | None = None) -> Image:
+    """``sensor_msgs/Image`` of an (H, W) or (H, W, C) uint8 array (rows unpadded)."""
+    h, w = img.shape[:2]
+    channels = 1 if img.ndim == 2 else img.shape[2]
+    return Image(header=header(frame_id, stamp), height=h, width=w, encoding=encoding, is_bigendian=0,
+                 step=w * channels, data=np.ascontiguousarray(img, dtype=np.uint8).tobytes())
 
 
 # ---------------------------------------------------------------- poses

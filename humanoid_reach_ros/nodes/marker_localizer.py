@@ -42,7 +42,6 @@ import time
 from collections import Counter
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 import pinocchio as pin
 from diagnostic_msgs.msg import DiagnosticArray
@@ -54,7 +53,7 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes.common import LatestOnDemand, ParamSpec, declare_parameters, run_node
-from humanoid_reach_ros.perception.markers import (JointStateBuffer, MarkerDetector, camera_pose, joint_vector,
+from humanoid_reach_ros.perception.markers import (JointStateBuffer, MarkerDetector, camera_pose,
                                                    marker_table, object_pose)
 from humanoid_reach_ros.robot.model import RobotModel
 
@@ -92,34 +91,8 @@ PARAMETERS: dict[str, ParamSpec] = {
     "warn_throttle_s": ParamSpec(1.0, "minimum interval between repeated warnings [s]", (0.0, 3600.0)),
 }
 
-#: channels and the conversion to mono8 of the accepted encodings
-ENCODINGS: dict[str, tuple[int, int | None]] = {
-    "mono8": (1, None), "8UC1": (1, None), "rgb8": (3, cv2.COLOR_RGB2GRAY), "bgr8": (3, cv2.COLOR_BGR2GRAY),
-    "rgba8": (4, cv2.COLOR_RGBA2GRAY), "bgra8": (4, cv2.COLOR_BGRA2GRAY),
-}
-
 
 # ---------------------------------------------------------------- message parsers
-def gray_from_image(msg: Image) -> np.ndarray:
-    """mono8 (H, W) array of an 8-bit ``sensor_msgs/Image``; ``ValueError`` for an unsupported
-    encoding or a data size that disagrees with width, height and step."""
-    enc = msg.encoding
-    if enc not in ENCODINGS:
-        raise ValueError(f"unsupported image encoding {enc!r}; accepted: {', '.join(ENCODINGS)}")
-    ch, code = ENCODINGS[enc]
-    h, w, step = int(msg.height), int(msg.width), int(msg.step)
-    if h <= 0 or w <= 0:
-        raise ValueError(f"empty image ({w} x {h})")
-    if step < w * ch:
-        raise ValueError(f"image step {step} < width {w} * {ch} channel(s)")
-    data = np.frombuffer(bytes(msg.data), dtype=np.uint8) if not isinstance(msg.data, np.ndarray) \
-        else np.asarray(msg.data, dtype=np.uint8)
-    if data.size != h * step:
-        raise ValueError(f"image data has {data.size} bytes, expected height {h} * step {step} = {h * step}")
-    img = data.reshape(h, step)[:, :w * ch].reshape(h, w, ch)
-    return np.ascontiguousarray(img[:, :, 0]) if code is None else cv2.cvtColor(np.ascontiguousarray(img), code)
-
-
 @dataclass(frozen=True)
 class Intrinsics:
     """What a ``CameraInfo`` contributes: image size, K (3x3), distortion coefficients."""
@@ -240,7 +213,7 @@ class MarkerLocalizer(Node):
 
     # ------------------------------------------------------------ callbacks
     def _on_joint_states(self, msg: JointState) -> None:
-        joints, reason = joint_vector(self.model.joint_index, msg.name, msg.position)
+        joints, reason = msgs.model_joints(msg, self.model)
         if joints is None:
             self._skip("joint_states", reason)
             return
@@ -277,7 +250,7 @@ class MarkerLocalizer(Node):
                                 f"from the image stamp (> {p['camera_info_timeout_s']:g} s)")
             return
         try:
-            gray = gray_from_image(msg)
+            gray = msgs.gray_from_image(msg)
         except ValueError as exc:
             self._skip("image", str(exc))
             return

@@ -4,7 +4,7 @@ An adapter between ROS and ``humanoid_reach_ros.execution`` (docs/architecture.m
 
 * the control loop (supervisor, whole-body executor, dual-arm controller, tick and solver
   threads at real-time priority where allowed) runs in a process of its own
-  (``execution/loop_process.py``) that publishes ``/joint_command`` every ``period_s`` while
+  (``nodes/reach_executor_loop.py``) that publishes ``/joint_command`` every ``period_s`` while
   a motion runs and while holding after one, and ``/executor/metrics``; this node's
   callbacks never share an interpreter lock with the 5 ms deadlines;
 * this node validates inputs and forwards them: the ``/execute_reach`` action
@@ -54,11 +54,11 @@ from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 from humanoid_reach_ros.codes import ARM_AUTO, ExecuteCode as C, RequestError
-from humanoid_reach_ros.execution.loop_process import LoopConfig, LoopProcess
 from humanoid_reach_ros.execution.requests import ExecutionRequests
 from humanoid_reach_ros.execution.supervisor import IDLE, Motion
 from humanoid_reach_ros.io import exec_msgs, msgs
 from humanoid_reach_ros.nodes.common import LATCHED, RELIABLE_LATEST, LatestOnDemand, declare_parameters, run_node
+from humanoid_reach_ros.nodes.reach_executor_loop import LoopConfig, LoopProcess
 from humanoid_reach_ros.nodes.reach_executor_params import (MAX_SEQUENTIAL, PARAMETERS, SOLVERS, executor_params,
                                                             supervisor_config)
 from humanoid_reach_ros.robot.model import RobotModel

@@ -51,7 +51,7 @@ from sensor_msgs.msg import CameraInfo, Image, JointState, PointCloud2
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes.common import LatestOnDemand, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.paths import config_path
-from humanoid_reach_ros.perception.markers import camera_pose, joint_vector
+from humanoid_reach_ros.perception.markers import camera_pose
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.sim import camera as cam
 from humanoid_reach_ros.sim.scene import load_scene
@@ -98,14 +98,6 @@ PARAMETERS: dict[str, ParamSpec] = {
 
 
 # ---------------------------------------------------------------- message builders
-def image_msg(img: np.ndarray, encoding: str, frame_id: str, stamp) -> Image:
-    """``sensor_msgs/Image`` of an (H, W, 3) rgb8 or (H, W) mono8 uint8 array."""
-    h, w = img.shape[:2]
-    channels = 1 if img.ndim == 2 else img.shape[2]
-    return Image(header=msgs.header(frame_id, stamp), height=h, width=w, encoding=encoding, is_bigendian=0,
-                 step=w * channels, data=np.ascontiguousarray(img, dtype=np.uint8).tobytes())
-
-
 def camera_info_msg(camera: cam.PinholeCamera, frame_id: str, stamp, tx_m: float = 0.0) -> CameraInfo:
     """``sensor_msgs/CameraInfo`` of a distortion-free pinhole camera; ``tx_m`` is the
     stereo offset B of a right camera (P[0, 3] = -fx B)."""
@@ -221,7 +213,7 @@ class SceneSim(Node):
         stamp_ns = msgs.nanoseconds_from_time(msg.header.stamp)
         if stamp_ns == self._last_stamp_ns:
             return  # no new joint state since the last frame: nothing new to stamp
-        joints, reason = joint_vector(self.model.joint_index, msg.name, msg.position)
+        joints, reason = msgs.model_joints(msg, self.model)
         if joints is None:
             self.bad_joint_states += 1
             self.last_bad_reason = reason
@@ -253,7 +245,7 @@ class SceneSim(Node):
         else:
             hits = cam.cast(scene, self.camera, T_wc, max_range_m=100.0, threads=p["render_threads"])
             img = cam.render_image(scene, hits, self.marker, self.style, p["image_encoding"])
-            image = image_msg(img, p["image_encoding"], frame, stamp)
+            image = msgs.image_msg(img, p["image_encoding"], frame, stamp)
             self._frame_cache = (key, hits, image)
         self.image_pub.publish(image)
         self.info_pub.publish(camera_info_msg(self.camera, frame, stamp))
@@ -277,7 +269,7 @@ class SceneSim(Node):
                 else:
                     h = cam.cast(scene, self.camera, T, max_range_m=100.0, threads=p["render_threads"])
                     im = cam.render_image(scene, h, self.marker, self.stereo_style, "mono8")
-                    msg = image_msg(im, "mono8", fid, stamp)
+                    msg = msgs.image_msg(im, "mono8", fid, stamp)
                     self._stereo_cache[fid] = (skey, msg)
                 img_pub.publish(msg)
                 info_pub.publish(camera_info_msg(self.camera, fid, stamp, tx))

@@ -63,8 +63,8 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes.common import LatestOnDemand, LATCHED, ParamSpec, declare_parameters, run_node
-from humanoid_reach_ros.perception.markers import JointStateBuffer, camera_pose, joint_vector
-from humanoid_reach_ros.perception.stereo import StereoCalibration, StereoMatcher, StereoParams, image_to_gray
+from humanoid_reach_ros.perception.markers import JointStateBuffer, camera_pose
+from humanoid_reach_ros.perception.stereo import StereoCalibration, StereoMatcher, StereoParams
 from humanoid_reach_ros.perception.voxel_map import FusionParams, VoxelMap
 from humanoid_reach_ros.robot.model import RobotModel
 
@@ -128,7 +128,6 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "problem_hold_s": ParamSpec(5.0, "diagnostics stay WARN this long after a rejected input [s]", (0.0, 3600.0)),
 }
 PARAMETERS: dict[str, ParamSpec] = {**FUSION_PARAMETERS, **STEREO_PARAMETERS, **NODE_PARAMETERS}
-STEREO_ENCODINGS = ("mono8", "rgb8", "bgr8")
 
 
 def fusion_params(p: dict[str, Any]) -> FusionParams:
@@ -163,20 +162,6 @@ def camera_info_arrays(info: CameraInfo) -> dict[str, np.ndarray]:
     return {"K": np.asarray(info.k, float).reshape(3, 3), "D": np.asarray(info.d, float).ravel(),
             "R": np.asarray(info.r, float).reshape(3, 3), "P": np.asarray(info.p, float).reshape(3, 4),
             "size": (int(info.width), int(info.height))}
-
-
-def image_array(msg: Image) -> np.ndarray:
-    """Pixels of an 8-bit ``sensor_msgs/Image`` (mono8 (H, W), rgb8 / bgr8 (H, W, 3)); ``ValueError``
-    for other encodings or inconsistent sizes."""
-    channels = {"mono8": 1, "rgb8": 3, "bgr8": 3}.get(msg.encoding)
-    if channels is None:
-        raise ValueError(f"unsupported image encoding {msg.encoding!r} (use one of {', '.join(STEREO_ENCODINGS)})")
-    h, w, step = int(msg.height), int(msg.width), int(msg.step)
-    if h <= 0 or w <= 0 or step < w * channels or len(msg.data) != h * step:
-        raise ValueError(f"image of {w}x{h} {msg.encoding} with step {step} has {len(msg.data)} bytes "
-                         f"(expected step >= {w * channels} and height * step bytes)")
-    data = np.frombuffer(bytes(msg.data), dtype=np.uint8).reshape(h, step)[:, :w * channels]
-    return data.reshape(h, w, channels) if channels == 3 else data.reshape(h, w)
 
 
 @dataclass
@@ -312,7 +297,7 @@ class VoxelMapperNode(Node):
     # ------------------------------------------------------------ inputs
     def _on_joint_states(self, msg: JointState) -> None:
         """One /joint_states message into the look-up buffer (the worker, via :meth:`_absorb_joint_states`)."""
-        joints, reason = joint_vector(self.model.joint_index, list(msg.name), msg.position)
+        joints, reason = msgs.model_joints(msg, self.model)
         if joints is None:
             self._problem("bad_joint_states", f"/joint_states ignored: {reason}", "joint_states_rejected")
             return
@@ -348,9 +333,9 @@ class VoxelMapperNode(Node):
             self._stereo_infos[side] = msg
 
     def _on_stereo_image(self, side: str, msg: Image) -> None:
-        if msg.encoding not in STEREO_ENCODINGS:
+        if msg.encoding not in msgs.IMAGE_ENCODINGS:
             self._problem("stereo_encoding", f"/stereo/{side}/image_raw: unsupported encoding {msg.encoding!r} "
-                          f"(use one of {', '.join(STEREO_ENCODINGS)}); image ignored", "stereo_rejected")
+                          f"(use one of {', '.join(msgs.IMAGE_ENCODINGS)}); image ignored", "stereo_rejected")
             return
         with self._state_lock:
             if side == "left":
@@ -404,7 +389,7 @@ class VoxelMapperNode(Node):
             calib = StereoCalibration.from_camera_infos(camera_info_arrays(info_l), camera_info_arrays(info_r))
             if self.stereo is None or self.stereo.calibration != calib:
                 self.stereo = StereoMatcher(calib, self._stereo_params)
-            gl, gr = image_to_gray(image_array(left), left.encoding), image_to_gray(image_array(right), right.encoding)
+            gl, gr = msgs.gray_from_image(left), msgs.gray_from_image(right)
             points = self.stereo.points(gl, gr)
         except ValueError as exc:
             self._problem("stereo_rejected", f"stereo pair rejected: {exc}", "stereo_rejected")

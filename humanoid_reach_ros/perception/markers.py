@@ -416,27 +416,6 @@ class JointStateBuffer:
 
 
 # ----------------------------------------------------------------- R_T_C by forward kinematics
-def joint_vector(joint_index: Mapping[str, int], names: Sequence[str], positions: Sequence[float]
-                 ) -> tuple[np.ndarray | None, str]:
-    """The model's joint-angle vector from a joint state's names and positions, and '' --
-    or None and the reason (lengths disagree, duplicate or non-finite entries, joints missing;
-    names the model does not know are ignored)."""
-    pos = np.asarray(positions, dtype=float).ravel()
-    if len(names) != pos.size:
-        return None, f"{len(names)} names but {pos.size} positions"
-    if len(set(names)) != len(names):
-        return None, "duplicate joint names"
-    out = np.full(len(joint_index), np.nan)
-    for name, v in zip(names, pos):
-        i = joint_index.get(name)
-        if i is not None:
-            out[i] = v
-    bad = [n for n, i in joint_index.items() if not math.isfinite(out[i])]
-    if bad:
-        return None, f"missing or non-finite joint(s) {bad[:5]}{' ...' if len(bad) > 5 else ''}"
-    return out, ""
-
-
 def camera_pose(model: Any, joints: np.ndarray, frame: str) -> np.ndarray:
     """``R_T_C``: world pose (4x4) of the camera frame by forward kinematics, the waist placed
     by :meth:`RobotModel.base_on_feet` (feet fixed on the floor)."""
@@ -447,5 +426,5 @@ def camera_pose(model: Any, joints: np.ndarray, frame: str) -> np.ndarray:
 __all__ = [
     "MARKER_KEYS", "transform", "object_pose", "marker_corners", "MarkerSpec", "MarkerTable", "marker_table",
     "load_marker_config", "MarkerDetection", "DetectionResult", "MarkerDetector", "refine_corners_by_edges", "solve_marker_pose",
-    "JointStateBuffer", "joint_vector", "camera_pose",
+    "JointStateBuffer", "camera_pose",
 ]

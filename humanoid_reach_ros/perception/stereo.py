@@ -158,18 +158,6 @@ class StereoCalibration:
                                  np.asarray(K2, float), np.asarray(D2, float).ravel(), R2, P2, tuple(size))
 
 
-def image_to_gray(img: np.ndarray, encoding: str) -> np.ndarray:
-    """8-bit grey image from mono8 / rgb8 / bgr8 pixels; ``ValueError`` otherwise."""
-    a = np.asarray(img)
-    if a.dtype != np.uint8:
-        raise ValueError(f"expected 8-bit pixels, got {a.dtype}")
-    if encoding == "mono8" and a.ndim == 2:
-        return a
-    if encoding in ("rgb8", "bgr8") and a.ndim == 3 and a.shape[2] == 3:
-        return cv2.cvtColor(a, cv2.COLOR_RGB2GRAY if encoding == "rgb8" else cv2.COLOR_BGR2GRAY)
-    raise ValueError(f"unsupported image: encoding {encoding!r} with shape {a.shape}")
-
-
 class StereoMatcher:
     """Rectify, match (SGBM), check left-right consistency, reproject (module docstring)."""
 
@@ -353,5 +341,5 @@ def render_textured_pair(width: int = 640, height: int = 480, focal_px: float = 
 
 
 __all__ = ["StereoParams", "StereoCalibration", "StereoMatcher", "left_right_check", "refine_subpixel",
-           "image_to_gray", "texture",
+           "texture",
            "SyntheticPair", "render_textured_pair"]

@@ -59,6 +59,8 @@ from typing import Sequence
 import numba as nb
 import numpy as np
 
+from humanoid_reach_ros.geometry.camera import PinholeCamera, look_at
+
 Vec3 = tuple[float, float, float]
 
 #: refuse extents whose dense arrays would exceed this many voxels (12 B each)
@@ -439,50 +441,6 @@ class VoxelMap:
 
 
 # ----------------------------------------------------------------- simulated depth cameras (tests, benches)
-@dataclass(frozen=True)
-class PinholeCamera:
-    """A pinhole camera (optical frame: z forward, x right, y down) of ``width`` x ``height``
-    pixels with focal lengths ``fx``, ``fy`` and principal point ``cx``, ``cy`` [px]."""
-
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-
-    @staticmethod
-    def from_fov(width: int, height: int, hfov_rad: float) -> "PinholeCamera":
-        f = 0.5 * width / math.tan(0.5 * hfov_rad)
-        return PinholeCamera(width, height, f, f, 0.5 * (width - 1), 0.5 * (height - 1))
-
-    @property
-    def K(self) -> np.ndarray:
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    def ray_directions(self) -> np.ndarray:
-        """Unnormalised optical-frame directions (H*W, 3) with z = 1, row-major pixels."""
-        u, v = np.meshgrid(np.arange(self.width, dtype=float), np.arange(self.height, dtype=float))
-        return np.stack([(u - self.cx) / self.fx, (v - self.cy) / self.fy, np.ones_like(u)], -1).reshape(-1, 3)
-
-
-def look_at(eye: Sequence[float], target: Sequence[float], up: Sequence[float] = (0.0, 0.0, 1.0)) -> np.ndarray:
-    """World-from-optical 4x4 pose of a camera at ``eye`` looking at ``target``
-    (optical frame: z forward, x right, y down)."""
-    eye, target, up = (np.asarray(v, dtype=float) for v in (eye, target, up))
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    if np.linalg.norm(x) < 1e-9:
-        raise ValueError("view direction parallel to up")
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z], axis=1)
-    T[:3, 3] = eye
-    return T
-
-
 def depth_scan(scene, camera: PinholeCamera, pose: np.ndarray, max_range_m: float = 5.0,
                noise_m: float = 0.0, rng: np.random.Generator | None = None,
                exclude_groups: Sequence[str] = ()) -> np.ndarray:

@@ -54,7 +54,7 @@ from humanoid_reach_ros.planning.path import (
     PLANNER_NAMES, PlanningSpace, PlanStatus, ShortcutOptions, plan as run_planner, shortcut_path,
 )
 from humanoid_reach_ros.planning.projector import ARM_CODES, LEFT, LEGS, RIGHT, Projector
-from humanoid_reach_ros.planning.trajectory import SplineTrajectory, TrajectoryOptions
+from humanoid_reach_ros.geometry.trajectory import SplineTrajectory, TrajectoryOptions
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion
 from humanoid_reach_ros.robot.limb_ik import LimbIKSet
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel

@@ -58,7 +58,7 @@ from humanoid_reach_ros.control.hqp import SaturatedNullSpaceHQP
 from humanoid_reach_ros.control.tasks import DofSelection
 from humanoid_reach_ros.geometry.distance import RobotCollision
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree
-from humanoid_reach_ros.planning.trajectory import SplineTrajectory
+from humanoid_reach_ros.geometry.trajectory import SplineTrajectory
 from humanoid_reach_ros.robot.model import N_BASE_Q, N_BASE_V, RobotModel
 from humanoid_reach_ros.robot.shapes import CollisionModel
 

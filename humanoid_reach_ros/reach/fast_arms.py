@@ -22,16 +22,11 @@ import numba as nb
 import numpy as np
 
 from humanoid_reach_ros.robot.limb_ik import (
-    GIMBAL_TOL, LIMIT_TOL, PSI_SNAP, REACH_TOL, STRETCH_TOL, TWO_PI, IKReason, LimbIK, _leg_rot_ok,
+    GIMBAL_TOL, LIMIT_TOL, PSI_SNAP, REACH_TOL, STRETCH_TOL, IKReason, LimbIK, _leg_rot_ok,
+    redistribute_pair, wrap_angle,
 )
 
 _JIT = dict(cache=True, nogil=False, fastmath=False)
-
-
-@nb.njit(**_JIT)
-def _wrap(x, lo):
-    base = lo - LIMIT_TOL
-    return base + (x - base) % TWO_PI
 
 
 @nb.njit(**_JIT)
@@ -54,30 +49,6 @@ def _rmul_z(M, a, out):
         out[r, 0] = c * m0 + s * m1
         out[r, 1] = -s * m0 + c * m1
         out[r, 2] = M[r, 2]
-
-
-@nb.njit(**_JIT)
-def _redistribute(q, i, j, coef, ref, lo, hi):
-    """Twin of limb_ik._redistribute1 (in place on q)."""
-    c = 1.0 if coef >= 0.0 else -1.0
-    qi, qj = q[i], q[j]
-    best = np.inf
-    d_best = 0.0
-    qj_best = qj
-    for m in range(-2, 3):
-        qjm = qj + TWO_PI * m
-        e1, e2 = c * (lo[j] - qjm), c * (hi[j] - qjm)
-        a = max(lo[i] - qi, min(e1, e2))
-        b = min(hi[i] - qi, max(e1, e2))
-        if a > b:
-            continue
-        d = min(max(0.5 * ((ref[i] - qi) + c * (ref[j] - qjm)), a), b)
-        cost = (qi + d - ref[i]) ** 2 + (qjm + c * d - ref[j]) ** 2
-        if cost < best:
-            best, d_best, qj_best = cost, d, qjm
-    if best < np.inf:
-        q[i] = qi + d_best
-        q[j] = qj_best + c * d_best
 
 
 @nb.njit(**_JIT)
@@ -158,14 +129,14 @@ def arm_ik_pose(rp, rR, tp, tR, rf, R0, t0, Re, te, U, F, lo, hi, q_out):
                 coef_g = math.sin(q1)
                 q[0], q[1], q[2], q[3], q[4], q[5] = q0, q1, q2, q3, q4, q5
                 for a in range(6):
-                    q[a] = _wrap(q[a], lo[a])
+                    q[a] = wrap_angle(q[a], lo[a])
                 if gimbal or stretched:
                     if gimbal:
-                        _redistribute(q, 0, 2, coef_g, rf, lo, hi)
+                        redistribute_pair(q, 0, 2, coef_g, rf, lo, hi)
                     if stretched:
-                        _redistribute(q, 4, 2, -1.0, rf, lo, hi)
+                        redistribute_pair(q, 4, 2, -1.0, rf, lo, hi)
                     for a in range(6):
-                        q[a] = _wrap(q[a], lo[a])
+                        q[a] = wrap_angle(q[a], lo[a])
                 inlim = True
                 for a in range(6):
                     if not (q[a] <= hi[a] + LIMIT_TOL):     # NaN fails too

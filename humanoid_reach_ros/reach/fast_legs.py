@@ -24,7 +24,7 @@ reduces the residual by less than 10x), all in one numba kernel; the stopping te
 
 When the closed form has no in-limit solution (a leg out of reach or beyond its limits)
 or Newton does not converge within ``max_iter``, :class:`ClosedFormLowerBodyIK` falls back
-to the numerical :class:`~humanoid_reach_ros.reach.whole_body_ik.LowerBodyIK` (the
+to the numerical :class:`~humanoid_reach_ros.reach.lower_body_ik.LowerBodyIK` (the
 reference), so results and failure reports stay those of Algorithm 3. Tests check both
 paths agree (test_whole_body_ik.py).
 
@@ -38,6 +38,7 @@ import numba as nb
 import numpy as np
 import pinocchio as pin
 
+from humanoid_reach_ros.reach.lower_body_ik import LowerBodyIK, LowerBodyResult
 from humanoid_reach_ros.robot.limb_ik import LEG_WORK_SIZE, LimbIK, leg_ik_pose
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 
@@ -322,8 +323,6 @@ class ClosedFormLowerBodyIK:
 
     def __init__(self, robot: RobotModel, support: str = "right", tol: float = 1e-7, max_iter: int = 20,
                  reference=None) -> None:
-        from humanoid_reach_ros.reach.whole_body_ik import LowerBodyIK   # (import cycle)
-
         self.reference = LowerBodyIK(robot, support, tol=tol, max_iter=max_iter) if reference is None else reference
         ref = self.reference
         self.robot, self.model, self.tol, self.max_iter = robot, robot.model, tol, max_iter
@@ -368,8 +367,6 @@ class ClosedFormLowerBodyIK:
 
     def solve(self, q0: np.ndarray, targets, sole_world: pin.SE3):
         """Algorithm 3's solution from ``q0`` (nq) -> ``LowerBodyResult`` (module docstring)."""
-        from humanoid_reach_ros.reach.whole_body_ik import LowerBodyResult
-
         m, d = self.model, self.data
         q = np.array(q0, dtype=float)
         com_now = pin.centerOfMass(m, d, q, False)

@@ -623,7 +623,7 @@ class LimbIK:
             q = [lo[i] - LIMIT_TOL + (q[i] - lo[i] + LIMIT_TOL) % TWO_PI for i in range(6)]
             if pairs:
                 for i, j, coef in pairs:
-                    _redistribute1(q, i, j, coef, ref, lo, hi)
+                    redistribute_pair.py_func(q, i, j, coef, ref, lo, hi)   # the same code, uncompiled
                 q = [lo[i] - LIMIT_TOL + (q[i] - lo[i] + LIMIT_TOL) % TWO_PI for i in range(6)]
             if not all(q[i] <= hi[i] + LIMIT_TOL for i in range(6)):   # NaN fails too
                 continue
@@ -750,12 +750,32 @@ def _rot_ok(R) -> bool:
     return det > 0.0
 
 
-def _redistribute1(q, i, j, coef, ref, lo, hi) -> None:
-    """Scalar twin of LimbIK._redistribute (in place on the list q)."""
+# ----------------------------------------------------------------- compiled leg IK
+# The leg solver of LimbIK._solve_leg + _select (+ _redistribute) as one numba kernel,
+# one pose at a time, no temporaries: the planner projects every RRT node / edge
+# point through both legs, in many small batches, where numpy's per-call overhead
+# dominated. Same formulas, branch order (4 knee + 2 roll + hip), tolerances and
+# tie-breaking; test_limb_ik.py checks it against the numpy reference to 1e-12.
+@nb.njit(**_JIT)
+def wrap_angle(x, lo):
+    """``x`` wrapped into ``[lo - LIMIT_TOL, lo - LIMIT_TOL + 2 pi)`` (compiled legs and arms)."""
+    base = lo - LIMIT_TOL
+    return base + (x - base) % TWO_PI
+
+
+@nb.njit(**_JIT)
+def redistribute_pair(q, i, j, coef, ref, lo, hi):
+    """Gimbal redistribution, in place on ``q`` (an array, or the scalar path's list through
+    ``redistribute_pair.py_func``; twin of :meth:`LimbIK._redistribute`): at a gimbal
+    lock only ``q_i + coef q_j`` is fixed; move ``(q_i, q_j) += (d, sign(coef) d)`` (``q_j``
+    also by whole turns) within the limits, closest to ``ref``. Legs and arms
+    (``reach/fast_arms.py``) alike."""
     c = 1.0 if coef >= 0.0 else -1.0
     qi, qj = q[i], q[j]
-    best, d_best, qj_best = math.inf, 0.0, qj
-    for m in (-2, -1, 0, 1, 2):
+    best = np.inf
+    d_best = 0.0
+    qj_best = qj
+    for m in range(-2, 3):
         qjm = qj + TWO_PI * m
         e1, e2 = c * (lo[j] - qjm), c * (hi[j] - qjm)
         a = max(lo[i] - qi, min(e1, e2))
@@ -766,22 +786,9 @@ def _redistribute1(q, i, j, coef, ref, lo, hi) -> None:
         cost = (qi + d - ref[i]) ** 2 + (qjm + c * d - ref[j]) ** 2
         if cost < best:
             best, d_best, qj_best = cost, d, qjm
-    if math.isfinite(best):
+    if best < np.inf:
         q[i] = qi + d_best
         q[j] = qj_best + c * d_best
-
-
-
-# ----------------------------------------------------------------- compiled leg IK
-# The leg solver of LimbIK._solve_leg + _select (+ _redistribute) as one numba kernel,
-# one pose at a time, no temporaries: the planner projects every RRT node / edge
-# point through both legs, in many small batches, where numpy's per-call overhead
-# dominated. Same formulas, branch order (4 knee + 2 roll + hip), tolerances and
-# tie-breaking; test_limb_ik.py checks it against the numpy reference to 1e-12.
-@nb.njit(**_JIT)
-def _leg_wrap(x, lo):
-    base = lo - LIMIT_TOL
-    return base + (x - base) % TWO_PI
 
 
 @nb.njit(**_JIT)
@@ -817,6 +824,15 @@ def _leg_ik_kernel(root_p, root_R, tip_p, tip_R, ref, R0, t0, Re, te, A, B, lo, 
         out_ok[k] = reason == 0
         out_reason[k] = reason
         out_branch[k] = branch
+
+
+@nb.njit(**_JIT)
+def _drop_hip_branches(Q, gim, first):
+    """Branches ``first`` and ``first + 1`` (both hip solutions) have no solution: NaN rows."""
+    for b in range(first, first + 2):
+        gim[b] = 0.0
+        for a in range(6):
+            Q[b, a] = np.nan
 
 
 @nb.njit(**_JIT)
@@ -876,28 +892,20 @@ def leg_ik_pose(rp, rR, tp, tR, rf, R0, t0, Re, te, A, B, lo, hi, q_out, work):
     for kb in range(2):
         s3b = s3 if kb == 0 else -s3
         q3 = math.atan2(s3b, c3)
-        q3w = _leg_wrap(q3, lo[3])
+        q3w = wrap_angle(q3, lo[3])
         knee_out = not (q3w <= hi[3] + LIMIT_TOL)
         alpha = math.atan2(-A * s3b, A * c3 + B)
         for rb in range(2):
             q5 = q5a if rb == 0 else q5a + np.pi
-            q5w = _leg_wrap(q5, lo[5])
+            q5w = wrap_angle(q5, lo[5])
             if knee_out or not (q5w <= hi[5] + LIMIT_TOL):
-                for hb in range(2):
-                    b = 4 * kb + 2 * rb + hb
-                    gim[b] = 0.0
-                    for a in range(6):
-                        Q[b, a] = np.nan
+                _drop_hip_branches(Q, gim, 4 * kb + 2 * rb)
                 continue
             vz = math.sin(q5) * r[1] + math.cos(q5) * r[2]
             q4 = alpha - math.atan2(r[0], vz)
-            q4w = _leg_wrap(q4, lo[4])
+            q4w = wrap_angle(q4, lo[4])
             if not (q4w <= hi[4] + LIMIT_TOL):
-                for hb in range(2):
-                    b = 4 * kb + 2 * rb + hb
-                    gim[b] = 0.0
-                    for a in range(6):
-                        Q[b, a] = np.nan
+                _drop_hip_branches(Q, gim, 4 * kb + 2 * rb)
                 continue
             # M = Mt Rx(-q5) Ry(-(q3 + q4))
             cx, sx = math.cos(-q5), math.sin(-q5)
@@ -929,9 +937,9 @@ def leg_ik_pose(rp, rR, tp, tR, rf, R0, t0, Re, te, A, B, lo, hi, q_out, work):
                     q1 = math.copysign(0.5 * np.pi, q1)
                 b = 4 * kb + 2 * rb + hb
                 gim[b] = 1.0 if gimbal else 0.0
-                Q[b, 0] = _leg_wrap(q0, lo[0])
-                Q[b, 1] = _leg_wrap(q1, lo[1])
-                Q[b, 2] = _leg_wrap(q2, lo[2])
+                Q[b, 0] = wrap_angle(q0, lo[0])
+                Q[b, 1] = wrap_angle(q1, lo[1])
+                Q[b, 2] = wrap_angle(q2, lo[2])
                 Q[b, 3] = q3w
                 Q[b, 4] = q4w
                 Q[b, 5] = q5w
@@ -941,26 +949,9 @@ def leg_ik_pose(rp, rR, tp, tR, rf, R0, t0, Re, te, A, B, lo, hi, q_out, work):
         for b in range(8):
             if gim[b] == 0.0:
                 continue
-            cf = -math.sin(Q[b, 1])
-            cc = 1.0 if cf > 0.0 else (-1.0 if cf < 0.0 else 1.0)
-            qi, qj = Q[b, 0], Q[b, 2]
-            best = np.inf
-            d_best = 0.0
-            qj_best = qj
-            for m in range(-2, 3):
-                qjm = qj + TWO_PI * m
-                e1, e2 = cc * (lo[2] - qjm), cc * (hi[2] - qjm)
-                lo_d = max(lo[0] - qi, min(e1, e2))
-                hi_d = min(hi[0] - qi, max(e1, e2))
-                dd = min(max(0.5 * ((rf[0] - qi) + cc * (rf[2] - qjm)), lo_d), hi_d)
-                cost = (qi + dd - rf[0]) ** 2 + (qjm + cc * dd - rf[2]) ** 2
-                if lo_d <= hi_d and cost < best:
-                    best, d_best, qj_best = cost, dd, qjm
-            if best < np.inf:
-                Q[b, 0] = qi + d_best
-                Q[b, 2] = qj_best + cc * d_best
+            redistribute_pair(Q[b], 0, 2, -math.sin(Q[b, 1]), rf, lo, hi)
             for a in range(6):
-                Q[b, a] = _leg_wrap(Q[b, a], lo[a])
+                Q[b, a] = wrap_angle(Q[b, a], lo[a])
     best_b = -1
     best_d = np.inf
     if reach:   # (always here: unreachable returned above)

@@ -47,76 +47,10 @@ import cv2
 import numba as nb
 import numpy as np
 
+from humanoid_reach_ros.geometry.camera import PinholeCamera, look_at
 from humanoid_reach_ros.sim.scene import Box, Cylinder, Plane, Primitive, Scene, Sphere, Torus
 
 ENCODINGS = ("rgb8", "mono8")
-
-
-# ----------------------------------------------------------------- camera model
-@dataclass(frozen=True)
-class PinholeCamera:
-    """Pinhole intrinsics: image size [px], focal lengths and principal point [px]."""
-
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-
-    def __post_init__(self) -> None:
-        if self.width < 1 or self.height < 1:
-            raise ValueError(f"image size must be positive, got {self.width} x {self.height}")
-        if not all(math.isfinite(v) for v in (self.fx, self.fy, self.cx, self.cy)) or self.fx <= 0 or self.fy <= 0:
-            raise ValueError(f"focal lengths must be finite and > 0 (fx {self.fx}, fy {self.fy})")
-
-    @classmethod
-    def from_fov(cls, width: int, height: int, horizontal_fov_rad: float) -> "PinholeCamera":
-        """Square pixels, principal point at the image centre ``((W - 1)/2, (H - 1)/2)``,
-        ``fx = fy = (W / 2) / tan(hfov / 2)``."""
-        if not 0.0 < horizontal_fov_rad < math.pi:
-            raise ValueError(f"horizontal field of view must be in (0, pi) rad, got {horizontal_fov_rad}")
-        f = 0.5 * width / math.tan(0.5 * horizontal_fov_rad)
-        return cls(int(width), int(height), f, f, 0.5 * (width - 1), 0.5 * (height - 1))
-
-    @property
-    def K(self) -> np.ndarray:
-        """3x3 intrinsic matrix."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    def project(self, points_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Pixel coordinates (N, 2) and depths z (N,) of points (N, 3) in the optical frame
-        (points behind the camera get NaN pixels)."""
-        p = np.asarray(points_c, dtype=float).reshape(-1, 3)
-        z = p[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            uv = np.stack([self.fx * p[:, 0] / z + self.cx, self.fy * p[:, 1] / z + self.cy], axis=1)
-        uv[z <= 0.0] = np.nan
-        return uv, z
-
-    def pixel_directions(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Unit ray directions (N, 3) in the optical frame through pixel coordinates."""
-        d = np.stack([(np.asarray(u, float) - self.cx) / self.fx, (np.asarray(v, float) - self.cy) / self.fy,
-                      np.ones(np.shape(u))], axis=-1)
-        return d / np.linalg.norm(d, axis=-1, keepdims=True)
-
-    def rays(self) -> np.ndarray:
-        """Unit ray directions (H * W, 3), row-major (pixel ``(u, v)`` at ``v * W + u``)."""
-        return _rays_cached(self)
-
-
-_RAY_CACHE: dict[PinholeCamera, np.ndarray] = {}
-
-
-def _rays_cached(cam: PinholeCamera) -> np.ndarray:
-    if cam not in _RAY_CACHE:
-        if len(_RAY_CACHE) > 8:
-            _RAY_CACHE.clear()
-        v, u = np.mgrid[0:cam.height, 0:cam.width]
-        d = cam.pixel_directions(u.ravel(), v.ravel())
-        d.setflags(write=False)
-        _RAY_CACHE[cam] = d
-    return _RAY_CACHE[cam]
 
 
 # ----------------------------------------------------------------- ray casting
@@ -554,24 +488,6 @@ def stereo_poses(T_wc: np.ndarray, baseline_m: float) -> tuple[np.ndarray, np.nd
     right = np.array(T_wc, dtype=float)
     right[:3, 3] = right[:3, 3] + baseline_m * right[:3, 0]
     return np.array(T_wc, dtype=float), right
-
-
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
-    """World pose (4x4) of an optical frame at ``eye`` whose z axis points at ``target`` and
-    whose image "up" (-y) is as close to ``up`` as possible."""
-    eye, target, up = (np.asarray(v, dtype=float) for v in (eye, target, up))
-    z = target - eye
-    if np.linalg.norm(z) < 1e-12:
-        raise ValueError("eye and target coincide")
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    if np.linalg.norm(x) < 1e-9:
-        raise ValueError("viewing direction is parallel to up")
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.column_stack([x, np.cross(z, x), z])
-    T[:3, 3] = eye
-    return T
 
 
 __all__ = [

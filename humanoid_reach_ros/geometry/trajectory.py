@@ -16,6 +16,9 @@ smooth, so between waypoints it moves faster (for a single segment the peak is
 ``TrajectoryOptions.respect_velocity_limit`` rescales time by
 ``alpha = max_j max|q_j'| / v_j`` (a spline through the same points at times
 ``alpha t_i`` has velocities ``q'/alpha``), which restores the bound.
+
+It sits in ``geometry/`` (below both) because planning makes these trajectories and
+control follows them as its reference; control never imports planning.
 """
 from __future__ import annotations
 

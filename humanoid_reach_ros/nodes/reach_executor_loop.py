@@ -1,10 +1,10 @@
-"""The control loop in a process of its own.
+"""The control loop in a process of its own (the ``reach_executor`` node's child process).
 
 Why: in one Python interpreter the ROS callbacks (200 Hz ``/joint_states``, the action
 server, map messages), the solver and the tick share one global interpreter lock, and the
 5 ms deadlines then wait on whatever callback holds it. Here the supervisor, both engines
 and the :class:`~humanoid_reach_ros.execution.loop.ControlLoop` run in a child process
-(a fresh interpreter, ``python -m humanoid_reach_ros.execution.loop_process``) that owns nothing else: no subscriptions, no executor spinning.
+(a fresh interpreter, ``python -m humanoid_reach_ros.nodes.reach_executor_loop``) that owns nothing else: no subscriptions, no executor spinning.
 It publishes ``/joint_command`` and ``/executor/metrics`` itself through a publish-only
 rclpy node (``<node>_loop``), so a command never crosses the parent's interpreter.
 
@@ -69,7 +69,7 @@ class LoopProcess:
         # a fresh interpreter (not multiprocessing's spawn, which re-imports the caller's __main__),
         # one end of a socket pair as a multiprocessing Connection; stdout/stderr shared with the node
         ours, theirs = socket.socketpair()
-        self.proc = subprocess.Popen([sys.executable, "-m", "humanoid_reach_ros.execution.loop_process",
+        self.proc = subprocess.Popen([sys.executable, "-m", "humanoid_reach_ros.nodes.reach_executor_loop",
                                       str(theirs.fileno())], pass_fds=[theirs.fileno()], stdin=subprocess.DEVNULL,
                                      env=dict(os.environ))
         theirs.close()
@@ -297,7 +297,7 @@ def _warm_up_cluttered(executor, robot) -> None:
     import numpy as np
 
     from humanoid_reach_ros.geometry.sphere_tree import SphereTree
-    from humanoid_reach_ros.planning.trajectory import SplineTrajectory
+    from humanoid_reach_ros.geometry.trajectory import SplineTrajectory
     q = robot.half_sitting()
     hand = robot.frame_pose(q, robot.limbs["right_arm"].tip).translation
     g = np.mgrid[0.08:0.2:0.02, -0.1:0.1:0.02, -0.1:0.1:0.02].reshape(3, -1).T
