@@ -57,7 +57,8 @@ ARM_LABELS = {0: "auto", 1: "right", 2: "left"}
 PLAN_CODES: dict[int, tuple[str, str, str]] = {
     0: ("SUCCESS", "success", "planned"),
     1: ("INVALID_REQUEST", "invalid", "a NaN/inf value, or an unknown arm or planner: check the arguments"),
-    2: ("INVALID_BOUNDS", "invalid", "WGR lower > upper, or rotation bounds outside [-pi, pi]: check --wgr"),
+    2: ("INVALID_BOUNDS", "invalid", "WGR lower > upper, or a rotation bound outside [-pi, pi] (+-180 deg): "
+        "check --wgr-deg / --wgr"),
     3: ("UNKNOWN_FRAME", "invalid", "the target frame is not known to the planner: use --frame world or base_link"),
     4: ("TARGET_OUT_OF_REACH", "no_motion", "no balanced, collision-free goal posture: move the target closer, "
         "widen the WGR (--wgr) or try the other arm (--arm)"),
