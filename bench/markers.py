@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark of AR-marker localization and of the simulated head camera.
 
-Requirement (Das, 003; DESIGN.md): the target position within 1 cm at 1 m, at 10 Hz on
+Requirement (Das, 003; docs/paper_map.md): the target position within 1 cm at 1 m, at 10 Hz on
 640 x 480 images. The dissertation (004, Sec. 3.2 / 4.5.4) localizes the object by
 R_T_O = R_T_C C_T_M M_T_O (eq. 1).
 

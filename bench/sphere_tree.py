@@ -3,7 +3,7 @@
 
 Kanehiro et al., Sec. V: a sphere tree from 22,753 voxels is built in 20 ms (C++,
 Core i7 3.2 GHz); a collision check of one configuration costs 0.016 ms (goal
-sampling) to 0.032 ms (path planning). DESIGN.md targets: build <= 20 ms, check
+sampling) to 0.032 ms (path planning). Targets (docs/benchmarks.md): build <= 20 ms, check
 <= 0.016 ms per configuration.
 
 Measured here, on the plant scene (config/scenes/plant.yaml) voxelized at its default

@@ -4,7 +4,7 @@ Used by the demo (``humanoid_reach_ros.demo``) and by the node-level tests.
 
 * ``allocate_domain`` gives a ``ROS_DOMAIN_ID`` (1..101) that no other process on this
   machine holds (an exclusive lock file per id), and ``graph_env`` the environment for
-  it with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` (DESIGN.md: graph isolation).
+  it with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` (docs/operator.md: graph isolation).
 * ``NodeProcess.start`` runs ``python -m humanoid_reach_ros.nodes.<name> --ros-args ...``
   as a real process with its output in a log file; ``stop`` sends SIGINT, waits, kills.
 * ``wait_for`` polls a condition with a timeout.

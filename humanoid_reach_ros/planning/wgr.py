@@ -20,7 +20,28 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-ANGLE_TOL = 1e-12
+# Rotation bounds a little beyond +-pi are a typed pi (3.1416, 180 deg rounded): accepted and
+# clamped to +-pi. Farther out they are an error (a bound past pi is a misunderstanding of the
+# region, not a rounding).
+ANGLE_TOL = 1e-3
+
+
+def clamp_angle_bounds(lo: np.ndarray, hi: np.ndarray, tol: float = ANGLE_TOL) -> tuple[np.ndarray, np.ndarray]:
+    """Angle bounds (roll, pitch, yaw lower and upper, each (3,)) clamped to [-pi, pi].
+
+    A bound within ``tol`` of the interval is clamped onto it; one farther out raises
+    ``ValueError`` naming each offending bound and how far beyond pi it lies.
+    """
+    lo = np.asarray(lo, dtype=float).reshape(-1)
+    hi = np.asarray(hi, dtype=float).reshape(-1)
+    names = ("roll", "pitch", "yaw")
+    bad = [f"{side} {names[i]} {float(v[i])!r} ({abs(v[i]) - math.pi:.4g} rad beyond pi)"
+           for side, v in (("lower", lo), ("upper", hi)) for i in range(v.size)
+           if abs(v[i]) > math.pi + tol]
+    if bad:
+        raise ValueError(f"WGR: rotation bounds must lie within [-pi, pi] (values within {tol:g} rad of +-pi are "
+                         f"clamped to +-pi): {', '.join(bad)}; got lower {lo.tolist()}, upper {hi.tolist()}")
+    return np.clip(lo, -math.pi, math.pi), np.clip(hi, -math.pi, math.pi)
 
 
 def rpy_matrix(rpy: np.ndarray) -> np.ndarray:
@@ -65,7 +86,8 @@ class WorkspaceGoalRegion:
     (6,) on (x, y, z [m], roll, pitch, yaw [rad]) in the target frame (eq. 3 form).
 
     Validation (ValueError): finite values, a proper rotation, ``lower <= upper``,
-    angle bounds within [-pi, pi].
+    angle bounds within [-pi, pi]; angle bounds within ``ANGLE_TOL`` (1e-3 rad) of +-pi
+    are clamped to +-pi (a typed 3.1416 is pi), farther out they are refused.
     """
 
     target_p: np.ndarray
@@ -93,10 +115,7 @@ class WorkspaceGoalRegion:
         names = ("x", "y", "z", "roll", "pitch", "yaw")
         if bad.size:
             raise ValueError("WGR: lower > upper for " + ", ".join(f"{names[i]} ({lo[i]} > {hi[i]})" for i in bad))
-        ang = np.concatenate([lo[3:], hi[3:]])
-        if np.any(np.abs(ang) > math.pi + 1e-12):
-            raise ValueError(f"WGR: rotation bounds must lie within [-pi, pi], got lower {lo[3:].tolist()}, "
-                             f"upper {hi[3:].tolist()}")
+        lo[3:], hi[3:] = clamp_angle_bounds(lo[3:], hi[3:])
         for name, a in (("target_p", p), ("target_R", R), ("lower", lo), ("upper", hi)):
             a.setflags(write=False)
             object.__setattr__(self, name, a)
