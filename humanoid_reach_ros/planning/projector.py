@@ -335,6 +335,10 @@ class Projector:
         arm_used = np.where(ok, ARM_CODES[arm], NONE).astype(np.int8)
         return ProjectionResult(Q, ok, arm_used, failures, p_t, R_t)
 
+    def _kernel_args(self, arm: str) -> tuple:
+        """The constant arguments of ``_project_plan_kernel`` for ``arm`` (after ``q_plan``)."""
+        return (self._v_c, self._cog_xy_c, self._q_ref_c, *self._kernel_arm[arm], *self._kernel_legs)
+
     def _project_plan_compiled(self, q_plan: np.ndarray, arm: str) -> ProjectionResult:
         n = len(q_plan)
         Q = np.empty((n, len(self.q_ref)))
