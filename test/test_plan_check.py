@@ -74,3 +74,24 @@ def test_counters_and_validity_fn(planner):
     assert planner.collision.counters.checks > c0
     base = ReachPlanner(planner.robot, planner.params, early_exit_checks=False)
     assert not isinstance(base.validity_fn("right", planner.collision), PlanChecker)
+
+
+@pytest.mark.parametrize("arm", ["right", "left"])
+def test_first_invalid_edge_matches_check_edges_on_unfused_points(planner, arm):
+    from humanoid_reach_ros.planning.space import CountingChecker, check_edges
+
+    rng = np.random.default_rng(7)
+    space = planner.planning_space(arm)
+    pc = PlanChecker(planner.projector, planner.collision, arm)
+    ref_fn = _reference(planner, arm, planner.collision)
+    start = planner.projector.plan_config_of(planner.start_config(planner.robot.half_sitting_joints), arm)[0]
+    for trial in range(60):
+        E = int(rng.integers(1, 5))
+        A = start + rng.normal(scale=0.4, size=(E, 10))
+        B = A + rng.normal(scale=0.4, size=(E, 10))
+        inc = bool(trial % 2)
+        ref = check_edges(A, B, ref_fn, space, include_endpoints=inc)            # every point, in order
+        want = len(ref) if ref.all() else int(np.argmin(ref))
+        for checker in (pc, CountingChecker(pc)):
+            got = check_edges(A, B, checker, space, include_endpoints=inc, prefix=True)
+            assert got[:want].all() and not got[want:].any()

@@ -148,65 +148,136 @@ def _self_hit_bounded(P0, P1, pi, pj, R, margin, C, BR):
 
 
 @nb.njit(**_JIT)
-def _plan_rows_kernel(q_plan, stop_first, proj_args_v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, leg_cols, feet_p,
-                      feet_R, leg_ref, R0, t0, Re, te, l1, l2, leg_lo, leg_hi,
-                      jparent, jaxis, jR, jt, jq, jmode, relR, relt, lj, lR, lt, lrigid, sl, p0l, p1l, p0b, p1b,
-                      srigid, R, order, pi, pj, margin, nodes, children, depth, do_env, all_hit, out, counts):
-    """Rows in order: project, capsules, self then environment test. ``out[k]``: row valid.
-    With ``stop_first`` returns at the first invalid row (its index; n if none) and the
-    rows after it are untouched. ``counts``: (rows projected, rows collision-checked)."""
-    n = q_plan.shape[0]
-    nq = q_ref.shape[0]
-    S = sl.shape[0]
-    J = jparent.shape[0]
-    L = lj.shape[0]
-    Q = np.empty((1, nq))
-    ok = np.empty(1, np.bool_)
-    tp = np.empty((1, 3))
-    tR = np.empty((1, 3, 3))
-    fails = np.zeros(3, np.int64)
-    oR = np.empty((J + 1, 3, 3))
-    ot = np.empty((J + 1, 3))
-    LR = np.empty((L, 3, 3))
-    Lt = np.empty((L, 3))
-    A = np.empty((3, 3))
-    P0 = np.empty((S, 3))
-    P1 = np.empty((S, 3))
-    C = np.empty((S, 3))
-    BR = np.empty(S)
-    O0 = np.empty((S, 3))
-    O1 = np.empty((S, 3))
-    RO = np.empty(S)
-    for s in range(S):
+def _row_valid(q_row, proj, fk, pi, pj, R, order, RO, margin, nodes, children, depth, do_env, all_hit, W, counts):
+    """One q_plan row: project, capsules, self then environment test (``W``: scratch)."""
+    Q, ok, tp, tR, fails, oR, ot, LR, Lt, A, P0, P1, C, BR, O0, O1 = W
+    (v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, leg_cols, feet_p, feet_R, leg_ref, R0, t0, Re, te, l1, l2, leg_lo,
+     leg_hi) = proj
+    jparent, jaxis, jR, jt, jq, jmode, relR, relt, lj, lR, lt, lrigid, sl, p0l, p1l, p0b, p1b, srigid = fk
+    _project_plan_kernel(q_row, v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, leg_cols, feet_p, feet_R, leg_ref, R0,
+                         t0, Re, te, l1, l2, leg_lo, leg_hi, Q, ok, tp, tR, fails)
+    counts[0] += 1
+    if not ok[0]:
+        return False
+    counts[1] += 1
+    if all_hit:
+        return False
+    _fk_manifold(Q[0], jparent, jaxis, jR, jt, jq, jmode, relR, relt, lj, lR, lt, lrigid, sl, p0l, p1l, p0b, p1b,
+                 srigid, oR, ot, LR, Lt, A, P0, P1)
+    if _self_hit_bounded(P0, P1, pi, pj, R, margin, C, BR):
+        return False
+    if do_env:
+        for s in range(P0.shape[0]):
+            for a in range(3):
+                O0[s, a] = P0[order[s], a]
+                O1[s, a] = P1[order[s], a]
+        if tree_any_intersection(nodes, children, depth, O0, O1, RO):
+            return False
+    return True
+
+
+@nb.njit(**_JIT)
+def _scratch(nq, J, L, S):
+    return (np.empty((1, nq)), np.empty(1, np.bool_), np.empty((1, 3)), np.empty((1, 3, 3)), np.zeros(3, np.int64),
+            np.empty((J + 1, 3, 3)), np.empty((J + 1, 3)), np.empty((L, 3, 3)), np.empty((L, 3)), np.empty((3, 3)),
+            np.empty((S, 3)), np.empty((S, 3)), np.empty((S, 3)), np.empty(S), np.empty((S, 3)), np.empty((S, 3)))
+
+
+@nb.njit(**_JIT)
+def _radii_in_order(R, order):
+    RO = np.empty(order.shape[0])
+    for s in range(order.shape[0]):
         RO[s] = R[order[s]]
+    return RO
+
+
+@nb.njit(**_JIT)
+def _plan_rows_kernel(q_plan, stop_first, proj, fk, R, order, pi, pj, margin, nodes, children, depth, do_env,
+                      all_hit, out, counts):
+    """Rows in order; ``out[k]``: row valid. With ``stop_first`` returns at the first
+    invalid row (its index; n if none), the rows after it untouched. ``counts``: (rows
+    projected, rows collision-checked)."""
+    n = q_plan.shape[0]
+    W = _scratch(proj[2].shape[0], fk[0].shape[0], fk[8].shape[0], fk[12].shape[0])
+    RO = _radii_in_order(R, order)
     first = n
     for k in range(n):
-        _project_plan_kernel(q_plan[k:k + 1], proj_args_v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, leg_cols, feet_p,
-                             feet_R, leg_ref, R0, t0, Re, te, l1, l2, leg_lo, leg_hi, Q, ok, tp, tR, fails)
-        counts[0] += 1
-        good = ok[0]
-        if good:
-            counts[1] += 1
-            if all_hit:
-                good = False
-            else:
-                _fk_manifold(Q[0], jparent, jaxis, jR, jt, jq, jmode, relR, relt, lj, lR, lt, lrigid, sl, p0l, p1l,
-                             p0b, p1b, srigid, oR, ot, LR, Lt, A, P0, P1)
-                if _self_hit_bounded(P0, P1, pi, pj, R, margin, C, BR):
-                    good = False
-                elif do_env:
-                    for s in range(S):
-                        for a in range(3):
-                            O0[s, a] = P0[order[s], a]
-                            O1[s, a] = P1[order[s], a]
-                    if tree_any_intersection(nodes, children, depth, O0, O1, RO):
-                        good = False
+        good = _row_valid(q_plan[k:k + 1], proj, fk, pi, pj, R, order, RO, margin, nodes, children, depth, do_env,
+                          all_hit, W, counts)
         out[k] = good
         if not good and first == n:
             first = k
             if stop_first:
                 return first
     return first
+
+
+@nb.njit(**_JIT)
+def _bisect_fill(lo, hi, buf, queue):
+    """:func:`~humanoid_reach_ros.planning.space.bisect_order` of ``range(lo, hi + 1)``
+    into ``buf``; returns the count."""
+    n_out = 0
+    if hi < lo:
+        return 0
+    head = 0
+    tail = 0
+    queue[tail, 0] = lo
+    queue[tail, 1] = hi
+    tail += 1
+    while head < tail:
+        a = queue[head, 0]
+        b = queue[head, 1]
+        head += 1
+        if b - a < 2:
+            continue
+        mid = (a + b) // 2
+        buf[n_out] = mid
+        n_out += 1
+        queue[tail, 0] = a
+        queue[tail, 1] = mid
+        tail += 1
+        queue[tail, 0] = mid
+        queue[tail, 1] = b
+        tail += 1
+    buf[n_out] = lo
+    n_out += 1
+    if hi > lo:
+        buf[n_out] = hi
+        n_out += 1
+    return n_out
+
+
+@nb.njit(**_JIT)
+def _plan_edges_kernel(A, B, m, with_ends, proj, fk, R, order, pi, pj, margin, nodes, children, depth, do_env,
+                       all_hit, counts):
+    """Edges ``A[e] -> B[e]`` in order, each cut into ``m[e]`` steps, its points
+    ``A + (i / m)(B - A)`` (``i = 0..m`` with ``with_ends``, else ``1..m-1``) checked in
+    bisect order; returns the first invalid edge (E if none)."""
+    E = A.shape[0]
+    d = A.shape[1]
+    W = _scratch(proj[2].shape[0], fk[0].shape[0], fk[8].shape[0], fk[12].shape[0])
+    RO = _radii_in_order(R, order)
+    mmax = 1
+    for e in range(E):
+        mmax = max(mmax, m[e])
+    buf = np.empty(mmax + 2, np.int64)
+    queue = np.empty((2 * mmax + 4, 2), np.int64)
+    row = np.empty((1, d))
+    for e in range(E):
+        me = m[e]
+        if with_ends:
+            cnt = _bisect_fill(0, me, buf, queue)
+        else:
+            cnt = _bisect_fill(1, me - 1, buf, queue)
+        for t in range(cnt):
+            i = buf[t]
+            s = i / me
+            for c in range(d):
+                row[0, c] = A[e, c] + s * (B[e, c] - A[e, c])
+            if not _row_valid(row, proj, fk, pi, pj, R, order, RO, margin, nodes, children, depth, do_env, all_hit,
+                              W, counts):
+                return e
+    return E
 
 
 class PlanChecker:
@@ -266,6 +337,7 @@ class PlanChecker:
         self.n_pairs_dropped = int(np.count_nonzero(rigid_pair))
         self._pairs = (np.ascontiguousarray(pi[keep]), np.ascontiguousarray(pj[keep]))
         self._proj = projector._kernel_args(arm)
+        self.last_examined = 0
 
     @staticmethod
     def _moving_ancestors(j: int, jparent: np.ndarray, moving: np.ndarray) -> set:
@@ -285,14 +357,36 @@ class PlanChecker:
         out = np.zeros(len(Q), np.bool_)
         counts = np.zeros(2, np.int64)
         t0 = time.perf_counter()
-        k = _plan_rows_kernel(Q, bool(stop_first), *self._proj, *self._fk, col.radii, col.env_order, *self._pairs,
+        k = _plan_rows_kernel(Q, bool(stop_first), self._proj, self._fk, col.radii, col.env_order, *self._pairs,
                               col.self_margin_m, tree.nodes, tree.children, tree.depth, bool(tree.n_spheres > 0),
                               self.all_hit, out, counts)
-        c = col.counters
+        self._count(t0, counts)
+        return int(k), out
+
+    def _count(self, t0: float, counts: np.ndarray) -> None:
+        c = self.collision.counters
         c.check_time_s += time.perf_counter() - t0
         c.checks += int(counts[1])
         c.calls += 1
-        return int(k), out
+        self.last_examined = int(counts[0])
+
+    def first_invalid_edge(self, A: np.ndarray, B: np.ndarray, m: np.ndarray, include_endpoints: bool) -> int:
+        """First invalid edge of ``A[e] -> B[e]`` cut into ``m[e]`` steps (E if all are
+        valid): the points of :func:`~humanoid_reach_ros.planning.space.check_edges`,
+        generated in the kernel, edge after edge, each edge in bisect order, stopping at
+        the first invalid point. ``last_examined``: the points examined."""
+        A = np.ascontiguousarray(A, dtype=np.float64)
+        B = np.ascontiguousarray(B, dtype=np.float64)
+        m = np.ascontiguousarray(m, dtype=np.int64)
+        col = self.collision
+        tree = col.tree
+        counts = np.zeros(2, np.int64)
+        t0 = time.perf_counter()
+        e = _plan_edges_kernel(A, B, m, bool(include_endpoints), self._proj, self._fk, col.radii, col.env_order,
+                               *self._pairs, col.self_margin_m, tree.nodes, tree.children, tree.depth,
+                               bool(tree.n_spheres > 0), self.all_hit, counts)
+        self._count(t0, counts)
+        return int(e)
 
     def __call__(self, Q: np.ndarray) -> np.ndarray:
         """(n,) bool: each row projects and is collision-free."""

@@ -144,6 +144,20 @@ class CountingChecker:
             raise ValueError("is_valid_batch must return one bool per configuration")
         return out
 
+    @property
+    def edge_fn(self):
+        """The wrapped checker's ``first_invalid_edge`` (counted), or ``None``."""
+        fn = getattr(self._fn, "first_invalid_edge", None)
+        if fn is None:
+            return None
+
+        def counted(A, B, m, include_endpoints):
+            e = int(fn(A, B, m, include_endpoints))
+            self.calls += 1
+            self.configs += int(getattr(self._fn, "last_examined", 0))
+            return e
+        return counted
+
     def first_invalid(self, Q: np.ndarray) -> int:
         """:func:`first_invalid` through the wrapped checker; counts the configurations
         actually examined (up to and including the first invalid one)."""
@@ -306,6 +320,14 @@ def check_edges(A: np.ndarray, B: np.ndarray, checker: ValidityFn, space: Planni
     if n == 0:
         return ok
     m = edge_steps(A, B, space)
+    if prefix:
+        # a checker that generates and checks the edge points itself (PlanChecker): one call
+        edge_fn = checker.edge_fn if isinstance(checker, CountingChecker) else getattr(checker, "first_invalid_edge",
+                                                                                        None)
+        if edge_fn is not None:
+            bad = int(edge_fn(A, B, np.atleast_1d(m), include_endpoints))
+            ok[bad:] = False
+            return ok
     per_edge = m + 1 if include_endpoints else m - 1
     start = 0
     while start < n:
