@@ -77,7 +77,8 @@ def _fk_manifold(q, jparent, jaxis, jR, jt, jq, jmode, relR, relt, lj, lR, lt, l
         if mode == 1:
             for a in range(3):
                 for b in range(3):
-                    oR[j + 1, a, b] = oR[0, a, 0] * relR[j, 0, b] + oR[0, a, 1] * relR[j, 1, b] + oR[0, a, 2] * relR[j, 2, b]
+                    oR[j + 1, a, b] = (oR[0, a, 0] * relR[j, 0, b] + oR[0, a, 1] * relR[j, 1, b]
+                                       + oR[0, a, 2] * relR[j, 2, b])
                 ot[j + 1, a] = ot[0, a] + oR[0, a, 0] * relt[j, 0] + oR[0, a, 1] * relt[j, 1] + oR[0, a, 2] * relt[j, 2]
             continue
         p = jparent[j] + 1
