@@ -286,7 +286,7 @@ class PlanChecker:
 
     Same verdicts as ``project_plan_config(Q, arm).ok & collision.check_batch(...)``;
     counted in ``collision.counters`` (configurations checked, time in
-    ``check_time_s``: FK and tests are interleaved here)."""
+    ``check_time_s``: projection, FK and tests are interleaved here, so it holds all three)."""
 
     def __init__(self, projector: Projector, collision: RobotCollision, arm: str) -> None:
         if not projector.compiled:
