@@ -444,3 +444,27 @@ def test_compiled_leg_ik_singular_poses_match_reference(iks, limb, deg):
         assert_same_as_reference(ik, [root_p, root_R, tip_p, tip_R], q_ref, same_branch=False)
         assert_same_as_reference(ik, [np.stack([root_p] * 3), root_R, np.concatenate([tip_p] * 3), tip_R], q_ref,
                                  same_branch=False)
+
+
+@pytest.mark.parametrize("limb", LIMBS)
+def test_maybe_reachable_never_rejects_a_solvable_pose(robot, iks, limb):
+    """The goal sampler's prefilter: False only where solve fails (random poses, poses
+    pushed around the reach boundary, the stretched limb)."""
+    ik = iks[limb]
+    s = sampled_poses(robot, limb)
+    rng = np.random.default_rng(11)
+    n = 1500
+    c = s["root_p"][:n] + np.einsum("nij,j->ni", s["root_R"][:n], ik.t0)
+    d = s["tip_p"][:n] - c
+    # scale the tip distance by 0.5 .. 1.5 (many poses just inside / outside the reach)
+    tips = c + d * rng.uniform(0.5, 1.5, n)[:, None]
+    for tip_p in (s["tip_p"][:n], tips):
+        res = ik.solve(s["root_p"][:n], s["root_R"][:n], tip_p, s["tip_R"][:n])
+        may = ik.maybe_reachable(s["root_p"][:n], s["root_R"][:n], tip_p, s["tip_R"][:n])
+        assert may.shape == (n,)
+        assert not np.any(res.ok & ~may)
+        assert not np.any(~may & (res.reason != IKReason.UNREACHABLE) & (res.reason != IKReason.INVALID_INPUT))
+    assert 0 < np.count_nonzero(~may) < n   # the boundary set has both sides
+    tip_p, tip_R = ik.fk(np.zeros(3), np.eye(3), np.zeros(6))
+    assert ik.maybe_reachable(np.zeros(3), np.eye(3), tip_p, tip_R)[0]
+    assert not ik.maybe_reachable(np.zeros(3), np.eye(3), [np.nan, 0, 0], tip_R)[0]

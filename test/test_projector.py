@@ -131,3 +131,35 @@ def test_compiled_plan_projection_matches_numpy_reference(robot, projector, arm)
     full = projector.project_plan_config(X, arm)
     f = full.failures
     assert full.ok.mean() > 0.2 and f["arm_limits"] > 100 and f["right_leg"] + f["left_leg"] > 0
+
+
+@pytest.mark.parametrize("arm", ["auto", "right", "left"])
+def test_project_config_matches_unfiltered_per_arm_solves(robot, projector, projected, arm):
+    """project_config skips the arm IK on rows maybe_reachable rejects: the result must be
+    the one of Algorithm 1 solving every row (arms tried in order, then both legs)."""
+    reg, p, R, z, rpy, _ = projected
+    n = 1500
+    p, R, z, rpy = p[:n], R[:n], z[:n], rpy[:n]
+    res = projector.project_config(p, R, z, rpy, arm=arm)
+    p_t, R_t = projector.trunk_pose(z, rpy)
+    c_p, c_R = projector.chest_pose(p_t, R_t)
+    order = {"auto": ("right_arm", "left_arm"), "right": ("right_arm",), "left": ("left_arm",)}[arm]
+    todo = np.arange(n)
+    q_arm = np.full((n, 6), np.nan)
+    used = np.full(n, NONE)
+    fails = {"right_arm": 0, "left_arm": 0}
+    for name in order:
+        r = projector.ik.solve(name, c_p[todo], c_R[todo], p[todo], R[todo])
+        fails[name] = int(np.count_nonzero(~r.ok))
+        q_arm[todo[r.ok]] = r.q[r.ok]
+        used[todo[r.ok]] = RIGHT if name == "right_arm" else LEFT
+        todo = todo[~r.ok]
+    for name in ("right_arm", "left_arm"):
+        assert res.failures[name] == fails[name]
+    arm_ok = used != NONE
+    assert np.all(res.ok <= arm_ok)
+    for code, name in ((RIGHT, "right_arm"), (LEFT, "left_arm")):
+        k = np.flatnonzero(res.ok & (used == code))
+        assert np.all(res.arm[k] == code)
+        np.testing.assert_array_equal(res.q[k][:, projector.cols[name]], q_arm[k])
+    assert res.failures["right_leg"] + res.failures["left_leg"] == np.count_nonzero(arm_ok) - res.ok.sum()

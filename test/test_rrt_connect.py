@@ -235,3 +235,54 @@ def test_rrt_connect_same_plan_with_early_exit_checker():
     b = plan_rrt_connect(start, goals, with_first_invalid(base, examined), space, np.random.default_rng(4), opts)
     assert a.success and b.success and np.array_equal(a.path, b.path)
     assert b.stats.checked_configs <= a.stats.checked_configs
+
+
+def test_bisect_order_is_a_coarse_to_fine_permutation():
+    from humanoid_reach_ros.planning.space import bisect_order
+
+    for n in range(0, 80):
+        o = bisect_order(n)
+        assert sorted(o.tolist()) == list(range(n))
+    assert bisect_order(9).tolist()[:3] == [4, 2, 6]
+
+
+def test_prefix_edge_checks_in_bisect_order_match_in_order_checks():
+    """check_edges(prefix=True) visits each edge's points coarse to fine: the first invalid
+    edge reported must be the one an in-order scan finds (random edges, random blobs)."""
+    from humanoid_reach_ros.planning.space import PlanningSpace, check_edges
+
+    rng = np.random.default_rng(5)
+    space = PlanningSpace(np.zeros(3), np.ones(3), resolution=0.01)
+    for trial in range(200):
+        centres = rng.random((3, 3))
+        radius = rng.uniform(0.05, 0.2)
+
+        def valid(Q):
+            return np.all(np.linalg.norm(Q[:, None] - centres[None], axis=-1) > radius, axis=1)
+
+        calls = []
+
+        def in_order(Q):
+            calls.append(len(Q))
+            return valid(Q)
+
+        A = rng.random((rng.integers(1, 6), 3))
+        B = rng.random(A.shape)
+        inc = bool(trial % 2)
+        got = check_edges(A, B, valid_with_first(valid), space, include_endpoints=inc, prefix=True)
+        ref = check_edges(A, B, in_order, space, include_endpoints=inc, prefix=False)
+        first_bad = int(np.argmin(ref)) if not ref.all() else len(ref)
+        assert got[:first_bad].all()
+        assert not got[first_bad:].any()
+
+
+def valid_with_first(valid):
+    def fn(Q):
+        return valid(Q)
+
+    def first(Q):
+        ok = valid(Q)
+        return len(ok) if ok.all() else int(np.argmin(ok))
+
+    fn.first_invalid = first
+    return fn

@@ -31,7 +31,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from humanoid_reach_ros.planning.path import (
+from humanoid_reach_ros.planning.space import (
     CountingChecker, Deadline, PlanningSpace, PlanResult, PlanStats, PlanStatus, ShortcutOptions,
     ValidityFn, as_counting, check_edges, shortcut_path, validate_endpoints,
 )

@@ -288,13 +288,21 @@ class Projector:
         for name in order:
             if todo.size == 0:
                 break
-            res = self.ik.solve(name, c_p[todo], c_R[todo], p_e[todo] if len(p_e) > 1 else p_e,
-                                R_e[todo] if len(R_e) > 1 else R_e)
-            failures[name] += int(np.count_nonzero(~res.ok))
-            good = todo[res.ok]
-            Q[good[:, None], self.cols[name][None]] = res.q[res.ok]
-            arm_used[good] = RIGHT if name == "right_arm" else LEFT
-            todo = todo[~res.ok]
+            pe = p_e[todo] if len(p_e) > 1 else p_e
+            Re = R_e[todo] if len(R_e) > 1 else R_e
+            # most samples put the hand out of the arm's reach: solve only the rows that may
+            # be reachable (a conservative test; the others fail in the full solve too)
+            cand = np.flatnonzero(self.ik[name].maybe_reachable(c_p[todo], c_R[todo], pe, Re))
+            ok_rows = np.zeros(len(todo), bool)
+            if cand.size:
+                res = self.ik.solve(name, c_p[todo[cand]], c_R[todo[cand]], pe[cand] if len(pe) > 1 else pe,
+                                    Re[cand] if len(Re) > 1 else Re)
+                ok_rows[cand[res.ok]] = True
+                good = todo[cand[res.ok]]
+                Q[good[:, None], self.cols[name][None]] = res.q[res.ok]
+                arm_used[good] = RIGHT if name == "right_arm" else LEFT
+            failures[name] += int(np.count_nonzero(~ok_rows))
+            todo = todo[~ok_rows]
         idx = self._legs(Q, p_t, R_t, np.flatnonzero(arm_used != NONE), failures)
         ok = np.zeros(n, bool)
         ok[idx] = True
@@ -326,6 +334,10 @@ class Projector:
         ok[idx] = True
         arm_used = np.where(ok, ARM_CODES[arm], NONE).astype(np.int8)
         return ProjectionResult(Q, ok, arm_used, failures, p_t, R_t)
+
+    def _kernel_args(self, arm: str) -> tuple:
+        """The constant arguments of ``_project_plan_kernel`` for ``arm`` (after ``q_plan``)."""
+        return (self._v_c, self._cog_xy_c, self._q_ref_c, *self._kernel_arm[arm], *self._kernel_legs)
 
     def _project_plan_compiled(self, q_plan: np.ndarray, arm: str) -> ProjectionResult:
         n = len(q_plan)

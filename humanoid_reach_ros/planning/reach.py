@@ -53,6 +53,7 @@ from humanoid_reach_ros.planning.goal_sampler import Goals, TrunkSampling, sampl
 from humanoid_reach_ros.planning.path import (
     PLANNER_NAMES, PlanningSpace, PlanStatus, ShortcutOptions, plan as run_planner, shortcut_path,
 )
+from humanoid_reach_ros.planning.plan_check import PlanChecker
 from humanoid_reach_ros.planning.projector import ARM_CODES, LEFT, LEGS, RIGHT, Projector
 from humanoid_reach_ros.geometry.trajectory import SplineTrajectory, TrajectoryOptions
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion
@@ -259,6 +260,8 @@ class ReachPlanner:
         self._tree_build_s = 0.0
         self._map_lock = threading.Lock()
         self._plan_lock = threading.Lock()
+        self._checker_lock = threading.Lock()
+        self._checkers: dict = {}   # arm -> (collision, PlanChecker) of the last map used
         self.nq = self.robot.model.nq
         self._left_sole = self.robot.stance_soles[1]
 
@@ -374,7 +377,14 @@ class ReachPlanner:
         return PlanningSpace(lo, hi, p.weights, p.edge_resolution)
 
     def validity_fn(self, arm: str, collision: RobotCollision):
-        """``is_valid_batch(Q_plan (n, 10)) -> (n,)``: projection ok and collision-free."""
+        """``is_valid_batch(Q_plan (n, 10)) -> (n,)``: projection ok and collision-free.
+
+        With the compiled kinematics and early exit (the defaults) this is a
+        :class:`~humanoid_reach_ros.planning.plan_check.PlanChecker` (projection, forward
+        kinematics and collision tests fused in one kernel, specialised to the planning
+        manifold; same verdicts), built once per arm and map."""
+        if self.early_exit_checks and self.projector.compiled:
+            return self._plan_checker(arm, collision)
         projector = self.projector
 
         def is_valid(Q: np.ndarray) -> np.ndarray:
@@ -395,6 +405,16 @@ class ReachPlanner:
         if self.early_exit_checks:
             is_valid.first_invalid = first_invalid
         return is_valid
+
+    def _plan_checker(self, arm: str, collision: RobotCollision) -> PlanChecker:
+        with self._checker_lock:
+            hit = self._checkers.get(arm)
+            if hit is not None and hit[0] is collision:
+                return hit[1]
+        checker = PlanChecker(self.projector, collision, arm)
+        with self._checker_lock:
+            self._checkers[arm] = (collision, checker)
+        return checker
 
     def full_configs(self, Q_plan: np.ndarray, arm: str) -> np.ndarray:
         """Full configurations (n, nq) of q_plan rows (legs by IK); ValueError if one fails."""

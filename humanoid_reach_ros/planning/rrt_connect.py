@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from humanoid_reach_ros.planning.path import (
+from humanoid_reach_ros.planning.space import (
     CountingChecker, Deadline, PlanningSpace, PlanResult, PlanStats, PlanStatus, ShortcutOptions,
     ValidityFn, as_counting, check_edges, shortcut_path, validate_endpoints,
 )

@@ -119,6 +119,8 @@ LIMIT_TOL = 1e-10
 SINGULAR_TOL = 1e-12
 #: gimbal lock of the hip / shoulder Euler angles when |cos(roll)| < GIMBAL_TOL
 GIMBAL_TOL = 1e-10
+#: extra slack of :meth:`LimbIK.maybe_reachable` (a prefilter must never reject a reachable pose)
+REACH_SLACK = 1e-9
 #: wrist-pitch tangent snap [m]: |k| within this of rho is treated as tangent
 PSI_SNAP = 1e-13
 #: arm treated as exactly stretched (q3 := 0, wrist yaw free) below this lever [m]
@@ -375,6 +377,37 @@ class LimbIK:
         if n == 1:
             return self._solve_one(*(a[0].tolist() for a in arrs))
         return self._solve_batch(*arrs)
+
+    def maybe_reachable(self, root_p, root_R, tip_p, tip_R) -> np.ndarray:
+        """Cheap necessary condition of :meth:`solve` success, (N,) bool, numpy-batched.
+
+        ``False`` only where :meth:`solve` is certain to fail (UNREACHABLE or
+        INVALID_INPUT): the reachability test of the closed form (module docstring:
+        knee ``|cos q3| <= 1``, wrist pitch ``|k| <= rho``) on ``r = R_5^T (c - w)``,
+        with a slack of ``REACH_SLACK`` above the solver's own tolerance so that
+        rounding differences between this computation and the solver's can never
+        drop a pose the solver accepts; NaN inputs give ``False`` (the solver
+        rejects them too). Used to skip the full solve on the (many) goal samples
+        whose hand is out of reach: the rows kept are solved exactly as before.
+        Inputs as :meth:`solve` (N or 1 each, broadcast)."""
+        root_p = _as_batch(root_p, (3,), "root_p")
+        root_R = _as_batch(root_R, (3, 3), "root_R")
+        tip_p = _as_batch(tip_p, (3,), "tip_p")
+        tip_R = _as_batch(tip_R, (3, 3), "tip_R")
+        c = root_p + root_R @ self.t0                                 # (N, 3)
+        R5 = tip_R @ self.Re.T                                        # (N, 3, 3)
+        w = tip_p - R5 @ self.te
+        r = np.einsum("nji,nj->ni", R5, c - w)
+        rr = np.einsum("ni,ni->n", r, r)
+        with np.errstate(invalid="ignore"):
+            if self.kind == "leg":
+                A, B = self.l1, self.l2
+                cq = (rr - A * A - B * B) / (2.0 * A * B)
+                return np.abs(cq) <= 1.0 + REACH_TOL + REACH_SLACK
+            U, F = self.l1, self.l2
+            k = (rr + F * F - U * U) / (2.0 * F)
+            rho = np.hypot(r[:, 0], r[:, 2])
+            return rho - np.abs(k) >= -(REACH_TOL * rho + REACH_SLACK)
 
     def solve_reference(self, root_p, root_R, tip_p, tip_R, q_ref=None) -> IKResult:
         """:meth:`solve` by the reference implementation (numpy batch, pure Python for
