@@ -60,16 +60,15 @@ from threadpoolctl import threadpool_limits
 
 from humanoid_reach_ros.control.active_set import ActiveSetCascade
 from humanoid_reach_ros.control.hqp import HierarchicalQP, Level, SaturatedNullSpaceHQP
-from humanoid_reach_ros.control.limits import (damper_bound, env_pair_geometry, pair_point_rows, self_pair_geometry,
-                                               support_masks, world_point_rows)
-from humanoid_reach_ros.control.tasks import DofSelection
+from humanoid_reach_ros.control.limits import (damper_bound, env_pair_geometry, joint_step_bounds, pair_point_rows,
+                                               self_pair_geometry, support_masks, world_point_rows)
+from humanoid_reach_ros.control.tasks import ComTask, DofSelection, FrameTask, PostureTask
 from humanoid_reach_ros.geometry.distance import RobotCollision
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree
 from humanoid_reach_ros.geometry.trajectory import SplineTrajectory
 from humanoid_reach_ros.robot.model import N_BASE_Q, N_BASE_V, RobotModel
 from humanoid_reach_ros.robot.shapes import CollisionModel
 
-LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 HAND_FRAMES = {"right": "r_hand_ee", "left": "l_hand_ee"}
 SOLE_FRAMES = ("r_sole", "l_sole")
 SOLVERS = ("nullspace", "osqp")
@@ -209,6 +208,7 @@ class WholeBodyExecutor:
         self._G_joint[np.arange(k), self._joint_cols] = 1.0
         self._G_joint[k + np.arange(k), self._joint_cols] = -1.0
         self._A_posture = np.ascontiguousarray(self._G_joint[:k])
+        self._posture_joints = tuple(int(j) for j in self._joint_sel)
         self._pi = np.ascontiguousarray(collision.pair_index[:, 0], dtype=np.int64)
         self._pj = np.ascontiguousarray(collision.pair_index[:, 1], dtype=np.int64)
         self._radii = np.ascontiguousarray(collision.radii, dtype=float)
@@ -472,15 +472,20 @@ class WholeBodyExecutor:
 
     # ------------------------------------------------------------ rows
     def _levels(self, q, jr, hand_target, G_d, h_d, com_target):
-        """[(None, None, G, h) level 1, (A, b, ...) levels 2-4] on the selected unknowns."""
+        """[(None, None, G, h) level 1, (A, b, ...) levels 2-4] on the selected unknowns.
+
+        The rows are those of :mod:`~humanoid_reach_ros.control.tasks` (``FrameTask``,
+        ``ComTask``, ``PostureTask``) and :mod:`~humanoid_reach_ros.control.limits`
+        (``joint_step_bounds``, the damper rows), the implementations their tests check;
+        only the constant joint-row matrices are built once here."""
         p = self.params
         model, data, sel = self.model, self.data, self.sel.index
         # level 1: joint limits + velocity limits (selected joints) and dampers
         js = self._joint_sel
         qj = q[N_BASE_Q + js]
         vdt = self.robot.velocity_limit[js] * p.velocity_scale * self._dt
-        up = np.maximum(np.minimum(self.robot.upper[js] - p.limit_margin_rad - qj, vdt), -vdt)
-        lo = np.maximum(np.minimum(qj - self.robot.lower[js] - p.limit_margin_rad, vdt), -vdt)
+        up, lo = joint_step_bounds(qj, self.robot.lower[js] + p.limit_margin_rad,
+                                   self.robot.upper[js] - p.limit_margin_rad, vdt)
         k = len(js)
         G = np.empty((2 * k + len(h_d), len(sel)))
         G[:2 * k] = self._G_joint
@@ -488,35 +493,17 @@ class WholeBodyExecutor:
             np.take(G_d, sel, axis=1, out=G[2 * k:])
         h = np.concatenate([up, lo, h_d])
         # level 2: soles 6D + COG xy
-        A2, b2 = [], []
-        for fid, target in zip(self._sole_ids, self._sole_targets):
-            J = pin.getFrameJacobian(model, data, fid, LWA)
-            M = data.oMf[fid]
-            e_p = M.translation - target.translation
-            Rt = target.rotation
-            e_r = Rt @ pin.log3(Rt.T @ M.rotation)
-            Jr = Rt @ pin.Jlog3(Rt.T @ M.rotation) @ M.rotation.T @ J[3:]
-            A2 += [J[:3], Jr]
-            b2 += [-p.feet_gain * e_p, -p.feet_gain * e_r]
+        rows = [FrameTask(fid, target, p.feet_gain).rows(model, data)
+                for fid, target in zip(self._sole_ids, self._sole_targets)]
         if p.com_compensation:
-            Jc = pin.jacobianCenterOfMass(model, data, False)   # joint Jacobians of this step
-            e_c = data.com[0][:2] - com_target
-            A2.append(Jc[:2])
-            b2.append(-p.com_gain * e_c)
-        A2 = np.vstack(A2)[:, sel]
-        b2 = np.concatenate(b2)
+            rows.append(ComTask(com_target, p.com_gain).rows(model, data))   # joint Jacobians of this step
+        A2 = np.vstack([r.A for r in rows])[:, sel]
+        b2 = np.concatenate([r.b for r in rows])
         # level 3: hand 6D
-        fid = self._hand_ids[self._arm]
-        J = pin.getFrameJacobian(model, data, fid, LWA)
-        M = data.oMf[fid]
-        Rt = hand_target.rotation
-        e_p = M.translation - hand_target.translation
-        e_r = Rt @ pin.log3(Rt.T @ M.rotation)
-        Jr = Rt @ pin.Jlog3(Rt.T @ M.rotation) @ M.rotation.T @ J[3:]
-        A3 = np.vstack([J[:3], Jr])[:, sel]
-        b3 = -p.hand_gain * np.concatenate([e_p, e_r])
+        hand = FrameTask(self._hand_ids[self._arm], hand_target, p.hand_gain).rows(model, data)
+        A3, b3 = hand.A[:, sel], hand.b
         # level 4: posture on the selected joints
-        b4 = -p.posture_gain * (qj - jr[js])
+        b4 = -p.posture_gain * PostureTask(jr, joints=self._posture_joints).error(q, self.robot.n_joints)
         return [(None, None, G, h), (A2, b2, None, None), (A3, b3, None, None), (self._A_posture, b4, None, None)]
 
     def _damper_rows(self):

@@ -66,6 +66,17 @@ class LimitRows:
         return len(self.h)
 
 
+def joint_step_bounds(qj: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                      vdt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of one step ``dq_j <= up_j`` and ``-dq_j <= lo_j`` of joints at ``qj``:
+    ``up = max(min(upper - q, v dt), -v dt)``, ``lo = max(min(q - lower, v dt), -v dt)``
+    (the rows of :func:`joint_limit_rows`; the executor's level 1 uses them with its own
+    constant row matrix)."""
+    up = np.maximum(np.minimum(upper - qj, vdt), -vdt)
+    lo = np.maximum(np.minimum(qj - lower, vdt), -vdt)
+    return up, lo
+
+
 def joint_limit_rows(q: np.ndarray, lower: np.ndarray, upper: np.ndarray, dt: float,
                      velocity_limit: np.ndarray, joints: Sequence[int] | None = None) -> LimitRows:
     """Position limits over one step and velocity limits of the selected joints.
@@ -82,8 +93,7 @@ def joint_limit_rows(q: np.ndarray, lower: np.ndarray, upper: np.ndarray, dt: fl
     sel = np.arange(nj) if joints is None else np.asarray(joints, dtype=np.intp)
     qj = np.asarray(q, float)[N_BASE_Q + sel]
     vdt = np.asarray(velocity_limit, float)[sel] * dt
-    up = np.maximum(np.minimum(np.asarray(upper, float)[sel] - qj, vdt), -vdt)
-    lo = np.maximum(np.minimum(qj - np.asarray(lower, float)[sel], vdt), -vdt)
+    up, lo = joint_step_bounds(qj, np.asarray(lower, float)[sel], np.asarray(upper, float)[sel], vdt)
     k = len(sel)
     G = np.zeros((2 * k, N_BASE_V + nj))
     G[np.arange(k), N_BASE_V + sel] = 1.0
@@ -333,6 +343,6 @@ def warm_up() -> None:
                     P[1:])
 
 
-__all__ = ["LimitRows", "damper_bound", "joint_limit_rows", "point_normal_rows", "environment_damper_rows",
+__all__ = ["joint_step_bounds", "LimitRows", "damper_bound", "joint_limit_rows", "point_normal_rows", "environment_damper_rows",
            "self_collision_damper_rows", "velocity_damper_rows", "self_pair_geometry", "env_pair_geometry",
            "support_masks", "world_point_rows", "pair_point_rows", "warm_up"]

@@ -125,8 +125,10 @@ class ComTask:
     target_xy: np.ndarray
     gain: float = 1.0
 
-    def rows(self, model: pin.Model, data: pin.Data, q: np.ndarray) -> TaskRows:
-        Jc = pin.jacobianCenterOfMass(model, data, q)
+    def rows(self, model: pin.Model, data: pin.Data, q: np.ndarray | None = None) -> TaskRows:
+        """``q``: computes the kinematics at ``q``; ``None``: uses the joint Jacobians already
+        in ``data`` (:func:`compute_kinematics` of this step: the executor's fast path)."""
+        Jc = pin.jacobianCenterOfMass(model, data, False) if q is None else pin.jacobianCenterOfMass(model, data, q)
         e = data.com[0][:2] - np.asarray(self.target_xy, float)
         return TaskRows(Jc[:2].copy(), -self.gain * e, e)
 
@@ -140,10 +142,15 @@ class PostureTask:
     gain: float = 1.0
     joints: tuple[int, ...] | None = None  # indices into the 30 joints; None = all
 
+    def error(self, q: np.ndarray, n_joints: int) -> np.ndarray:
+        """``q_j - q*_j`` on the selected joints (``n_joints``: the model's joint count)."""
+        sel = np.arange(n_joints) if self.joints is None else np.asarray(self.joints, dtype=np.intp)
+        return q[N_BASE_Q + sel] - np.asarray(self.q_ref, float)[sel]
+
     def rows(self, model: pin.Model, data: pin.Data, q: np.ndarray) -> TaskRows:
         nj = model.nv - N_BASE_V
         sel = np.arange(nj) if self.joints is None else np.asarray(self.joints, dtype=np.intp)
-        e = q[N_BASE_Q + sel] - np.asarray(self.q_ref, float)[sel]
+        e = self.error(q, nj)
         A = np.zeros((len(sel), model.nv))
         A[np.arange(len(sel)), N_BASE_V + sel] = 1.0
         return TaskRows(A, -self.gain * e, e)
