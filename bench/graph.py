@@ -51,6 +51,7 @@ TARGETS = {   # key: (comparison, bound)
     "com_drift_measured_mm_max": ("<=", 1.0), "hand_error_final_mm_max": ("<=", 1.0),
     "hold_step_ms_p99": ("<=", 2.5), "plan_wait_ms_p50": ("<=", 100.0), "plan_wait_ms_p95": ("<=", 200.0),
     "joint_states_max_gap_ms": ("<=", 20.0), "idle_info_lines_per_min": ("<=", 1.0),
+    "executions_failed_count": ("==", 0),
 }
 # (name, arm, target or None for the marker, scene)
 PLANT_EXECUTIONS = [
@@ -89,6 +90,9 @@ class Bench:
         self.js_record = False
         self.gaps: dict[str, float] = {}
         self.op.node.create_subscription(JointState, "/joint_states", self._on_js, qos_profile_sensor_data)
+        self.commands: list = []          # /joint_command while recording (what the executor sent)
+        self.op.node.create_subscription(JointState, "/joint_command",
+                                         lambda m: self.commands.append(m) if self.js_record else None, 400)
         self.op.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 50)
         names = set(GRAPH_NODES)
         self.op.spin_until(lambda: names <= set(self.op.node.get_node_names()) and self.op.joint_states is not None,
@@ -172,7 +176,8 @@ class Bench:
         postures; the way back is the trajectory reversed, executed like any other)."""
         resp, plan_s = self.call_plan(self.plan_request(arm, target))
         if not resp.success:
-            raise RuntimeError(f"{name}: /plan_reach failed: {resp.message}")
+            return [{"name": name, "arm": arm, "success": False, "error_code": -int(resp.error_code),
+                     "message": f"/plan_reach failed: {resp.message}"}]
         there = self.execute(name, resp.trajectory, resp.arm)
         there["plan_ms"] = plan_s * 1e3
         return [there, self.execute(f"{name}_return", reversed_trajectory(resp.trajectory), resp.arm)]
@@ -187,6 +192,7 @@ class Bench:
         self.op.spin_until(lambda: self.op.action_client.server_is_ready(), 30.0, "/execute_reach")
         self.op.metrics.clear()
         self.op.samples.clear()
+        self.commands.clear()
         self.js_times.clear()
         self.op.recording = self.js_record = True
         send = self.op.action_client.send_goal_async(goal)
@@ -199,7 +205,7 @@ class Bench:
         self.op.spin_until(fut.done, duration * 5 + 60.0, "the /execute_reach result")
         wall = time.monotonic() - t_accept
         result = fut.result().result
-        if not result.success:
+        if not result.success and result.error_code != ex.Result.TARGET_NOT_REACHED:
             raise RuntimeError(f"{name}: /execute_reach failed ({result.error_code}): {result.message}")
         # hold: settle of the measured joints (the driver's tracking lag), then hold_s more
         t_hold = time.monotonic()
@@ -219,10 +225,19 @@ class Bench:
             series.append(self.robot.joints_from_dict(dict(zip(js.names, js.positions))))
         final_ref = self.robot.joints_from_dict(dict(zip(traj.joint_names, traj.points[-1].positions)))
         bal = measured_balance(self.robot, series, arm=arm, final_reference=final_ref)
+        commanded = []
+        for m in self.commands:
+            js = msgs.parse_joint_state(m)
+            commanded.append(self.robot.joints_from_dict(dict(zip(js.names, js.positions))))
+        if commanded:   # the same drifts of what the executor commanded: the loop's part vs the tracking's
+            cb = measured_balance(self.robot, commanded)
+            bal["feet_drift_commanded_mm"], bal["com_drift_commanded_mm"] = cb["feet_drift_mm"], cb["com_drift_mm"]
+        np.savez_compressed(self.out / f"{name}_joints.npz", measured=np.array(series), commanded=np.array(commanded))
         metrics = list(self.op.metrics)
         run = [m.step_time_s * 1e3 for m in metrics if m.time_from_start_s <= duration + 1e-9]
         after = [m.step_time_s * 1e3 for m in metrics if m.time_from_start_s > duration + 1e-9]
-        return {"name": name, "arm": arm,
+        return {"name": name, "arm": arm, "success": bool(result.success), "error_code": int(result.error_code),
+                "message": result.message,
                 "duration_s": duration, "wall_s": wall, "wall_over_duration": wall / duration,
                 "steps": int(result.steps), "overruns": int(result.overruns), "metrics_messages": len(metrics),
                 "step_ms_p50": percentile(run, 50), "step_ms_p99": percentile(run, 99),
@@ -268,6 +283,10 @@ def session(out: Path, scene: Path, executions, idle_s: float, plan_calls: int, 
         for name, arm, target in executions:
             log(f"execution {name} (and back)")
             for r in b.reach_and_return(name, arm, target):
+                if "steps" not in r:
+                    log(f"  {r['name']}: FAILED: {r['message']}")
+                    res.setdefault("failed", []).append(r)
+                    continue
                 log(f"  {r['name']}: {r['steps']} steps, {r['overruns']} overruns, wall/duration "
                     f"{r['wall_over_duration']:.3f}, p99 {r['step_ms_p99']:.2f} ms, feet {r['feet_drift_mm']:.4f} mm, COG {r['com_drift_mm']:.3f} mm, "
                     f"hand {r.get('hand_error_final_mm', float('nan')):.3f} mm")
@@ -284,6 +303,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--plan-calls", type=int, default=30, help="/plan_reach calls for the operator wait (>= 30)")
     ap.add_argument("--out", default="out/bench_graph", help="logs and a copy of the JSON")
     ap.add_argument("--quick", action="store_true", help="smoke run: 5 s idle, 5 calls, 2 executions, no dense scene")
+    ap.add_argument("--dense-only", action="store_true", help="only the dense scene's executions (diagnosis; no "
+                    "idle, wait or plant figures)")
     args = ap.parse_args(argv)
     if args.idle_s < 0 or args.plan_calls < 0:
         ap.error("--idle-s and --plan-calls must be >= 0")
@@ -298,10 +319,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         plant_exec, dense_exec, idle_s, calls = PLANT_EXECUTIONS[:2], [], min(idle_s, 5.0), min(calls, 5)
     t0 = time.monotonic()
-    plant = session(out / "plant", config_path("scenes/plant.yaml"), plant_exec, idle_s, calls, log)
+    plant = session(out / "plant", config_path("scenes/plant.yaml"), plant_exec, idle_s, calls, log) \
+        if not args.dense_only else {"executions": [], "joint_states_gap_ms_by_node": {}}
     dense = session(out / "dense", config_path("scenes/dense_pipes.yaml"), dense_exec, 0.0, 0, log) \
         if dense_exec else {"executions": [], "joint_states_gap_ms_by_node": {}}
     execs = plant["executions"] + dense["executions"]
+    failed = plant.get("failed", []) + dense.get("failed", []) + [e for e in execs if not e["success"]]
     idle = plant.get("idle", {})
     cpu = idle.get("cpu", {})
     after = [t for e in execs for t in e["after_end_step_ms"]]
@@ -314,6 +337,8 @@ def main(argv: list[str] | None = None) -> int:
         "idle_cpu_pct": {k: round(v, 1) for k, v in cpu.items()},
         "idle_cpu_pct_product": round(sum(v for k, v in cpu.items() if k != "scene_sim"), 1) if cpu else None,
         "idle_cpu_pct_scene_sim": round(cpu["scene_sim"], 1) if "scene_sim" in cpu else None,
+        "executions_failed_count": len(failed),
+        "executions_failed": [{k: e[k] for k in ("name", "error_code", "message")} for e in failed],
         "executor_steps": sum(e["steps"] for e in execs),
         "executor_overruns": sum(e["overruns"] for e in execs),
         "executor_step_ms_p99": percentile([t for e in execs for t in e["run_step_ms"]], 99),

@@ -18,6 +18,7 @@ class ExecuteCode(IntEnum):
     PREEMPTED = 3           # replaced by a newer motion (blended, never a jump)
     CANCELED = 4
     ABORTED = 5             # e.g. joint states went stale while executing, an executor error
+    TARGET_NOT_REACHED = 6  # the reference ended, the hand stayed off its end (a damper or a limit held it)
 
 
 

@@ -45,6 +45,7 @@ class FakeEngine:
         self.fail_at: int | None = None
         self.maps = []
         self.v = 1.0
+        self.final_hand_error_m = 0.0       # hand error reported once the reference has ended
 
     def start(self, q0, motion) -> None:
         if motion.spline == "refuse":
@@ -60,8 +61,9 @@ class FakeEngine:
         q = self.q0.copy()
         q[7:] += self.v * min(self.t, self.duration)
         done = self.holding or self.t >= self.duration
-        return StepOutcome(q, q[7:].copy(), M(self.t, min(self.t / self.duration, 1.0) if self.duration else 1.0),
-                           done)
+        err = self.final_hand_error_m if done else 0.0
+        return StepOutcome(q, q[7:].copy(), M(self.t, min(self.t / self.duration, 1.0) if self.duration else 1.0,
+                                              hand_error_m=err, min_distance_m=0.004 if err else 1.0), done)
 
     def stop(self, brake_s) -> None:
         self.holding = True
@@ -125,6 +127,20 @@ def test_runs_a_motion_to_success_and_holds_the_last_command() -> None:
     # the reference time of every step is that of the deadline it was sent at
     t = np.array([x for x in h.engine.times[:20]])
     assert np.allclose(np.diff(t), DT)
+
+
+def test_a_hand_held_off_the_end_is_target_not_reached_not_success() -> None:
+    """The reference ran out (settle timeout) with the hand 0.65 m off its end, as a damper held
+    it behind a pipe: TARGET_NOT_REACHED naming the error and the distance, and the robot holds."""
+    h = Harness()
+    h.engine.final_hand_error_m = 0.65
+    h.sup.submit(h.motion(1, duration=0.05))
+    for _ in range(30):
+        h.cycle()
+    m = h.finished[0]
+    assert m.code == C.TARGET_NOT_REACHED, m.message
+    assert "650.0 mm off" in m.message and "0.0040 m" in m.message and "plan again" in m.message
+    assert h.sup.mode == HOLD
 
 
 def test_overrun_republishes_the_last_command_and_the_motion_is_not_stretched() -> None:

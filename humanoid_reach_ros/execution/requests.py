@@ -7,8 +7,8 @@ ROS-free (the node converts messages with ``io/exec_msgs.py`` first):
 * dual-arm hand targets in ``world`` or ``base_link`` (:func:`targets_in_world` through the
   waist of the measured joints);
 * the collision map: the scene file's voxels until a measured ``/voxel_map`` arrives, the
-  voxels within ``target_exclusion_radius_m`` of the motion's final hand position left out
-  (the object to be reached; ``geometry.voxels.without_target``), the sphere tree built
+  voxels within ``target_exclusion_radius_m`` of the motion's start and final hand positions
+  left out (the object to be reached, or left; ``geometry.voxels.without_target``), the sphere tree built
   here, outside the control loop;
 * smooth reshaping (Yoshida et al., ``planning/reshape.py``) of a goal that asks for it,
   seconds, in the caller's thread while the loop keeps running or holding;
@@ -212,11 +212,15 @@ class ExecutionRequests:
         return without_target(points, self._target_p, float(self.p["target_exclusion_radius_m"]))
 
     def _aim_map_at(self, positions: np.ndarray, arm: str, log: Callable[[str], None] | None) -> None:
-        """Before a motion: leave the voxels around its final hand position out of a measured map."""
-        end = positions[-1]
+        """Before a motion: leave the voxels around its hand's start and final positions out of
+        a measured map (the object to be reached, or the one the hand leaves: a motion back from
+        the valve starts with the hand inside the valve's voxels)."""
         with self._fk_lock:
-            q_end = self.robot.config(end, self.robot.base_on_feet(end))
-            target = self.robot.frame_pose(q_end, self.robot.limbs[HAND_LIMBS[arm]].tip).translation.copy()
+            ends = []
+            for joints in (positions[0], positions[-1]):
+                q = self.robot.config(joints, self.robot.base_on_feet(joints))
+                ends.append(self.robot.frame_pose(q, self.robot.limbs[HAND_LIMBS[arm]].tip).translation.copy())
+        target = np.array(ends)
         with self._map_lock:
             self._target_p, points = target, self._map_points
             if points is None:
@@ -226,8 +230,8 @@ class ExecutionRequests:
         self.send_map(tree)
         if len(kept) < len(points) and log is not None:
             log(f"/voxel_map: {len(points) - len(kept)} of {len(points)} voxels within "
-                f"{self.p['target_exclusion_radius_m']:g} m of the final hand position "
-                f"{np.round(target, 3).tolist()} left out (the object to be reached)")
+                f"{self.p['target_exclusion_radius_m']:g} m of the hand's start {np.round(target[0], 3).tolist()} "
+                f"or final position {np.round(target[1], 3).tolist()} left out (the object reached or left)")
 
     # ------------------------------------------------------------ motions
     def measured_start(self, joints: np.ndarray | None, reason: str) -> np.ndarray:

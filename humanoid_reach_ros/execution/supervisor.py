@@ -438,8 +438,13 @@ class ExecutionSupervisor:
             if not res.done:
                 return
             conv = self.engines["executor"].converge_position_m
-            self._finish(motion, C.SUCCESS, "trajectory executed, hand converged" if res.metrics.hand_error_m <= conv
-                         else "trajectory executed (settle timeout before the hand converged)")
+            if res.metrics.hand_error_m <= conv:
+                self._finish(motion, C.SUCCESS, "trajectory executed, hand converged")
+            else:
+                self._finish(motion, C.TARGET_NOT_REACHED,
+                             f"the reference ended and the hand stayed {res.metrics.hand_error_m * 1e3:.1f} mm off its "
+                             f"end after the settle timeout (min distance {res.metrics.min_distance_m:.4f} m: a "
+                             f"collision damper or a joint limit held it); holding here: plan again from here")
         self.motion = None
         self.mode = HOLD
         self.hold_since = self.clock()

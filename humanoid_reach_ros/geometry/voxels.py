@@ -5,7 +5,8 @@ import numpy as np
 
 
 def without_target(points: np.ndarray, center: np.ndarray, radius_m: float) -> np.ndarray:
-    """Occupied voxel centres (N, 3) outside the ball of ``radius_m`` around ``center``.
+    """Occupied voxel centres (N, 3) outside the ball of ``radius_m`` around ``center`` (3,)
+    (or around each of the centres (K, 3)).
 
     A measured map contains the object to be reached (the valve); the hand's goal lies inside
     it. The planner and the executor leave the object out of their collision map this way, as
@@ -15,5 +16,7 @@ def without_target(points: np.ndarray, center: np.ndarray, radius_m: float) -> n
     P = np.asarray(points, dtype=float).reshape(-1, 3)
     if radius_m <= 0.0 or len(P) == 0:
         return P
-    d2 = np.sum((P - np.asarray(center, dtype=float).reshape(1, 3)) ** 2, axis=1)
-    return P[d2 > radius_m * radius_m]
+    keep = np.ones(len(P), dtype=bool)
+    for c in np.asarray(center, dtype=float).reshape(-1, 3):
+        keep &= np.sum((P - c) ** 2, axis=1) > radius_m * radius_m
+    return P[keep]

@@ -49,8 +49,8 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
                                       "(the object to be grasped)"),
     "map_frame": ParamSpec("world", "frame of /voxel_map and of the metrics"),
     "target_exclusion_radius_m": ParamSpec(0.15, "voxels of a /voxel_map within this distance of the motion's "
-                                           "final hand position are the object to be reached and left out of "
-                                           "the collision map [m]; 0 = keep all (as reach_planner)", (0.0, 1.0)),
+                                           "start or final hand position are the object reached or left, and "
+                                           "left out of the collision map [m]; 0 = keep all (as reach_planner)", (0.0, 1.0)),
     "joint_states_timeout_s": ParamSpec(0.5, "/joint_states older than this [s]: a start is refused (NO_JOINT_STATES)",
                                         (0.001, 3600.0), read_only=False),
     "joint_states_abort_s": ParamSpec(2.0, "/joint_states older than this [s] while a motion runs: it is aborted "

@@ -83,6 +83,8 @@ EXECUTE_CODES: dict[int, tuple[str, str, str]] = {
     3: ("PREEMPTED", "execution", "replaced by a newer goal or /reach_trajectory"),
     4: ("CANCELED", "canceled", "the executor holds the robot at the last command"),
     5: ("ABORTED", "execution", "the executor stopped the motion and holds the robot (e.g. stale joint states)"),
+    6: ("TARGET_NOT_REACHED", "execution", "the hand was held off the trajectory's end (a collision damper or a "
+        "joint limit); the robot holds there: plan again from here"),
 }
 
 
