@@ -359,7 +359,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     figures["executions"] = [{k: (round(v, 4) if isinstance(v, float) else v) for k, v in e.items()
                               if k not in ("after_end_step_ms", "run_step_ms")} for e in execs]
-    figures["exit_codes"] = {"plant": plant["exit_codes"], "dense": dense.get("exit_codes", {})}
+    figures["exit_codes"] = {"plant": plant.get("exit_codes", {}), "dense": dense.get("exit_codes", {})}
     figures["targets"] = judge(figures)
     figures["targets_met"] = all(t["met"] for t in figures["targets"].values() if t["met"] is not None)
     figures["bench"] = "graph"
