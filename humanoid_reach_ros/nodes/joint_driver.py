@@ -128,6 +128,13 @@ class JointDriver(Node):
         self._stop = threading.Event()
         self._loop = threading.Thread(target=self._run_loop, name="joint_driver_loop", daemon=True)
         self._loop.start()
+        # the thread that spins (command callbacks) shares the interpreter lock with the loop: at
+        # normal priority a busy machine could deschedule it while it holds the lock and stall the
+        # 200 Hz loop behind it; it runs SCHED_FIFO well below the loop where allowed, and the lock
+        # is handed over every 0.5 ms
+        if self._p["rt_priority"] > 0:
+            make_thread_realtime(max(self._p["rt_priority"] - 20, 1))
+            sys.setswitchinterval(0.0005)
         self.diagnostics_timer = self.create_timer(p["diagnostics_period_s"], self._publish_diagnostics, clock=steady)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.get_logger().info(

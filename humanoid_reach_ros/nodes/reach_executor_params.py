@@ -28,7 +28,9 @@ EXECUTOR_PARAMETERS: dict[str, ParamSpec] = {
     "com_gain": ParamSpec(_D.com_gain, "per-step gain of the exact-COG task (level 2)", (0.001, 1.0)),
     "feet_gain": ParamSpec(_D.feet_gain, "per-step gain of the feet tasks (level 2)", (0.001, 1.0)),
     "posture_gain": ParamSpec(_D.posture_gain, "per-step gain of the posture task (level 4)", (0.001, 1.0)),
-    "velocity_scale": ParamSpec(_D.velocity_scale, "fraction of the URDF joint velocity limits allowed", (0.01, 1.0)),
+    "velocity_scale": ParamSpec(0.5, "fraction of the URDF joint velocity limits a step may use (headroom for the "
+                                "joints' own tracking: commands at the limit are tracked with a lag that differs "
+                                "joint by joint, seen as feet/COG drift)", (0.01, 1.0)),
     "com_recenter_speed_mps": ParamSpec(_D.com_recenter_speed_mps, "mean speed of the COG target back to its "
                                         "nominal point after a start away from it [m/s]", (0.001, 1.0)),
     "blend_min_s": ParamSpec(_D.blend_min_s, "shortest blend of a reference that starts away from the last "
