@@ -41,6 +41,25 @@ from humanoid_reach_ros.robot.shapes import CollisionModel
 #: in-process with nogil=True, 1.06x with nogil=False (per-request medians, same load).
 #: Nothing runs these kernels in parallel threads, so holding the GIL costs nothing.
 _JIT = dict(cache=True, nogil=False, fastmath=False)
+
+
+@nb.njit(**_JIT)
+def quaternion_rotation(x: float, y: float, z: float, w: float, out: np.ndarray) -> None:
+    """``out`` (3, 3) = the rotation of the quaternion ``(x, y, z, w)`` (normalised here)."""
+    n = 1.0 / math.sqrt(x * x + y * y + z * z + w * w)
+    x *= n
+    y *= n
+    z *= n
+    w *= n
+    out[0, 0] = 1 - 2 * (y * y + z * z)
+    out[0, 1] = 2 * (x * y - z * w)
+    out[0, 2] = 2 * (x * z + y * w)
+    out[1, 0] = 2 * (x * y + z * w)
+    out[1, 1] = 1 - 2 * (x * x + z * z)
+    out[1, 2] = 2 * (y * z - x * w)
+    out[2, 0] = 2 * (x * z - y * w)
+    out[2, 1] = 2 * (y * z + x * w)
+    out[2, 2] = 1 - 2 * (x * x + y * y)
 _AXES = {"JointModelRX": 0, "JointModelRY": 1, "JointModelRZ": 2}
 
 
@@ -59,21 +78,7 @@ def _fk_shapes_kernel(Q, jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l, P
     A = np.empty((3, 3))
     for c in range(C):
         # base: translation + unit quaternion (x, y, z, w)
-        x, y, z, w = Q[c, 3], Q[c, 4], Q[c, 5], Q[c, 6]
-        n = 1.0 / math.sqrt(x * x + y * y + z * z + w * w)
-        x *= n
-        y *= n
-        z *= n
-        w *= n
-        oR[0, 0, 0] = 1 - 2 * (y * y + z * z)
-        oR[0, 0, 1] = 2 * (x * y - z * w)
-        oR[0, 0, 2] = 2 * (x * z + y * w)
-        oR[0, 1, 0] = 2 * (x * y + z * w)
-        oR[0, 1, 1] = 1 - 2 * (x * x + z * z)
-        oR[0, 1, 2] = 2 * (y * z - x * w)
-        oR[0, 2, 0] = 2 * (x * z - y * w)
-        oR[0, 2, 1] = 2 * (y * z + x * w)
-        oR[0, 2, 2] = 1 - 2 * (x * x + y * y)
+        quaternion_rotation(Q[c, 3], Q[c, 4], Q[c, 5], Q[c, 6], oR[0])
         ot[0, 0] = Q[c, 0]
         ot[0, 1] = Q[c, 1]
         ot[0, 2] = Q[c, 2]

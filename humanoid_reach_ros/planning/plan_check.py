@@ -34,7 +34,7 @@ import time
 import numba as nb
 import numpy as np
 
-from humanoid_reach_ros.geometry.distance import RobotCollision, _fk_shapes_kernel, _seg_seg_dist
+from humanoid_reach_ros.geometry.distance import RobotCollision, _fk_shapes_kernel, _seg_seg_dist, quaternion_rotation
 from humanoid_reach_ros.geometry.sphere_tree import tree_any_intersection
 from humanoid_reach_ros.planning.projector import LEGS, Projector, _project_plan_kernel
 
@@ -51,21 +51,7 @@ def _fk_manifold(q, jparent, jaxis, jR, jt, jq, jmode, relR, relt, lj, lR, lt, l
     ``jmode[j]``: 0 skip (rigid, nothing moving below), 1 rigid but needed (pose = trunk
     * relR/relt), 2 moving (composed from its parent). Shapes with ``srigid`` come from
     the trunk-frame ends ``p0b``/``p1b``; the others from their link pose."""
-    x, y, z, w = q[3], q[4], q[5], q[6]
-    n = 1.0 / math.sqrt(x * x + y * y + z * z + w * w)
-    x *= n
-    y *= n
-    z *= n
-    w *= n
-    oR[0, 0, 0] = 1 - 2 * (y * y + z * z)
-    oR[0, 0, 1] = 2 * (x * y - z * w)
-    oR[0, 0, 2] = 2 * (x * z + y * w)
-    oR[0, 1, 0] = 2 * (x * y + z * w)
-    oR[0, 1, 1] = 1 - 2 * (x * x + z * z)
-    oR[0, 1, 2] = 2 * (y * z - x * w)
-    oR[0, 2, 0] = 2 * (x * z - y * w)
-    oR[0, 2, 1] = 2 * (y * z + x * w)
-    oR[0, 2, 2] = 1 - 2 * (x * x + y * y)
+    quaternion_rotation(q[3], q[4], q[5], q[6], oR[0])
     ot[0, 0] = q[0]
     ot[0, 1] = q[1]
     ot[0, 2] = q[2]
