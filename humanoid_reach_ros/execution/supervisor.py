@@ -175,26 +175,31 @@ class ExecutionSupervisor:
 
     # ------------------------------------------------------------ state (any thread)
     def status(self) -> dict[str, Any]:
-        """A copy of the state for feedback and diagnostics (plain values, picklable)."""
+        """A copy of the state for feedback and diagnostics (plain values, picklable).
+
+        Only the copies are taken under the lock the loop's threads share (tens of
+        microseconds); the percentiles are computed after it is released, so a caller
+        descheduled mid-way never holds up a step."""
         with self._cond:
             m = self.motion
             st = self.stats
-            times = np.array(st.step_times) if st.step_times else np.zeros(0)
-            hold = np.array(st.hold_step_times) if st.hold_step_times else np.zeros(0)
+            times, hold = list(st.step_times), list(st.hold_step_times)
             dual = self.engines.get("dual")
-            return {"mode": self.mode, "engine": self.engine,
-                    "motion_id": m.id if m is not None else None, "motion_label": m.label if m is not None else "",
-                    "progress": float(m.last.progress) if m is not None and m.last is not None else 0.0,
-                    "last": m.last if m is not None else None,
-                    "dual_targets": dual.targets if dual is not None and self.engine == "dual"
-                    and self.mode != IDLE else None,
-                    "ticks": st.ticks, "published": st.published, "steps": st.steps, "overruns": st.overruns,
-                    "missed_deadlines": st.missed_deadlines,
-                    "step_p50_ms": float(np.percentile(times, 50)) * 1e3 if len(times) else 0.0,
-                    "step_p99_ms": float(np.percentile(times, 99)) * 1e3 if len(times) else 0.0,
-                    "step_max_ms": float(times.max()) * 1e3 if len(times) else 0.0,
-                    "hold_step_p99_ms": float(np.percentile(hold, 99)) * 1e3 if len(hold) else 0.0,
-                    "last_joints": None if self.last_joints is None else self.last_joints.copy()}
+            out = {"mode": self.mode, "engine": self.engine,
+                   "motion_id": m.id if m is not None else None, "motion_label": m.label if m is not None else "",
+                   "progress": float(m.last.progress) if m is not None and m.last is not None else 0.0,
+                   "last": m.last if m is not None else None,
+                   "dual_targets": dual.targets if dual is not None and self.engine == "dual"
+                   and self.mode != IDLE else None,
+                   "ticks": st.ticks, "published": st.published, "steps": st.steps, "overruns": st.overruns,
+                   "missed_deadlines": st.missed_deadlines,
+                   "last_joints": None if self.last_joints is None else self.last_joints.copy()}
+        t, h = np.asarray(times, float), np.asarray(hold, float)
+        out.update({"step_p50_ms": float(np.percentile(t, 50)) * 1e3 if len(t) else 0.0,
+                    "step_p99_ms": float(np.percentile(t, 99)) * 1e3 if len(t) else 0.0,
+                    "step_max_ms": float(t.max()) * 1e3 if len(t) else 0.0,
+                    "hold_step_p99_ms": float(np.percentile(h, 99)) * 1e3 if len(h) else 0.0})
+        return out
 
     # ------------------------------------------------------------ solver side
     def has_work(self) -> bool:
