@@ -219,16 +219,18 @@ class Bench:
         self.op.spin_until(settled, 20.0, f"{name}: the measured joints to settle")
         self.op.spin_for(max(0.0, hold_s - (time.monotonic() - t_hold)))
         self.op.recording = self.js_record = False
-        series = []
-        for m in self.op.samples:
-            js = msgs.parse_joint_state(m)
-            series.append(self.robot.joints_from_dict(dict(zip(js.names, js.positions))))
+        def joints(messages) -> list:
+            out = []
+            for m in messages:
+                j, why = msgs.model_joints(m, self.robot)
+                if j is None:
+                    raise RuntimeError(f"{name}: a recorded joint state is unusable: {why}")
+                out.append(j)
+            return out
+        series = joints(self.op.samples)
         final_ref = self.robot.joints_from_dict(dict(zip(traj.joint_names, traj.points[-1].positions)))
         bal = measured_balance(self.robot, series, arm=arm, final_reference=final_ref)
-        commanded = []
-        for m in self.commands:
-            js = msgs.parse_joint_state(m)
-            commanded.append(self.robot.joints_from_dict(dict(zip(js.names, js.positions))))
+        commanded = joints(self.commands)
         if commanded:   # the same drifts of what the executor commanded: the loop's part vs the tracking's
             cb = measured_balance(self.robot, commanded)
             bal["feet_drift_commanded_mm"], bal["com_drift_commanded_mm"] = cb["feet_drift_mm"], cb["com_drift_mm"]

@@ -72,7 +72,6 @@ class ActiveSetCascade:
         self.rank_tol = float(rank_tol)
         self.primal_tol = float(primal_tol)
         self.iter_limit = int(iter_limit)
-        self.failures = 0
 
     def solve(self, G: np.ndarray, h: np.ndarray, levels: Sequence[tuple[np.ndarray, np.ndarray]]) -> CascadeResult:
         """The cascade on ``G x <= h`` (rows of ``G``: any number, may be 0) above the
@@ -113,7 +112,6 @@ class ActiveSetCascade:
                     if flag >= 1:                        # need the looser tolerance
                         break
                 if flag < 1:
-                    self.failures += 1
                     return CascadeResult(x, False, iters, k, int(flag))
             else:
                 y = np.linalg.solve(H, -f)

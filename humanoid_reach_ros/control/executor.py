@@ -224,7 +224,6 @@ class WholeBodyExecutor:
         self._ns = SaturatedNullSpaceHQP(max_iter=p.max_saturation_iter, tol=p.feasibility_tol,
                                          active_set_min_rows=p.active_set_min_rows)
         self._osqp = HierarchicalQP(eps=p.osqp_eps, max_iter=p.osqp_max_iter, polish=False)
-        self._ns_fallback = None if p.solver == "osqp" else self._osqp
         self._active_set = ActiveSetCascade() if p.active_set else None
 
     # ------------------------------------------------------------ state

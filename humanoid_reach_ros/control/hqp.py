@@ -34,13 +34,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from humanoid_reach_ros.control.active_set import ActiveSetCascade
+if TYPE_CHECKING:
+    from humanoid_reach_ros.control.active_set import ActiveSetCascade
 
 _INF = 1e30
 
@@ -555,18 +556,12 @@ class SaturatedNullSpaceHQP:
         n = len(h) if groups is None else int(np.count_nonzero(groups >= 0))
         return n >= self.active_set_min_rows
 
-    def _try_active_set(self, active_set, G, h, levels) -> "SaturatedResult | None":
+    def _try_active_set(self, active_set: "ActiveSetCascade", G, h, levels) -> "SaturatedResult | None":
         """The exact cascade's answer when it solved every level within ``tol``, else None."""
         res = active_set.solve(G, h, levels)
-        if not res.ok:
+        if not res.ok or (len(h) and float((G @ res.x - h).max()) > self.tol):
             return None
-        viol = G @ res.x - h
-        if len(h) and float(viol.max()) > self.tol:
-            return None
-        slacks = [float(np.linalg.norm(np.maximum(viol, 0.0)))]
-        slacks += [float(np.linalg.norm(A @ res.x - b)) for A, b in levels]
-        n_active = int(np.count_nonzero(viol >= -self.active_tol))
-        return SaturatedResult(res.x, tuple(slacks), n_active, res.iterations, 0, False, True)
+        return self._result(G, h, levels, res.x, res.iterations, 0, False, active_set=True)
 
     def _scale_into(self, G: np.ndarray, h: np.ndarray, base: np.ndarray, x: np.ndarray) -> np.ndarray:
         """``base + alpha (x - base)`` with the largest ``alpha`` in [0, 1] keeping the rows with
@@ -766,12 +761,16 @@ class SaturatedNullSpaceHQP:
                 # damper already inside d_s may miss its push-away for this step
                 best_x, best_v = x_s, float((G @ x_s - h).max())
                 used_fallback = True
-        x = best_x
+        return self._result(G, h, levels, best_x, it, int(np.count_nonzero(W)), used_fallback)
+
+    def _result(self, G, h, levels, x: np.ndarray, iterations: int, saturated: int, fallback: bool,
+                active_set: bool = False) -> SaturatedResult:
+        """``x`` with its slacks per level and its active level-1 rows."""
         viol = G @ x - h
         slacks = [float(np.linalg.norm(np.maximum(viol, 0.0)))]
         slacks += [float(np.linalg.norm(A @ x - b)) for A, b in levels]
         n_active = int(np.count_nonzero(viol >= -self.active_tol))
-        return SaturatedResult(x, tuple(slacks), n_active, it, int(np.count_nonzero(W)), used_fallback)
+        return SaturatedResult(x, tuple(slacks), n_active, iterations, saturated, fallback, active_set)
 
 
 __all__ = ["Level", "LevelReport", "HQPResult", "HierarchicalQP", "solve_dense_reference",

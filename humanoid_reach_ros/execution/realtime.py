@@ -33,6 +33,22 @@ def make_thread_realtime(priority: int) -> tuple[bool, str]:
                        "priority: grant rtprio (limits.conf) or CAP_SYS_NICE for real-time deadlines")
 
 
+#: a thread that shares the interpreter lock with a real-time loop runs this far below it
+FEEDER_PRIORITY_BELOW = 20
+#: interpreter lock hand-over interval of a process with a real-time loop [s] (Python's default: 5 ms)
+REALTIME_SWITCH_INTERVAL_S = 0.0005
+
+
+def make_feeder_thread_realtime(loop_priority: int) -> tuple[bool, str]:
+    """SCHED_FIFO ``FEEDER_PRIORITY_BELOW`` under ``loop_priority`` (at least 1) for the calling
+    thread, one that shares the interpreter lock with a real-time loop: at normal priority a
+    busy machine can deschedule it *while it holds the lock*, and the loop then waits on it
+    (priority inversion: the lock does not inherit priority). ``loop_priority <= 0`` leaves it."""
+    if loop_priority <= 0:
+        return make_thread_realtime(0)
+    return make_thread_realtime(max(loop_priority - FEEDER_PRIORITY_BELOW, 1))
+
+
 def lock_memory() -> tuple[bool, str]:
     """mlockall(MCL_CURRENT | MCL_FUTURE) for the whole process."""
     try:
@@ -46,4 +62,5 @@ def lock_memory() -> tuple[bool, str]:
         return False, f"mlockall unavailable ({exc})"
 
 
-__all__ = ["make_thread_realtime", "lock_memory"]
+__all__ = ["make_thread_realtime", "make_feeder_thread_realtime", "lock_memory", "FEEDER_PRIORITY_BELOW",
+           "REALTIME_SWITCH_INTERVAL_S"]

@@ -34,7 +34,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from humanoid_reach_ros.execution.realtime import make_thread_realtime
+from humanoid_reach_ros.execution.realtime import (REALTIME_SWITCH_INTERVAL_S, make_feeder_thread_realtime,
+                                                   make_thread_realtime)
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes.common import LATCHED, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.robot.model import RobotModel
@@ -133,8 +134,8 @@ class JointDriver(Node):
         # 200 Hz loop behind it; it runs SCHED_FIFO well below the loop where allowed, and the lock
         # is handed over every 0.5 ms
         if self._p["rt_priority"] > 0:
-            make_thread_realtime(max(self._p["rt_priority"] - 20, 1))
-            sys.setswitchinterval(0.0005)
+            make_feeder_thread_realtime(self._p["rt_priority"])
+            sys.setswitchinterval(REALTIME_SWITCH_INTERVAL_S)
         self.diagnostics_timer = self.create_timer(p["diagnostics_period_s"], self._publish_diagnostics, clock=steady)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.get_logger().info(

@@ -161,12 +161,11 @@ def child_main(conn, config: LoopConfig) -> None:
     # a descheduled thread (priority inversion through the GIL: the graph's sporadic 10 ms
     # steps). They run SCHED_FIFO too, well below the loop's threads, where the OS allows; the
     # lock is handed over every 0.5 ms rather than every 5 ms.
-    from humanoid_reach_ros.execution.realtime import make_thread_realtime
-    feeder_priority = max(config.rt_priority - 20, 1) if config.rt_priority > 0 else 0
-    sys.setswitchinterval(0.0005)
+    from humanoid_reach_ros.execution.realtime import REALTIME_SWITCH_INTERVAL_S, make_feeder_thread_realtime
+    sys.setswitchinterval(REALTIME_SWITCH_INTERVAL_S)
 
     def sender() -> None:
-        make_thread_realtime(feeder_priority)
+        make_feeder_thread_realtime(config.rt_priority)
         next_status = time.monotonic()
         while not stop.is_set():
             try:
@@ -191,7 +190,7 @@ def child_main(conn, config: LoopConfig) -> None:
     conn.send(("ready", rt))
     send_thread = threading.Thread(target=sender, name="executor_loop_sender", daemon=True)
     send_thread.start()
-    make_thread_realtime(feeder_priority)
+    make_feeder_thread_realtime(config.rt_priority)
     try:
         while not stop.is_set():
             try:
