@@ -4,7 +4,9 @@ Used by the demo (``humanoid_reach_ros.demo``) and by the node-level tests.
 
 * ``allocate_domain`` gives a ``ROS_DOMAIN_ID`` (1..101) that no other process on this
   machine holds (an exclusive lock file per id), and ``graph_env`` the environment for
-  it with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` (docs/operator.md: graph isolation).
+  it with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` (docs/operator.md: graph isolation)
+  and, unless the caller set one, the package's Fast DDS profile (``config/fastdds.xml``:
+  large messages over shared memory).
 * ``NodeProcess.start`` runs ``python -m humanoid_reach_ros.nodes.<name> --ros-args ...``
   as a real process with its output in a log file; ``stop`` sends SIGINT, waits, kills.
 * ``wait_for`` polls a condition with a timeout.
@@ -30,6 +32,10 @@ PACKAGE_ROOT = Path(__file__).resolve().parent.parent  # the directory holding h
 DOMAIN_MIN, DOMAIN_MAX = 1, 101
 _LOCK_DIR = Path(tempfile.gettempdir()) / "humanoid_reach_ros_domains"
 _counter = itertools.count()
+# Fast DDS profile with an 8 MB shared-memory segment: point clouds (0.3-0.84 MB) exceed the
+# built-in 0.5 MB and were lost as best-effort UDP fragments (config/fastdds.xml says more)
+FASTDDS_PROFILES = PACKAGE_ROOT / "config" / "fastdds.xml"
+FASTDDS_PROFILES_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"
 
 T = TypeVar("T")
 
@@ -94,6 +100,7 @@ def graph_env(domain_id: int, base: Mapping[str, str] | None = None) -> dict[str
         "RCUTILS_LOGGING_BUFFERED_STREAM": "0",
     })
     env.pop("ROS_STATIC_PEERS", None)
+    env.setdefault(FASTDDS_PROFILES_ENV, str(FASTDDS_PROFILES))
     path = env.get("PYTHONPATH", "")
     if str(PACKAGE_ROOT) not in path.split(os.pathsep):
         env["PYTHONPATH"] = os.pathsep.join(p for p in (str(PACKAGE_ROOT), path) if p)

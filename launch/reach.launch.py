@@ -20,12 +20,13 @@ import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
 from launch.conditions import IfCondition
-from launch.substitutions import LaunchConfiguration
+from launch.substitutions import EnvironmentVariable, LaunchConfiguration
 from launch_ros.actions import Node
 
 PACKAGE = "humanoid_reach_ros"
+FASTDDS_PROFILES_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"
 # (executable, started only with simulated sensors)
 NODES = [
     ("joint_driver", True),
@@ -46,6 +47,10 @@ def generate_launch_description() -> LaunchDescription:
                               description="scene file (primitives, valve, marker)"),
         DeclareLaunchArgument("use_sim_sensors", default_value="true",
                               description="start the simulated joint driver and head sensors"),
+        # Fast DDS: an 8 MB shared-memory segment for the point clouds (config/fastdds.xml);
+        # a profile the user already set is kept
+        SetEnvironmentVariable(FASTDDS_PROFILES_ENV, EnvironmentVariable(
+            FASTDDS_PROFILES_ENV, default_value=os.path.join(config, "fastdds.xml"))),
     ]
     for exe, sim_only in NODES:
         params = [os.path.join(config, f"{exe}.yaml")]

@@ -59,3 +59,25 @@ def test_full_graph_launch_starts_the_design_nodes() -> None:
     names = launched(REPO_ROOT / "launch" / "reach.launch.py")
     assert set(names) == {"joint_driver", "scene_sim", "voxel_mapper", "marker_localizer", "reach_planner",
                           "reach_executor"}
+
+
+def test_fastdds_profile_gives_large_messages_a_shared_memory_segment() -> None:
+    """config/fastdds.xml parses and gives shared memory a segment larger than a point cloud;
+    the graphs started here (graph_env) and reach.launch.py use it unless a profile is set."""
+    import xml.etree.ElementTree as ET
+
+    from humanoid_reach_ros.graph import FASTDDS_PROFILES, FASTDDS_PROFILES_ENV, graph_env
+
+    ns = {"f": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
+    root = ET.parse(FASTDDS_PROFILES).getroot()
+    shm = [d for d in root.iterfind("f:transport_descriptors/f:transport_descriptor", ns)
+           if d.findtext("f:type", namespaces=ns) == "SHM"]
+    assert len(shm) == 1 and int(shm[0].findtext("f:segment_size", namespaces=ns)) >= 4 * 2**20
+    used = {t.text for t in root.iterfind("f:participant/f:rtps/f:userTransports/f:transport_id", ns)}
+    declared = {d.findtext("f:transport_id", namespaces=ns)
+                for d in root.iterfind("f:transport_descriptors/f:transport_descriptor", ns)}
+    assert used == declared and len(used) == 2   # shared memory and UDPv4: the network still works
+    assert graph_env(5, base={})[FASTDDS_PROFILES_ENV] == str(FASTDDS_PROFILES)
+    assert graph_env(5, base={FASTDDS_PROFILES_ENV: "/mine.xml"})[FASTDDS_PROFILES_ENV] == "/mine.xml"
+    launch = (REPO_ROOT / "launch" / "reach.launch.py").read_text()
+    assert f'"{FASTDDS_PROFILES_ENV}"' in launch and '"fastdds.xml"' in launch

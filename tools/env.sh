@@ -13,4 +13,7 @@ export PYTHONPATH=$_hr_root${PYTHONPATH:+:$PYTHONPATH}
 export PATH=$_hr_root/install/humanoid_reach_ros/lib/humanoid_reach_ros:$PATH
 # Keep every graph started from here on this machine only (docs/operator.md: graph isolation).
 export ROS_AUTOMATIC_DISCOVERY_RANGE=${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}
+# Point clouds are larger than Fast DDS's built-in 0.5 MB shared-memory segment: the package's
+# profile gives 8 MB (config/fastdds.xml; docs/operator.md: large messages). A profile of your own wins.
+export FASTRTPS_DEFAULT_PROFILES_FILE=${FASTRTPS_DEFAULT_PROFILES_FILE:-$_hr_root/config/fastdds.xml}
 unset _hr_root
