@@ -5,8 +5,9 @@ limited to this machine): ``joint_driver`` (the simulated HRP-2), ``scene_sim`` 
 depth sensor), ``voxel_mapper``, ``marker_localizer``, ``reach_planner`` and ``reach_executor``,
 plus the MCAP recorder. The demo then acts as the operator:
 
-1. scans the plant with the head (a few yaw/pitch poses) until the voxel map stops growing;
-2. looks at the valve until ``/target_pose`` (the ArUco marker on the valve, R_T_O) is steady;
+1. scans the plant with the head through the executor's ``/look`` action (its scan pattern,
+   the ``reach_operator --scan`` of the operator), then waits until the voxel map stops growing;
+2. looks at the valve (``/look``) until ``/target_pose`` (the ArUco marker on the valve, R_T_O) is steady;
 3. calls ``/plan_reach`` with the marker target and the valve WGR of eq. 3 (planner's map = the
    measured ``/voxel_map``, not the scene file);
 4. sends the trajectory to ``/execute_reach`` and follows its feedback;
@@ -32,6 +33,7 @@ from typing import Any, Callable
 import numpy as np
 
 from humanoid_reach_ros.graph import NodeProcess, allocate_domain, graph_env, wait_for
+from humanoid_reach_ros.nodes.reach_executor_params import PARAMETERS
 from humanoid_reach_ros.paths import config_path
 
 GRAPH_NODES = ("joint_driver", "scene_sim", "voxel_mapper", "marker_localizer", "reach_planner", "reach_executor")
@@ -39,8 +41,10 @@ GRAPH_NODES = ("joint_driver", "scene_sim", "voxel_mapper", "marker_localizer", 
 RECORDED_TOPICS = ("/joint_states", "/joint_command", "/base_pose", "/robot_description", "/target_pose",
                    "/markers", "/voxel_map", "/reach_trajectory", "/planning/markers", "/executor/metrics",
                    "/diagnostics", "/head_camera/camera_info")
-# head (yaw, pitch) poses of the scan [deg]; pitch > 0 looks down
-HEAD_SCAN_DEG = ((0.0, 35.0), (-30.0, 30.0), (30.0, 30.0), (-25.0, 5.0), (25.0, 5.0), (0.0, 10.0))
+# the executor's head scan (parameter scan_poses_deg of reach_executor): (yaw, pitch) [deg], pitch > 0 looks
+# down; tools/record_bags.py and test_perception_graph command the same poses without the executor
+_SCAN = PARAMETERS["scan_poses_deg"].default
+HEAD_SCAN_DEG = tuple(zip(_SCAN[::2], _SCAN[1::2]))
 HEAD_JOINTS = ("HEAD_JOINT0", "HEAD_JOINT1")
 SIM_JOINT_STATES_TIMEOUT_S = 2.0   # planner/executor staleness of /joint_states in the demo [s]
 SIM_JOINT_STATES_ABORT_S = 5.0     # executor: abort a motion when /joint_states stop this long [s]
@@ -94,7 +98,7 @@ class Operator:
     def __init__(self, domain_id: int, graph: Graph) -> None:
         import rclpy
         from geometry_msgs.msg import PoseStamped
-        from humanoid_reach_interfaces.action import ExecuteReach
+        from humanoid_reach_interfaces.action import ExecuteReach, Look
         from humanoid_reach_interfaces.msg import ExecutorMetrics
         from humanoid_reach_interfaces.srv import PlanReach
         from rclpy.action import ActionClient
@@ -121,10 +125,10 @@ class Operator:
                                       lambda m: self.maps.append((time.monotonic(), m.width * m.height)), LATCHED)
         self.node.create_subscription(PoseStamped, "/target_pose", self.targets.append, qos_profile_sensor_data)
         self.node.create_subscription(ExecutorMetrics, "/executor/metrics", self.metrics.append, 200)
-        self.command_pub = self.node.create_publisher(JointState, "/joint_command", 10)
         self.plan_client = self.node.create_client(PlanReach, "/plan_reach")
         self.action_client = ActionClient(self.node, ExecuteReach, "/execute_reach")
-        self.PlanReach, self.ExecuteReach = PlanReach, ExecuteReach
+        self.look_client = ActionClient(self.node, Look, "/look")
+        self.PlanReach, self.ExecuteReach, self.Look = PlanReach, ExecuteReach, Look
 
     def _on_joints(self, msg) -> None:
         self.joint_states = msg
@@ -142,41 +146,48 @@ class Operator:
         while time.monotonic() < end:
             self.executor.spin_once(0.01)
 
-    def head_position(self) -> np.ndarray:
-        js = self.joint_states
-        idx = [list(js.name).index(n) for n in HEAD_JOINTS]
-        return np.array([js.position[i] for i in idx])
+    def look(self, yaw_deg: list[float], pitch_deg: list[float], dwell_s: float, timeout: float = 120.0):
+        """The executor's ``/look`` action (the operator's ``reach_operator --scan`` / ``--look``):
+        the head through the poses (empty: the executor's scan pattern), each held ``dwell_s``."""
+        goal = self.Look.Goal(yaw_rad=np.radians(yaw_deg).tolist(), pitch_rad=np.radians(pitch_deg).tolist(),
+                              dwell_s=dwell_s)
+        self.spin_until(lambda: self.look_client.server_is_ready(), 30.0, "/look")
+        held = set()
 
-    def look(self, yaw_deg: float, pitch_deg: float, timeout: float = 15.0) -> None:
-        """Command the head and wait until it is there (the joint driver holds it)."""
-        from humanoid_reach_ros.io import msgs
-
-        goal = np.radians([yaw_deg, pitch_deg])
-        cmd = msgs.joint_state(list(HEAD_JOINTS), goal)
-
-        def there() -> bool:
-            self.command_pub.publish(cmd)
-            return bool(np.all(np.abs(self.head_position() - goal) < 0.01))
-        self.spin_until(there, timeout, f"the head at yaw {yaw_deg:g}, pitch {pitch_deg:g} deg")
+        def feedback(m) -> None:
+            f = m.feedback
+            if f.holding and f.pose_index not in held:
+                held.add(f.pose_index)
+                n = self.maps[-1][1] if self.maps else 0
+                print(f"[demo] head pose {f.pose_index + 1}/{f.pose_count}: yaw {math.degrees(f.yaw_rad):+5.1f} "
+                      f"pitch {math.degrees(f.pitch_rad):+5.1f} deg (map {n} voxels)")
+        send = self.look_client.send_goal_async(goal, feedback_callback=feedback)
+        self.spin_until(send.done, 30.0, "/look to accept the goal")
+        result = send.result().get_result_async()
+        self.spin_until(result.done, timeout, "the /look result")
+        res = result.result().result
+        if not res.success:
+            raise RuntimeError(f"/look failed ({res.error_code}): {res.message}")
+        return res
 
     def close(self) -> None:
         import rclpy
 
         self.action_client.destroy()
+        self.look_client.destroy()
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
 
 
 def scan_plant(op: Operator, settle_s: float) -> int:
-    """Head scan; returns the voxel count of the last /voxel_map."""
-    for yaw, pitch in HEAD_SCAN_DEG:
-        op.look(yaw, pitch)
-        n0 = len(op.maps)
-        t0 = time.monotonic()
-        # at least two map updates after the head arrived, and settle_s of sensor data
-        op.spin_until(lambda: len(op.maps) >= n0 + 2 and time.monotonic() - t0 >= settle_s, 30.0,
-                      "/voxel_map updates from voxel_mapper")
-        print(f"[demo] head yaw {yaw:+5.1f} pitch {pitch:+5.1f} deg: map {op.maps[-1][1]} voxels")
+    """The head scan through ``/look`` (the executor's scan pattern); then waits until the
+    mapper has integrated it (no new /voxel_map for a second); returns the voxel count."""
+    t0 = time.monotonic()
+    res = op.look([], [], settle_s)
+    print(f"[demo] head scan: {res.poses_done} poses in {res.duration_s:.1f} s, max COG drift "
+          f"{res.max_com_error_m * 1e3:.3f} mm")
+    op.spin_until(lambda: op.maps and op.maps[-1][0] > t0 and time.monotonic() - op.maps[-1][0] > 1.0, 30.0,
+                  "the /voxel_map of the scan")
     return op.maps[-1][1]
 
 
@@ -184,7 +195,7 @@ def wait_marker(op: Operator, look_at: tuple[float, float], timeout: float = 30.
     """Looks at the valve and waits for five consistent /target_pose messages."""
     from humanoid_reach_ros.io import msgs
 
-    op.look(*look_at)
+    op.look([look_at[0]], [look_at[1]], 0.1)
     n0 = len(op.targets)
 
     def steady() -> bool:
@@ -420,7 +431,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=-1, help="planner seed (negative: the node's)")
     ap.add_argument("--look", type=float, nargs=2, metavar=("YAW", "PITCH"), default=(0.0, 25.0),
                     help="head yaw/pitch [deg] while localizing the marker")
-    ap.add_argument("--settle", type=float, default=0.6, help="seconds of sensor data per head pose of the scan")
+    ap.add_argument("--settle", type=float, default=1.0, help="seconds each head pose of the scan is held")
     ap.add_argument("--out", default="out/demo", help="directory for logs, report, plots and the MCAP file")
     ap.add_argument("--no-record", action="store_true", help="do not record an MCAP file")
     args = ap.parse_args(argv)

@@ -261,6 +261,59 @@ class ExecutionRequests:
                                      com_compensation=not no_com)
         return Motion(mid, label, "trajectory", spline=spline, arm=arm, params=params, q_measured=q0, note=note)
 
+    def head_poses(self, yaw: list[float], pitch: list[float]) -> np.ndarray:
+        """Validated head poses (K, 2) [rad] of a look request: as many yaws as pitches, finite,
+        within the head joints' limits; an empty request is the scan pattern (``scan_poses_deg``)."""
+        bad = C.INVALID_GOAL
+        if len(yaw) != len(pitch):
+            raise RequestError(bad, f"{len(yaw)} yaw angles but {len(pitch)} pitch angles: give one pitch per yaw")
+        if len(yaw) == 0:
+            flat = np.radians(np.asarray(self.p["scan_poses_deg"], dtype=float))
+            if len(flat) < 2 or len(flat) % 2:
+                raise RequestError(bad, f"parameter scan_poses_deg must hold yaw, pitch pairs, got {len(flat)} values")
+            poses, what = flat.reshape(-1, 2), "scan_poses_deg"
+        else:
+            poses, what = np.column_stack([np.asarray(yaw, float), np.asarray(pitch, float)]), "the goal"
+        if not np.all(np.isfinite(poses)):
+            raise RequestError(bad, f"{what} has NaN/inf angles")
+        idx = [self.robot.joint_index[n] for n in self.head_joints]
+        lo, hi = self.robot.lower[idx], self.robot.upper[idx]
+        for k, pose in enumerate(poses):
+            for j, (name, label) in enumerate(zip(self.head_joints, ("yaw", "pitch"))):
+                if not lo[j] <= pose[j] <= hi[j]:
+                    raise RequestError(bad, f"pose {k} of {what}: {label} {math.degrees(pose[j]):.1f} deg is outside "
+                                            f"{name}'s limits [{math.degrees(lo[j]):.1f}, {math.degrees(hi[j]):.1f}] "
+                                            "deg")
+        return poses
+
+    @property
+    def head_joints(self) -> list[str]:
+        names = list(self.robot.semantic.get("head_joints", ()))
+        if len(names) != 2:
+            raise RequestError(C.INVALID_GOAL, f"the robot description names {len(names)} head joints; the look "
+                                               "action needs two (yaw, pitch)")
+        return names
+
+    def look(self, mid: int, label: str, pose: np.ndarray, joints: np.ndarray | None, reason: str):
+        """A whole-body motion that turns the head to ``pose`` (yaw, pitch [rad]) from the measured
+        joints, every other joint's reference held: the executor keeps the feet, the exact COG and
+        the right hand (level 3) where they are while the posture task (level 4) turns the head.
+        Timed by ``head_speed_rad_s`` (the clamped spline's peak)."""
+        from humanoid_reach_ros.execution.supervisor import Motion
+        from humanoid_reach_ros.geometry.trajectory import SplineTrajectory, TrajectoryOptions
+        if joints is None:
+            raise RequestError(C.NO_JOINT_STATES, reason)
+        q0 = self.measured_start(joints, reason)
+        start = np.asarray(joints, float)
+        goal = start.copy()
+        goal[[self.robot.joint_index[n] for n in self.head_joints]] = pose
+        speed = float(self.p["head_speed_rad_s"])
+        spline = SplineTrajectory.from_path(np.stack([start, goal]), TrajectoryOptions(
+            joint_velocity=speed, min_segment_duration_s=0.1, respect_velocity_limit=True))
+        params = self._executor_params()
+        return Motion(mid, label, "trajectory", spline=spline, arm="right", params=params, q_measured=q0,
+                      note=f"head to yaw {math.degrees(pose[0]):.1f}, pitch {math.degrees(pose[1]):.1f} deg")
+
     def _executor_params(self):
         from humanoid_reach_ros.control.executor import ExecutorParams
         known = {f.name for f in dataclasses.fields(ExecutorParams)}

@@ -42,7 +42,7 @@ import traceback
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray
-from humanoid_reach_interfaces.action import ExecuteReach
+from humanoid_reach_interfaces.action import ExecuteReach, Look
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.clock import Clock, ClockType
@@ -145,12 +145,17 @@ class ReachExecutorNode(Node):
                                           cancel_callback=lambda _goal: CancelResponse.ACCEPT,
                                           callback_group=actions, goal_service_qos_profile=requests,
                                           result_service_qos_profile=requests, cancel_service_qos_profile=requests)
+        self.look_server = ActionServer(self, Look, "look", execute_callback=self._look,
+                                        goal_callback=lambda _goal: GoalResponse.ACCEPT,
+                                        cancel_callback=lambda _goal: CancelResponse.ACCEPT, callback_group=actions,
+                                        goal_service_qos_profile=requests, result_service_qos_profile=requests,
+                                        cancel_service_qos_profile=requests)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(p["diagnostics_period_s"], self._publish_diagnostics, clock=steady, callback_group=state)
         self.create_timer(0.1, self._watch_joint_states, clock=steady, callback_group=state)
         self.add_post_set_parameters_callback(lambda params: [self._p.__setitem__(x.name, x.value) for x in params])
         self.get_logger().info(
-            f"reach executor ready: action execute_reach (trajectory, dual arm), topics reach_trajectory, "
+            f"reach executor ready: actions execute_reach (trajectory, dual arm) and look (head poses, scan), topics reach_trajectory, "
             f"dual_arm/targets (follow {'on' if p['dual_arm_follow'] else 'off'}); /joint_command every "
             f"{self.period_s * 1e3:g} ms while executing or holding; solver {self.params.solver}, distance bound "
             f"{self.params.distance_bound_m:g} m; joint_states stale after {p['joint_states_timeout_s']:g} s")
@@ -348,6 +353,15 @@ class ReachExecutorNode(Node):
             goal_handle.canceled()
             return exec_msgs.result_message(C.CANCELED, "canceled before execution started")
         self.get_logger().info(f"{label}: accepted: {self.requests.describe(motion)}")
+        pend = self._follow(goal_handle, motion, lambda st: goal_handle.publish_feedback(
+            exec_msgs.execute_feedback(st["last"])))
+        result = exec_msgs.result_message(pend.code, pend.message, pend.summary)
+        self._close_goal(goal_handle, pend.code)
+        return result
+
+    def _follow(self, goal_handle, motion: Motion, feedback) -> Pending:
+        """Submit ``motion`` and wait for its end, sending ``feedback(status)`` while it runs and
+        the stop to the loop when the client cancels."""
         pend = self._submit(motion)
         cancel_sent = False
         while not pend.finished.wait(self._p["feedback_period_s"]):
@@ -358,16 +372,67 @@ class ReachExecutorNode(Node):
                 self.loop.send(("stop", motion.id, int(C.CANCELED), "canceled by the client"))
             st = self.status
             if st.get("motion_id") == motion.id and st.get("last") is not None and goal_handle.is_active:
-                goal_handle.publish_feedback(exec_msgs.execute_feedback(st["last"]))
+                feedback(st)
         if pend.code is None:
             pend.code, pend.message = C.ABORTED, "the reach_executor node is shutting down"
-        result = exec_msgs.result_message(pend.code, pend.message, pend.summary)
-        if pend.code == C.SUCCESS:
+        return pend
+
+    @staticmethod
+    def _close_goal(goal_handle, code: int) -> None:
+        if code == C.SUCCESS:
             goal_handle.succeed()
-        elif pend.code == C.CANCELED and goal_handle.is_cancel_requested:
+        elif code == C.CANCELED and goal_handle.is_cancel_requested:
             goal_handle.canceled()
         else:
             goal_handle.abort()
+
+    def _look(self, goal_handle) -> Look.Result:
+        """The look action: one whole-body motion per head pose, each followed by ``dwell_s`` of
+        holding (the loop holds after a motion); feedback names the pose."""
+        self.counters.goals = max(self.counters.goals, n := next(self._goal_ids))
+        label, req, t0 = f"look #{n}", goal_handle.request, time.monotonic()
+        result = Look.Result(error_code=int(C.SUCCESS))
+        try:
+            poses = self.requests.head_poses(list(req.yaw_rad), list(req.pitch_rad))
+            dwell = float(req.dwell_s) if math.isfinite(req.dwell_s) and req.dwell_s > 0 else self._p["scan_dwell_s"]
+            if dwell > 60.0:
+                raise RequestError(C.INVALID_GOAL, f"dwell_s {dwell:g} s is longer than 60 s")
+        except RequestError as exc:
+            self._reject("goals_rejected", label, exc)
+            goal_handle.abort()
+            return Look.Result(error_code=exc.code, message=str(exc))
+        self.get_logger().info(f"{label}: accepted: {len(poses)} head poses, {dwell:g} s each")
+        fb = Look.Feedback(pose_count=len(poses))
+        for k, (yaw, pitch) in enumerate(poses):
+            fb.pose_index, fb.yaw_rad, fb.pitch_rad, fb.holding = k, float(yaw), float(pitch), False
+            goal_handle.publish_feedback(fb)
+            try:
+                motion = self.requests.look(next(self._ids), f"{label} pose {k}", (yaw, pitch), *self.current_joints())
+            except RequestError as exc:
+                result.error_code, result.message = exc.code, f"pose {k}: {exc}"
+                break
+            pend = self._follow(goal_handle, motion, lambda st: None)
+            result.max_com_error_m = max(result.max_com_error_m, float(pend.summary.get("max_com_error_m", 0.0)))
+            if pend.code != C.SUCCESS:
+                result.error_code, result.message = pend.code, f"pose {k}: {pend.message}"
+                break
+            fb.holding = True
+            goal_handle.publish_feedback(fb)
+            end = time.monotonic() + dwell
+            while time.monotonic() < end and not goal_handle.is_cancel_requested and self.context.ok():
+                time.sleep(min(0.05, max(0.0, end - time.monotonic())))
+            if goal_handle.is_cancel_requested:
+                result.error_code, result.message = int(C.CANCELED), f"canceled at pose {k} (holding there)"
+                break
+            result.poses_done = k + 1
+        result.success = result.error_code == C.SUCCESS
+        result.duration_s = time.monotonic() - t0
+        if result.success:
+            result.message = f"{len(poses)} head poses reached and held {dwell:g} s each"
+        (self.get_logger().info if result.error_code in (C.SUCCESS, C.CANCELED) else self.get_logger().warning)(
+            f"{label}: {RESULT_NAMES.get(result.error_code, result.error_code)}: {result.message} "
+            f"[{result.duration_s:.1f} s, max COG error {result.max_com_error_m * 1e3:.2f} mm]")
+        self._close_goal(goal_handle, result.error_code)
         return result
 
     # ------------------------------------------------------------ diagnostics
@@ -418,10 +483,11 @@ class ReachExecutorNode(Node):
     def destroy_node(self) -> None:
         self.loop.close()
         self.joint_states.destroy()
-        try:
-            self.action_server.destroy()
-        except Exception:
-            pass
+        for server in (self.action_server, self.look_server):
+            try:
+                server.destroy()
+            except Exception:
+                pass
         super().destroy_node()
 
 

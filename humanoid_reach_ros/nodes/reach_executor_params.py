@@ -38,6 +38,10 @@ EXECUTOR_PARAMETERS: dict[str, ParamSpec] = {
     "settle_timeout_s": ParamSpec(_D.settle_timeout_s, "a motion ends at most this long after its reference "
                                   "[s] even if the hand has not converged", (0.0, 60.0)),
     "solver": ParamSpec(_D.solver, "prioritized IK solver", constraints=f"one of {', '.join(SOLVERS)}"),
+    "active_set": ParamSpec(_D.active_set, "solve steps with many damper rows by the exact cascade of dual "
+                            "active-set QPs (DAQP, control/active_set.py); false: saturation passes + OSQP"),
+    "active_set_min_rows": ParamSpec(_D.active_set_min_rows, "damper rows from which a step uses the active-set "
+                                     "cascade (fewer: the closed-form saturation)", (0, 100000)),
 }
 
 NODE_PARAMETERS: dict[str, ParamSpec] = {
@@ -71,6 +75,11 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "diagnostics_period_s": ParamSpec(1.0, "period of /diagnostics [s]", (0.05, 60.0)),
     "max_overrun_fraction": ParamSpec(0.02, "diagnostics WARN when more than this fraction of the steps of the "
                                       "last window overran", (0.0, 1.0)),
+    "scan_poses_deg": ParamSpec([0.0, 35.0, -30.0, 30.0, 30.0, 30.0, -25.0, 5.0, 25.0, 5.0, 0.0, 10.0, 0.0, 25.0],
+                                "head scan of the look action with no poses: yaw, pitch pairs [deg] (pitch > 0 looks "
+                                "down); the last one looks at the workspace in front"),
+    "scan_dwell_s": ParamSpec(1.0, "the look action holds each head pose this long by default [s]", (0.0, 60.0)),
+    "head_speed_rad_s": ParamSpec(0.5, "peak head joint speed of the look action [rad/s]", (0.01, 10.0)),
     "warn_throttle_s": ParamSpec(1.0, "minimum interval between repeated warnings [s]", (0.0, 3600.0)),
     # ---- dual-arm mode (MODE_DUAL_ARM goals, /dual_arm/targets)
     "dual_arm_regression": ParamSpec("torso_regression/hrp2_torso_svr", "torso regression model stem (.npz + "

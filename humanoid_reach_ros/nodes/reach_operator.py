@@ -49,6 +49,7 @@ from humanoid_reach_ros.planning.wgr import ANGLE_TOL
 EXIT = {"success": 0, "internal": 1, "usage": 2, "unavailable": 3, "invalid": 4, "no_motion": 5,
         "no_input": 6, "execution": 7, "canceled": 130}
 
+SCAN_POSES_ASSUMED = 20   # for the result deadline of a scan: poses of the executor's scan_poses_deg at most
 ARMS = {"auto": 0, "right": 1, "left": 2}  # PlanReach.Request.ARM_*
 ARM_LABELS = {0: "auto", 1: "right", 2: "left"}
 
@@ -231,6 +232,12 @@ def build_parser() -> argparse.ArgumentParser:
     wgr.add_argument("--wgr", nargs=12, type=_finite, metavar="B",
                      help="the same with roll pitch yaw in radians, within [-pi, pi] (3.1416 is taken as pi: angles "
                           f"within {ANGLE_TOL:g} rad of +-pi are clamped by the planner)")
+    head = p.add_mutually_exclusive_group()
+    head.add_argument("--scan", action="store_true", help="first turn the head through the executor's scan pattern "
+                      "(/look, feet and COG held) so the voxel map and the marker are seen; alone: only the scan")
+    head.add_argument("--look", nargs=2, type=_finite, metavar=("YAW", "PITCH"),
+                      help="first turn the head to YAW PITCH in DEGREES (pitch > 0 looks down); alone: only that")
+    p.add_argument("--dwell", type=_positive, help="hold each head pose this long [s] (default: the executor's)")
     p.add_argument("--execute", action="store_true", help="execute the plan through /execute_reach")
     p.add_argument("--no-collision-avoidance", action="store_true", help="execute without velocity dampers")
     p.add_argument("--no-com-compensation", action="store_true", help="execute without the exact-COG task")
@@ -271,6 +278,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             p.error(str(exc))
     if a.target is None and (a.rpy is not None or a.frame is not None):
         p.error("--rpy/--rpy-deg and --frame need --target (the marker's pose comes with its own frame)")
+    # --scan / --look alone move the head only; with --marker, --target or --execute a plan follows
+    a.plan = not (a.scan or a.look is not None) or a.marker or a.target is not None or a.execute
+    if a.dwell is not None and not (a.scan or a.look is not None):
+        p.error("--dwell needs --scan or --look")
     if a.target is None:
         a.marker = True
     if not a.execute and (a.no_collision_avoidance or a.no_com_compensation or a.smooth_reshaping):
@@ -321,7 +332,7 @@ class Operator:
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.signals import SignalHandlerOptions
 
-        from humanoid_reach_interfaces.action import ExecuteReach
+        from humanoid_reach_interfaces.action import ExecuteReach, Look
         from humanoid_reach_interfaces.srv import PlanReach
 
         self.rclpy = rclpy
@@ -334,9 +345,11 @@ class Operator:
         self.executor.add_node(self.node)
         self.plan_client = self.node.create_client(PlanReach, "/plan_reach")
         self.exec_client = ActionClient(self.node, ExecuteReach, "/execute_reach")
-        self.ExecuteReach = ExecuteReach
+        self.look_client = ActionClient(self.node, Look, "/look")
+        self.ExecuteReach, self.Look = ExecuteReach, Look
 
     def close(self) -> None:
+        self.look_client.destroy()
         self.exec_client.destroy()
         self.node.destroy_node()
         self.rclpy.try_shutdown()
@@ -378,6 +391,24 @@ class Operator:
                                       smooth_reshaping=args.smooth_reshaping)
         send = self.exec_client.send_goal_async(goal, feedback_callback=lambda m: on_feedback(
             Progress.from_feedback(m.feedback)))
+        pts = trajectory.points
+        duration = pts[-1].time_from_start.sec + pts[-1].time_from_start.nanosec * 1e-9 if pts else 0.0
+        return self._await(send, duration + self.timeout_s)
+
+
+    def look(self, yaw_rad: list[float], pitch_rad: list[float], dwell_s: float,
+             on_feedback: Callable[[Any], None]) -> tuple[str, Any]:
+        """The /look action: same outcomes as :meth:`execute`."""
+        if not self.spin_until(self.look_client.server_is_ready, self.timeout_s):
+            self.err.write(f"reach_operator: /look not available after {self.timeout_s:g} s: is reach_executor "
+                           "running?\n")
+            return "unavailable", None
+        goal = self.Look.Goal(yaw_rad=list(yaw_rad), pitch_rad=list(pitch_rad), dwell_s=float(dwell_s))
+        send = self.look_client.send_goal_async(goal, feedback_callback=lambda m: on_feedback(m.feedback))
+        poses = len(yaw_rad) or SCAN_POSES_ASSUMED   # the scan's length is the executor's parameter
+        return self._await(send, self.timeout_s + poses * ((dwell_s or 1.0) + 5.0))
+
+    def _await(self, send: Any, result_timeout_s: float) -> tuple[str, Any]:
         try:
             if not self.spin_until(send.done, self.timeout_s):
                 return "timeout", None
@@ -385,9 +416,7 @@ class Operator:
             if not handle.accepted:
                 return "rejected", None
             result_future = handle.get_result_async()
-            pts = trajectory.points
-            duration = pts[-1].time_from_start.sec + pts[-1].time_from_start.nanosec * 1e-9 if pts else 0.0
-            if not self.spin_until(result_future.done, duration + self.timeout_s):
+            if not self.spin_until(result_future.done, result_timeout_s):
                 return "timeout", None
             return "done", result_future.result().result
         except Canceled:
@@ -452,9 +481,53 @@ def execution_report(e: dict[str, Any]) -> str:
             f"error {f('final_hand_error_m', 1e3, 'mm', 1)} / {f('final_hand_error_rad', 1.0, 'rad', 3)}")
 
 
+def look_summary(outcome: str, result: Any) -> dict[str, Any]:
+    out: dict[str, Any] = {"outcome": outcome}
+    if result is not None:
+        name = EXECUTE_CODES.get(result.error_code, (f"UNKNOWN_CODE_{result.error_code}",))[0]
+        out.update({"success": bool(result.success), "error_code": int(result.error_code), "error_name": name,
+                    "message": result.message, "poses_done": int(result.poses_done),
+                    "duration_s": float(result.duration_s), "max_com_error_m": float(result.max_com_error_m)})
+    return out
+
+
+def look(op: Operator, args: argparse.Namespace, text: TextIO, err: TextIO, summary: dict[str, Any]) -> int:
+    """``--scan`` / ``--look``: the /look action with a line per head pose; the exit code."""
+    yaw, pitch = ([], []) if args.scan else ([math.radians(args.look[0])], [math.radians(args.look[1])])
+    text.write("scanning with the head (the executor's scan pattern) ...\n" if args.scan else
+               f"turning the head to yaw {args.look[0]:g}, pitch {args.look[1]:g} deg ...\n")
+    text.flush()
+
+    def feedback(fb: Any) -> None:
+        state = "holding" if fb.holding else "moving"
+        text.write(f"  head pose {fb.pose_index + 1}/{fb.pose_count}: yaw {math.degrees(fb.yaw_rad):+.1f}, pitch "
+                   f"{math.degrees(fb.pitch_rad):+.1f} deg ({state})\n")
+        text.flush()
+    outcome, result = op.look(yaw, pitch, args.dwell or 0.0, feedback)
+    summary["look"] = look_summary(outcome, result)
+    if outcome == "unavailable":
+        return EXIT["unavailable"]
+    if outcome == "timeout":
+        err.write("look: no answer from /look in time\n")
+        return EXIT["unavailable"]
+    if outcome == "rejected":
+        err.write("look failed: the goal was rejected by /look\n")
+        return EXIT["execution"]
+    if result is None:
+        return EXIT["canceled"]
+    if result.success and result.error_code == 0:
+        text.write(f"look: {result.message} [{result.duration_s:.1f} s, max COG drift "
+                   f"{result.max_com_error_m * 1e3:.2f} mm]\n")
+        return EXIT["success"]
+    err.write(f"look {'canceled' if outcome == 'canceled' else 'failed'}: "
+              f"{code_text(EXECUTE_CODES, result.error_code, result.message)}\n")
+    return EXIT["canceled"] if outcome == "canceled" else (exit_class(EXECUTE_CODES, result.error_code)
+                                                           or EXIT["execution"])
+
+
 def run(args: argparse.Namespace, out: TextIO = sys.stdout, err: TextIO = sys.stderr) -> int:
     text = err if args.json else out  # with --json, stdout holds only the JSON line
-    summary: dict[str, Any] = {"plan": None, "execution": None}
+    summary: dict[str, Any] = {"look": None, "plan": None, "execution": None}
 
     def finish(code: int) -> int:
         summary["exit_code"] = code
@@ -463,10 +536,14 @@ def run(args: argparse.Namespace, out: TextIO = sys.stdout, err: TextIO = sys.st
             out.flush()
         return code
 
-    req = plan_request(args)
+    req = plan_request(args) if args.plan else None
     op = Operator(args.timeout, err)
     old = {s: signal.signal(s, lambda *_: setattr(op, "interrupted", True)) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
+        if args.scan or args.look is not None:
+            code = look(op, args, text, err, summary)
+            if code != EXIT["success"] or not args.plan:
+                return finish(code)
         target = "the marker's /target_pose" if args.marker else \
             f"({', '.join(f'{v:g}' for v in args.target)}) in {args.frame or 'world'}"
         text.write(f"planning to {target}, arm {args.arm} ...\n")
