@@ -124,6 +124,40 @@ def bad_trajectories(plan, model: RobotModel) -> dict[str, tuple[JointTrajectory
     return out
 
 
+def test_look_requests_in_process(model) -> None:
+    """/look goals: the scan pattern when empty, refusals naming the pose and the limit, and a
+    motion whose reference moves only the head joints to the pose."""
+    from humanoid_reach_ros.codes import RequestError
+    from humanoid_reach_ros.execution.requests import ExecutionRequests
+
+    p = {k: spec.default for k, spec in reach_executor_params.PARAMETERS.items()}
+    p["scene_file"] = ""
+    req = ExecutionRequests(model, p)
+    scan = req.head_poses([], [])
+    np.testing.assert_allclose(np.degrees(scan).ravel(), p["scan_poses_deg"])
+    for yaw, pitch, words in (([0.1, 0.2], [0.3], "one pitch per yaw"), ([math.nan], [0.0], "NaN"),
+                              ([0.0], [math.radians(200)], "HEAD_JOINT1's limits"),
+                              ([math.radians(-170)], [0.0], "pose 0 of the goal: yaw -170.0")):
+        with pytest.raises(RequestError, match=words):
+            req.head_poses(yaw, pitch)
+    p["scan_poses_deg"] = [0.0, 10.0, 5.0]
+    with pytest.raises(RequestError, match="yaw, pitch pairs"):
+        req.head_poses([], [])
+    joints = model.half_sitting_joints
+    with pytest.raises(RequestError) as exc:
+        req.look(1, "look", (0.2, 0.4), None, "no /joint_states received")
+    assert exc.value.code == reach_executor.C.NO_JOINT_STATES
+    motion = req.look(1, "look", (0.2, 0.4), joints, "")
+    head = [model.joint_index[n] for n in ("HEAD_JOINT0", "HEAD_JOINT1")]
+    end = motion.spline.position(motion.spline.duration)
+    np.testing.assert_allclose(end[head], [0.2, 0.4])
+    others = np.ones(model.n_joints, bool)
+    others[head] = False
+    np.testing.assert_array_equal(end[others], joints[others])
+    assert motion.params.collision_avoidance and motion.params.com_compensation
+    assert np.max(motion.spline.max_velocity[head]) <= p["head_speed_rad_s"] + 1e-9
+
+
 def test_reference_validation_in_process(valve_plan, model) -> None:
     ref = exec_msgs.reference_from_trajectory(trajectory(valve_plan), model)
     assert ref.times[0] == 0.0 and ref.positions.shape == (len(valve_plan.times), 30)

@@ -102,6 +102,11 @@ def test_progress_bar_and_printer() -> None:
     (["--seed", "x"], "'x' is not an integer"),
     (["--timeout", "0"], "must be > 0"),
     (["--no-com-compensation"], "need --execute"),
+    (["--scan", "--look", "0", "20"], "not allowed with argument"),
+    (["--look", "0"], "expected 2 arguments"),
+    (["--look", "nan", "20"], "'nan' is not a finite number"),
+    (["--dwell", "1"], "--dwell needs --scan or --look"),
+    (["--scan", "--dwell", "0"], "must be > 0"),
 ])
 def test_bad_arguments(argv, message, capsys) -> None:
     with pytest.raises(SystemExit) as exc:
@@ -129,6 +134,14 @@ def test_requests_from_the_command_line() -> None:
     np.testing.assert_allclose(matrix_rpy(pose.rotation), [0.1, -0.2, 0.3], atol=1e-12)
     assert (req.arm, req.planner, req.goal_count, req.time_budget_s, req.seed) == (2, "prm", 4, 2.5, 7)
     assert list(req.region.lower) == list(range(-6, 0)) and list(req.region.upper) == list(range(1, 7))
+
+
+def test_head_flags_alone_move_the_head_only() -> None:
+    """--scan / --look alone: the head only; with --marker, --target or --execute a plan follows."""
+    assert not op.parse_args(["--scan"]).plan and not op.parse_args(["--look", "10", "-5", "--dwell", "2"]).plan
+    assert op.parse_args(["--scan", "--marker"]).plan and op.parse_args(["--scan", "--execute"]).plan
+    assert op.parse_args(["--look", "0", "25", "--target", "0.7", "0", "0.9"]).plan
+    assert op.parse_args([]).plan
 
 
 def test_degree_flags_give_the_same_request_as_radians() -> None:
