@@ -32,7 +32,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from humanoid_reach_ros.graph import NodeProcess, allocate_domain, graph_env, wait_for
+from humanoid_reach_ros.graph import STOP_DEADLINE_S, NodeProcess, allocate_domain, graph_env, wait_for
 from humanoid_reach_ros.nodes.reach_executor_params import PARAMETERS
 from humanoid_reach_ros.paths import config_path
 
@@ -413,8 +413,10 @@ def run(args: argparse.Namespace) -> dict:
             op.close()
         codes = graph.stop()
         lease.release()
-        bad = {k: v for k, v in codes.items() if v not in (0, -signal.SIGINT)}
-        print(f"[demo] stopped {len(codes)} processes" + (f"; unclean exits: {bad}" if bad else " cleanly"))
+        slow = {p.name: round(p.stop_s, 2) for p in graph.procs if (p.stop_s or 0.0) > STOP_DEADLINE_S}
+        bad = {k: v for k, v in codes.items() if v != 0}
+        print(f"[demo] stopped {len(codes)} processes" + (f"; unclean exits: {bad}" if bad else " cleanly")
+              + (f"; slower than {STOP_DEADLINE_S:g} s to stop: {slow}" if slow else ""))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -8,7 +8,9 @@ Used by the demo (``humanoid_reach_ros.demo``) and by the node-level tests.
   and, unless the caller set one, the package's Fast DDS profile (``config/fastdds.xml``:
   large messages over shared memory).
 * ``NodeProcess.start`` runs ``python -m humanoid_reach_ros.nodes.<name> --ros-args ...``
-  as a real process with its output in a log file; ``stop`` sends SIGINT, waits, kills.
+  as a real process with its output in a log file; ``stop`` sends SIGINT, waits, kills. A
+  node ends with exit code 0 within ``STOP_DEADLINE_S`` of a SIGINT (the demo and
+  test_operator_flow check it).
 * ``wait_for`` polls a condition with a timeout.
 
 No rclpy here: this module only starts and stops processes.
@@ -32,6 +34,7 @@ PACKAGE_ROOT = Path(__file__).resolve().parent.parent  # the directory holding h
 DOMAIN_MIN, DOMAIN_MAX = 1, 101
 _LOCK_DIR = Path(tempfile.gettempdir()) / "humanoid_reach_ros_domains"
 _counter = itertools.count()
+STOP_DEADLINE_S = 3.0   # a node exits (code 0) within this long of SIGINT
 # Fast DDS profile with an 8 MB shared-memory segment: point clouds (0.3-0.84 MB) exceed the
 # built-in 0.5 MB and were lost as best-effort UDP fragments (config/fastdds.xml says more)
 FASTDDS_PROFILES = PACKAGE_ROOT / "config" / "fastdds.xml"
@@ -141,7 +144,8 @@ class NodeProcess:
     proc: subprocess.Popen
     log_path: Path
     cmd: list[str] = field(default_factory=list)
-    ok_exit_codes: tuple[int, ...] = (0, -signal.SIGINT)  # what teardown accepts; a test may expect others
+    ok_exit_codes: tuple[int, ...] = (0,)  # what teardown accepts (Ctrl-C ends a node with 0); a test may expect others
+    stop_s: float | None = None             # SIGINT to exit [s], by stop()
 
     @classmethod
     def start(cls, module: str, log_dir: Path, env: Mapping[str, str], params_file: str | Path | None = None,
@@ -188,14 +192,17 @@ class NodeProcess:
         return wait_for(found, timeout, f"{self.name} to log {pattern!r}", on_timeout=self.log_tail)
 
     def stop(self, timeout: float = 10.0) -> int:
-        """SIGINT (Ctrl-C), wait ``timeout`` s, then SIGKILL. Returns the exit code."""
+        """SIGINT (Ctrl-C), wait ``timeout`` s, then SIGKILL. Returns the exit code; ``stop_s``
+        is how long the process took to exit after the SIGINT."""
         if self.alive():
+            t0 = time.monotonic()
             self.proc.send_signal(signal.SIGINT)
             try:
                 self.proc.wait(timeout)
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait(5.0)
+            self.stop_s = time.monotonic() - t0
         return self.proc.returncode
 
     def exited_cleanly(self) -> bool:

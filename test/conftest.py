@@ -100,7 +100,7 @@ def start_node(ros_env: Mapping[str, str], tmp_path: Path, request: pytest.Fixtu
 
     It waits until a log line matches ``ready_log`` and/or ``ready()`` is truthy.
     At teardown every started node still running gets SIGINT (then SIGKILL after 10 s); a
-    node whose exit code is not 0 / -SIGINT fails the test, and logs are printed on failure.
+    node whose exit code is not 0 fails the test (Ctrl-C ends a node with 0), and logs are printed on failure.
     """
     started: list[NodeProcess] = []
 

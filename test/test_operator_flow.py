@@ -5,7 +5,8 @@ then exactly
     reach_operator --scan
     reach_operator --marker --execute
 
-as separate processes: the head scan goes through the executor's ``/look`` action (feet and
+as separate processes, and at the end Ctrl-C stops every node with exit code 0 within
+``STOP_DEADLINE_S`` (3 s). The head scan goes through the executor's ``/look`` action (feet and
 COG held), the map and the marker come from the head sensors, the valve is reached. On the
 way, bad head requests are refused with a reason and nothing stops (a pose outside the
 head's limits from the command line; mismatched pose lists through the action).
@@ -21,6 +22,7 @@ from humanoid_reach_interfaces.action import Look
 from rclpy.action import ActionClient
 
 from humanoid_reach_ros.demo import SIM_JOINT_STATES_ABORT_S, SIM_JOINT_STATES_TIMEOUT_S
+from humanoid_reach_ros.graph import STOP_DEADLINE_S
 from nodetools import REPO_ROOT
 
 pytestmark = pytest.mark.node
@@ -79,3 +81,10 @@ def test_scan_then_reach_the_marker_from_the_command_line(start_node, ros_env, r
     ex = out["execution"]
     assert ex["success"] and ex["min_distance_m"] >= 0.0 and ex["final_hand_error_m"] < 1e-3, ex
     assert all(p.alive() for p in procs)
+
+    # Ctrl-C: every node exits 0 within STOP_DEADLINE_S (after a motion, with the executor holding)
+    for p in reversed(procs):
+        p.stop()
+    stops = {p.name: (p.proc.returncode, round(p.stop_s, 2)) for p in procs}
+    print(f"exit code and seconds to stop after SIGINT: {stops}")
+    assert all(code == 0 and s <= STOP_DEADLINE_S for code, s in stops.values()), stops
