@@ -165,3 +165,18 @@ class LatestOnDemand:
     def destroy(self) -> None:
         self._node.destroy_node()
 
+
+def current_joints(joint_states: LatestOnDemand, timeout_s: float, robot) -> tuple[Any, str]:
+    """The robot's joint angles of the newest ``/joint_states`` (``io.msgs.model_joints``: unknown
+    names ignored, a missing model joint refused), or None and the reason: none received, or
+    older than ``timeout_s``."""
+    from humanoid_reach_ros.io import msgs
+
+    msg = joint_states.latest()
+    if msg is None:
+        return None, "no /joint_states received"
+    age = joint_states.age_s()
+    if age > timeout_s:
+        return None, f"/joint_states is stale ({age:.2f} s > {timeout_s:g} s)"
+    return msgs.model_joints(msg, robot)
+

@@ -57,7 +57,8 @@ from humanoid_reach_ros.codes import ARM_AUTO, ExecuteCode as C, RequestError
 from humanoid_reach_ros.execution.requests import ExecutionRequests
 from humanoid_reach_ros.execution.supervisor import IDLE, Motion
 from humanoid_reach_ros.io import exec_msgs, msgs
-from humanoid_reach_ros.nodes.common import LATCHED, RELIABLE_LATEST, LatestOnDemand, declare_parameters, run_node
+from humanoid_reach_ros.nodes.common import (LATCHED, RELIABLE_LATEST, LatestOnDemand, current_joints,
+                                             declare_parameters, run_node)
 from humanoid_reach_ros.nodes.reach_executor_loop import LoopConfig, LoopProcess
 from humanoid_reach_ros.nodes.reach_executor_params import (MAX_SEQUENTIAL, PARAMETERS, SOLVERS, executor_params,
                                                             supervisor_config)
@@ -221,13 +222,8 @@ class ReachExecutorNode(Node):
 
     # ------------------------------------------------------------ inputs
     def current_joints(self) -> tuple[np.ndarray | None, str]:
-        msg = self.joint_states.latest()
-        if msg is None:
-            return None, "no /joint_states received"
-        age = self.joint_states.age_s()
-        if age > self._p["joint_states_timeout_s"]:
-            return None, f"/joint_states is stale ({age:.2f} s > {self._p['joint_states_timeout_s']:g} s)"
-        return msgs.model_joints(msg, self.robot)
+        """The latest valid joint angles, or None and the reason."""
+        return current_joints(self.joint_states, self._p["joint_states_timeout_s"], self.robot)
 
     def _watch_joint_states(self) -> None:
         """A running motion whose /joint_states went stale is aborted (the loop holds)."""

@@ -62,7 +62,8 @@ from visualization_msgs.msg import MarkerArray
 
 from humanoid_reach_ros.geometry.voxels import without_target
 from humanoid_reach_ros.io import msgs
-from humanoid_reach_ros.nodes.common import LATCHED, LatestOnDemand, RELIABLE_LATEST, ParamSpec, declare_parameters, run_node
+from humanoid_reach_ros.nodes.common import (LATCHED, RELIABLE_LATEST, LatestOnDemand, ParamSpec, current_joints,
+                                             declare_parameters, run_node)
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner
 from humanoid_reach_ros.robot.model import RobotModel
@@ -273,14 +274,8 @@ class ReachPlannerNode(Node):
 
     # ------------------------------------------------------------ inputs
     def current_joints(self) -> tuple[np.ndarray | None, str]:
-        """The latest valid 30 joint angles, or None and the reason."""
-        msg = self.joint_states.latest()
-        if msg is None:
-            return None, "no /joint_states received"
-        age = self.joint_states.age_s()
-        if age > self._p["joint_states_timeout_s"]:
-            return None, f"/joint_states is stale ({age:.2f} s > {self._p['joint_states_timeout_s']:g} s)"
-        return msgs.model_joints(msg, self.model)
+        """The latest valid joint angles, or None and the reason."""
+        return current_joints(self.joint_states, self._p["joint_states_timeout_s"], self.model)
 
     def current_target(self) -> tuple[PoseStamped | None, str]:
         with self._state_lock:
