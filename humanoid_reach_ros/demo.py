@@ -161,11 +161,17 @@ class Operator:
                 n = self.maps[-1][1] if self.maps else 0
                 print(f"[demo] head pose {f.pose_index + 1}/{f.pose_count}: yaw {math.degrees(f.yaw_rad):+5.1f} "
                       f"pitch {math.degrees(f.pitch_rad):+5.1f} deg (map {n} voxels)")
-        send = self.look_client.send_goal_async(goal, feedback_callback=feedback)
-        self.spin_until(send.done, 30.0, "/look to accept the goal")
-        result = send.result().get_result_async()
-        self.spin_until(result.done, timeout, "the /look result")
-        res = result.result().result
+        deadline = time.monotonic() + 30.0
+        while True:
+            send = self.look_client.send_goal_async(goal, feedback_callback=feedback)
+            self.spin_until(send.done, 30.0, "/look to accept the goal")
+            result = send.result().get_result_async()
+            self.spin_until(result.done, timeout, "the /look result")
+            res = result.result().result
+            # right after start-up the executor may not have taken a /joint_states yet: ask again
+            if res.error_code != self.Look.Result.NO_JOINT_STATES or time.monotonic() > deadline:
+                break
+            self.spin_for(0.5)
         if not res.success:
             raise RuntimeError(f"/look failed ({res.error_code}): {res.message}")
         return res
