@@ -425,9 +425,12 @@ class ReachExecutorNode(Node):
         result.duration_s = time.monotonic() - t0
         if result.success:
             result.message = f"{len(poses)} head poses reached and held {dwell:g} s each"
-        (self.get_logger().info if result.error_code in (C.SUCCESS, C.CANCELED) else self.get_logger().warning)(
-            f"{label}: {RESULT_NAMES.get(result.error_code, result.error_code)}: {result.message} "
-            f"[{result.duration_s:.1f} s, max COG error {result.max_com_error_m * 1e3:.2f} mm]")
+        line = (f"{label}: {RESULT_NAMES.get(result.error_code, result.error_code)}: {result.message} "
+                f"[{result.duration_s:.1f} s, max COG error {result.max_com_error_m * 1e3:.2f} mm]")
+        if result.error_code in (C.SUCCESS, C.CANCELED):   # one severity per call site (rclpy's rule)
+            self.get_logger().info(line)
+        else:
+            self.get_logger().warning(line)
         self._close_goal(goal_handle, result.error_code)
         return result
 
