@@ -58,6 +58,7 @@ from typing import Sequence
 
 import numba as nb
 import numpy as np
+from scipy.ndimage import binary_dilation
 
 from humanoid_reach_ros.geometry.camera import PinholeCamera, look_at
 
@@ -426,6 +427,37 @@ class VoxelMap:
     def occupied_centers(self) -> np.ndarray:
         """Centres ``(i + 1/2) h`` (N, 3) [m, world] of the occupied voxels."""
         return (self.occupied_indices().astype(np.float64) + 0.5) * self.params.resolution_m
+
+    def observed_mask(self) -> np.ndarray:
+        """Voxels some ray has reached (``W > 0``: passed through, or hit)."""
+        return self.W > 0.0
+
+    def frontier_centers(self, region_min_m: Sequence[float], region_max_m: Sequence[float]) -> np.ndarray:
+        """Centres (N, 3) [m, world] of the *unobserved frontier* inside a region: voxels no ray
+        has reached (``W == 0``) with an observed free voxel among their 26 neighbours.
+
+        Unobserved space is bounded by its frontier, so a robot that starts in observed space
+        and must not enter unobserved space only has to avoid these voxels (at the map's
+        resolution: the occupied voxels' own argument); the voxels behind a surface (seen from
+        nowhere, next to occupied voxels only) are not on it. Outside ``[region_min_m,
+        region_max_m]`` (clipped to the extent) nothing is returned."""
+        h = self.params.resolution_m
+        lo = np.maximum(np.ceil(np.asarray(region_min_m, float) / h - 0.5 - 1e-9).astype(np.int64), self.index_lo)
+        hi = np.minimum(np.floor(np.asarray(region_max_m, float) / h - 0.5 + 1e-9).astype(np.int64), self.index_hi)
+        if np.any(hi < lo):
+            return np.empty((0, 3))
+        a = lo - self.index_lo
+        b = hi - self.index_lo + 1
+        # one voxel more on every side, so that a free neighbour just outside the region counts
+        a1, b1 = np.maximum(a - 1, 0), np.minimum(b + 1, np.array(self.shape))
+        sl = tuple(slice(int(x), int(y)) for x, y in zip(a1, b1))
+        W = self.W[sl]
+        free = (W > 0.0) & ~((self.V[sl] > self.params.occupied_threshold) & (W >= self.params.min_weight))
+        near_free = binary_dilation(free, structure=np.ones((3, 3, 3), bool))
+        frontier = near_free & (W == 0.0)
+        inner = tuple(slice(int(x - y), int(x - y + (c - x))) for x, y, c in zip(a, a1, b))
+        idx = np.argwhere(frontier[inner]) + lo
+        return (idx.astype(np.float64) + 0.5) * h
 
     def value_at(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(V, W) of the voxels containing world points (N, 3); NaN / 0 outside the extent."""
