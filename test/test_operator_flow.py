@@ -9,7 +9,8 @@ as separate processes, and at the end Ctrl-C stops every node with exit code 0 w
 ``STOP_DEADLINE_S`` (3 s). The head scan goes through the executor's ``/look`` action (feet and
 COG held), the map and the marker come from the head sensors, the valve is reached. On the
 way, bad head requests are refused with a reason and nothing stops (a pose outside the
-head's limits from the command line; mismatched pose lists through the action).
+head's limits from the command line; mismatched pose lists through the action), and a
+target given before the scan is refused as ``UNOBSERVED_SPACE`` (the head has not seen it).
 """
 from __future__ import annotations
 
@@ -68,6 +69,10 @@ def test_scan_then_reach_the_marker_from_the_command_line(start_node, ros_env, r
     ros_probe.spin_until(result.done, 30.0, "the /look result")
     res = result.result().result
     assert res.error_code == Look.Result.INVALID_GOAL and "one pitch per yaw" in res.message, res.message
+
+    # before any scan the valve's space is unobserved: the planner says so instead of planning through it
+    code, out, err = operator(ros_env, "--target", "0.71", "0.03", "0.90")
+    assert code == 6 and out["plan"]["error_name"] == "UNOBSERVED_SPACE" and "scan first" in err, (code, out, err)
 
     # the operator's flow, as the README gives it
     code, out, err = operator(ros_env, "--scan")

@@ -257,3 +257,70 @@ def test_discretized_rays_match_every_ray(scene) -> None:
     (a, rays_d, points), (b, rays_all, _) = maps[True], maps[False]
     assert rays_all <= points and rays_d < 0.75 * rays_all
     assert len(a ^ b) < 0.01 * len(a | b)
+
+
+# ---------------------------------------------------------------- unobserved space
+def test_frontier_and_unobserved_blocks_on_one_ray() -> None:
+    """One ray along +x at y = z = 0.51 m from x = 0.05 to a wall point at x = 0.55: the
+    voxels it crossed are free, its end occupied; the frontier is the unobserved voxels
+    beside the free ones (26-neighbours), not those beside the occupied end only; blocks
+    that no ray reached are the unobserved blocks."""
+    m = VoxelMap(FusionParams(resolution_m=H, extent_min_m=(0.0, 0.0, 0.0), extent_max_m=(1.0, 1.0, 1.0),
+                              clear_margin_m=0.0, floor_z_m=-1.0))
+    region = ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+    assert len(m.frontier_centers(*region)) == 0                 # nothing observed: no frontier ...
+    assert len(m.unobserved_blocks(*region, 5)) == 10 ** 3       # ... and every block unobserved
+    origin = np.array([0.05, 0.51, 0.51])
+    m.integrate(np.array([[0.55, 0.51, 0.51]]), origin=origin)
+    free = keys(ray_voxels(origin, [0.55, 0.51, 0.51], H)[:-1])
+    occupied = keys(m.occupied_indices())
+    assert occupied == {(27, 25, 25)}
+    frontier = keys(np.floor(m.frontier_centers(*region) / H + 1e-9))
+    expected = {(x + i, y + j, z + k) for x, y, z in free for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)}
+    expected -= free | occupied
+    assert frontier == expected
+    assert (28, 25, 25) not in frontier                          # behind the hit: next to it, not to free space
+    # a region that clips the ray: only its part, and free neighbours just outside still count
+    part = keys(np.floor(m.frontier_centers((0.0, 0.0, 0.0), (0.2, 1.0, 1.0)) / H + 1e-9))
+    assert part == {k for k in expected if k[0] <= 9} and part
+    assert len(m.frontier_centers((2.0, 2.0, 2.0), (3.0, 3.0, 3.0))) == 0     # outside the extent
+    blocks = m.unobserved_blocks(*region, 5)
+    assert len(blocks) == 10 ** 3 - 6                            # the ray crossed blocks x 0..5 at y = z = 5
+    seen = {tuple(np.floor(b / 0.1).astype(int)) for b in np.array([[x, 0.51, 0.51] for x in np.arange(0.05, 0.6, 0.1)])}
+    assert not seen & {tuple(np.floor(b / 0.1).astype(int)) for b in blocks}
+    np.testing.assert_allclose(blocks[0], [0.05, 0.05, 0.05])    # a block's centre
+    with pytest.raises(ValueError, match="block_voxels"):
+        m.unobserved_blocks(*region, 0)
+
+
+def test_scan_frontier_encloses_what_the_head_saw(scene) -> None:
+    """After a head scan of the plant: the frontier lies next to observed free space and is
+    not observed itself; the space in front of the robot at hand height is observed."""
+    m = VoxelMap(FusionParams(resolution_m=H))
+    scan_into(m, scene, head_poses())
+    region = ((0.0, -1.0, 0.1), (1.3, 1.0, 2.0))
+    F = m.frontier_centers(*region)
+    assert 1000 < len(F) < 200_000
+    _, w = m.value_at(F)
+    assert np.all(w == 0.0)
+    _, w = m.value_at(np.array([[0.5, 0.0, 0.9], [0.6, -0.2, 1.0]]))
+    assert np.all(w > 0.0)
+
+
+def test_swept_space_counts_as_observed_free_never_as_free_of_obstacles() -> None:
+    m = VoxelMap(FusionParams(resolution_m=H, extent_min_m=(0.0, 0.0, 0.0), extent_max_m=(1.0, 1.0, 1.0),
+                              clear_margin_m=0.0, floor_z_m=-1.0))
+    m.integrate(np.array([[0.51, 0.51, 0.51]]), origin=(0.05, 0.51, 0.51))     # one hit at the capsule's axis
+    occupied = keys(m.occupied_indices())
+    n = m.mark_swept(np.array([[0.4, 0.5, 0.5]]), np.array([[0.6, 0.5, 0.5]]), np.array([0.1]))
+    assert n > 1000 and m.mark_swept(np.array([[0.4, 0.5, 0.5]]), np.array([[0.6, 0.5, 0.5]]), np.array([0.1])) == 0
+    assert keys(m.occupied_indices()) == occupied                           # occupancy untouched
+    region = ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+    F = m.frontier_centers(*region)
+    assert len(F) and np.all(m.value_at(F)[1] == 0.0)
+    d = np.linalg.norm(F - np.clip(F, [0.4, 0.5, 0.5], [0.6, 0.5, 0.5]), axis=1)
+    assert d.min() > 0.1 - 1e-9                                             # none inside the swept capsule
+    assert len(m.unobserved_blocks(*region, 5)) < 10 ** 3 - 6               # swept blocks count as observed
+    m.mark_swept(np.array([[5.0, 5.0, 5.0]]), np.array([[6.0, 5.0, 5.0]]), np.array([0.1]))   # outside: nothing
+    m.clear()
+    assert not m.swept.any() and len(m.frontier_centers(*region)) == 0

@@ -75,9 +75,11 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "diagnostics_period_s": ParamSpec(1.0, "period of /diagnostics [s]", (0.05, 60.0)),
     "max_overrun_fraction": ParamSpec(0.02, "diagnostics WARN when more than this fraction of the steps of the "
                                       "last window overran", (0.0, 1.0)),
-    "scan_poses_deg": ParamSpec([0.0, 35.0, -30.0, 30.0, 30.0, 30.0, -25.0, 5.0, 25.0, 5.0, 0.0, 10.0, 0.0, 25.0],
+    "scan_poses_deg": ParamSpec([0.0, 35.0, -30.0, 30.0, 30.0, 30.0, 0.0, 45.0, -35.0, 45.0, 35.0, 45.0, -25.0, 5.0,
+                                 25.0, 5.0, 0.0, 10.0, 0.0, 25.0],
                                 "head scan of the look action with no poses: yaw, pitch pairs [deg] (pitch > 0 looks "
-                                "down); the last one looks at the workspace in front"),
+                                "down; the pitch-45 poses see the space in front of the chest the arms and the trunk move through); the "
+                                "last one looks at the workspace in front"),
     "scan_dwell_s": ParamSpec(1.0, "the look action holds each head pose this long by default [s]", (0.0, 60.0)),
     "head_speed_rad_s": ParamSpec(0.5, "peak head joint speed of the look action [rad/s]", (0.01, 10.0)),
     "warn_throttle_s": ParamSpec(1.0, "minimum interval between repeated warnings [s]", (0.0, 3600.0)),

@@ -73,6 +73,8 @@ PLAN_CODES: dict[int, tuple[str, str, str]] = {
         "marker in view? Or give --target"),
     10: ("NO_JOINT_STATES", "no_input", "no recent /joint_states: is joint_driver running?"),
     11: ("BUSY", "no_input", "another request is being planned: try again"),
+    12: ("UNOBSERVED_SPACE", "no_input", "the target or the way to it lies in space the head has not observed: "
+         "scan first (--scan) or look there (--look YAW PITCH)"),
     99: ("INTERNAL_ERROR", "internal", "the planner failed internally: see its log"),
 }
 

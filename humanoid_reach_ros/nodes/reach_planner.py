@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import SetParametersResult
 from geometry_msgs.msg import PoseStamped
 from humanoid_reach_interfaces.srv import PlanReach
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
@@ -102,6 +103,12 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "target_exclusion_radius_m": ParamSpec(0.15, "voxels of a /voxel_map within this distance of the request's "
                                            "target are the object to be reached and left out of the collision "
                                            "map [m]; 0 = keep all", (0.0, 1.0), read_only=False),
+    "unobserved_space": ParamSpec("occupied", "space the head has not observed (from voxel_mapper's "
+                                  "/voxel_map/unobserved and /voxel_map/unobserved_blocks): 'occupied' = never "
+                                  "planned through (UNOBSERVED_SPACE: scan first), 'free' = planned through",
+                                  constraints="one of: occupied, free", read_only=False),
+    "unobserved_block_m": ParamSpec(0.1, "edge of the blocks of /voxel_map/unobserved_blocks [m] (voxel_mapper's "
+                                    "unobserved_block_voxels * resolution_m)", (0.001, 10.0)),
     "joint_states_timeout_s": ParamSpec(0.5, "/joint_states older than this [s] -> NO_JOINT_STATES",
                                         (0.001, 3600.0), read_only=False),
     "target_timeout_s": ParamSpec(1.0, "/target_pose older than this [s] -> NO_TARGET for use_marker_target",
@@ -113,6 +120,7 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
 
 PARAMETERS: dict[str, ParamSpec] = {**PLANNER_PARAMETERS, **NODE_PARAMETERS}
 HAND_LIMBS = {"right": "right_arm", "left": "left_arm"}
+UNOBSERVED_POLICIES = ("occupied", "free")
 
 
 def planner_params(values: dict[str, Any]) -> PlannerParams:
@@ -155,6 +163,8 @@ class ReachPlannerNode(Node):
         self._p = p
         if p["planner"] not in msgs.PLANNERS:
             raise ValueError(f"planner must be one of {msgs.PLANNERS}, got {p['planner']!r}")
+        if p["unobserved_space"] not in UNOBSERVED_POLICIES:
+            raise ValueError(f"unobserved_space must be one of {UNOBSERVED_POLICIES}, got {p['unobserved_space']!r}")
         if p["goal_count"] < 1 or p["marker_path_points"] < 2:
             raise ValueError("goal_count must be >= 1 and marker_path_points >= 2")
         self.map_frame: str = p["map_frame"]
@@ -168,7 +178,9 @@ class ReachPlannerNode(Node):
         self._plan_lock = threading.Lock()   # one request at a time; a second one gets BUSY
         self._state_lock = threading.Lock()  # latest joint state / target
         self._map_points: np.ndarray | None = None   # the last /voxel_map (uncarved)
-        self._carved_for: tuple | None = None          # (map, target) the planner's map is carved for
+        self._frontier: np.ndarray | None = None     # the last /voxel_map/unobserved
+        self._blocks: np.ndarray | None = None       # the last /voxel_map/unobserved_blocks
+        self._carved_for: tuple | None = None          # (map, target, ...) the planner's map is prepared for
         self._target_msg: PoseStamped | None = None
         self._target_time = -math.inf
         self.map_info = MapInfo()
@@ -194,6 +206,10 @@ class ReachPlannerNode(Node):
         self.markers_pub = self.create_publisher(MarkerArray, "planning/markers", LATCHED)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(PointCloud2, "voxel_map", self._on_map, LATCHED, callback_group=self._map_group)
+        self.create_subscription(PointCloud2, "voxel_map/unobserved", lambda m: self._on_unobserved("_frontier", m),
+                                 LATCHED, callback_group=self._map_group)
+        self.create_subscription(PointCloud2, "voxel_map/unobserved_blocks",
+                                 lambda m: self._on_unobserved("_blocks", m), LATCHED, callback_group=self._map_group)
         # the start posture only: the latest joint state taken when needed (no 200 Hz callbacks); a 10 Hz
         # take keeps its age (staleness) exact to 0.1 s
         self.joint_states = LatestOnDemand(self, JointState, "joint_states", qos_profile_sensor_data)
@@ -204,6 +220,7 @@ class ReachPlannerNode(Node):
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(p["diagnostics_period_s"], self._publish_diagnostics, clock=steady,
                           callback_group=self._state_group)
+        self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         pp = self.planner_defaults_text()
         self.get_logger().info(
@@ -251,26 +268,70 @@ class ReachPlannerNode(Node):
             log.warning(f"/voxel_map had {cloud.dropped_nonfinite} points with NaN/inf coordinates (dropped)")
         self._publish_diagnostics()
 
-    def _carve_target(self, target_p: np.ndarray) -> None:
-        """Leave the object at the target out of a measured map (see ``geometry.voxels.without_target``);
-        the sphere tree is rebuilt only when the map or the target changed."""
-        radius = float(self._p["target_exclusion_radius_m"])
+    def _on_unobserved(self, attr: str, msg: PointCloud2) -> None:
+        """/voxel_map/unobserved (the frontier) or /voxel_map/unobserved_blocks: kept for the next request."""
+        topic = "/voxel_map/unobserved" + ("_blocks" if attr == "_blocks" else "")
+        try:
+            cloud = msgs.points_from_cloud(msg)
+            if cloud.frame_id not in ("", self.map_frame):
+                raise ValueError(f"frame_id {cloud.frame_id!r} is not the map frame {self.map_frame!r}")
+        except ValueError as exc:
+            self.map_info.rejected += 1
+            self.map_info.last_rejection = f"{topic}: {exc}"
+            self.get_logger().warning(f"rejected {topic}: {exc}; keeping the previous one",
+                                      throttle_duration_sec=self._p["warn_throttle_s"])
+            return
         with self._state_lock:
-            points, done = self._map_points, self._carved_for
+            setattr(self, attr, cloud.points)
+
+    def _unobserved_target(self, target_p: np.ndarray) -> str:
+        """Why the target lies in unobserved space ('' if it does not, or the policy is 'free')."""
+        if self._p["unobserved_space"] != "occupied" or self.map_info.source != "/voxel_map":
+            return ""
+        with self._state_lock:
+            frontier, blocks = self._frontier, self._blocks
+        if frontier is None or blocks is None:
+            return ("no /voxel_map/unobserved(_blocks) received: the map cannot tell observed from unobserved "
+                    "space (is voxel_mapper running? a mapper without them: set unobserved_space:=free)")
+        half = 0.5 * float(self._p["unobserved_block_m"])
+        inside = np.all(np.abs(blocks - target_p) <= half, axis=1) if len(blocks) else np.zeros(0, bool)
+        if np.any(inside):
+            c = np.round(blocks[int(np.argmax(inside))], 2).tolist()
+            return (f"the target {np.round(target_p, 3).tolist()} lies in space the head has not observed (the "
+                    f"{2 * half:g} m block around {c} m): scan first (reach_operator --scan) or look at it (--look)")
+        return ""
+
+    def _carve_target(self, target_p: np.ndarray) -> None:
+        """The planner's map for a request: a measured map without the object at the target
+        (``geometry.voxels.without_target``) and, with ``unobserved_space: occupied``, the
+        frontier of unobserved space (the mapper leaves the robot's own surroundings out of it)
+        without the same object. The sphere trees are rebuilt only when one of these changed."""
+        p = self._p
+        radius = float(p["target_exclusion_radius_m"])
+        with self._state_lock:
+            points, frontier, done = self._map_points, self._frontier, self._carved_for
         if points is None:
             return
-        key = (id(points), radius, *np.round(target_p, 3))
+        if p["unobserved_space"] != "occupied":
+            frontier = None
+        key = (id(points), id(frontier), radius, *np.round(target_p, 3))
         if key == done:
             return
         kept = without_target(points, target_p, radius)
-        build_s = float(self.planner.set_map(kept))
+        unobserved = None
+        if frontier is not None:
+            unobserved = without_target(frontier, target_p, radius)
+        build_s = float(self.planner.set_map(kept, unobserved))
         with self._state_lock:
             if self._map_points is points:
                 self._carved_for = key
         self.map_info.voxels, self.map_info.build_time_s = int(len(kept)), build_s
+        extra = (f" (and of the {len(frontier)} voxels of the unobserved frontier, {len(unobserved)} kept)"
+                 if unobserved is not None else "")
         self.get_logger().info(f"/voxel_map: {len(points) - len(kept)} of {len(points)} voxels within "
                                f"{radius:g} m of the target {np.round(target_p, 3).tolist()} left out (the object "
-                               f"to be reached); sphere tree rebuilt in {build_s * 1e3:.1f} ms")
+                               f"to be reached){extra}; sphere trees rebuilt in {build_s * 1e3:.1f} ms",
+                               throttle_duration_sec=p["warn_throttle_s"])
 
     # ------------------------------------------------------------ inputs
     def current_joints(self) -> tuple[np.ndarray | None, str]:
@@ -360,6 +421,10 @@ class ReachPlannerNode(Node):
         if not self.planner.has_map:
             result.code = E.NO_MAP
             result.message = "no environment map: no /voxel_map received and no scene_file"
+            return result
+        why = self._unobserved_target(result.region.target_p)
+        if why:
+            result.code, result.message = E.UNOBSERVED_SPACE, why
             return result
         self._carve_target(result.region.target_p)
         plan_request = PlanRequest(region=result.region, arm=rr.arm, goal_count=rr.goal_count, planner=rr.planner,
@@ -510,6 +575,14 @@ class ReachPlannerNode(Node):
                                                            self.get_clock().now().to_msg()))
 
     # ------------------------------------------------------------ parameters
+    @staticmethod
+    def _check_parameters(params) -> SetParametersResult:
+        for prm in params:
+            if prm.name == "unobserved_space" and prm.value not in UNOBSERVED_POLICIES:
+                return SetParametersResult(successful=False, reason=f"unobserved_space must be one of "
+                                                                    f"{UNOBSERVED_POLICIES}, got {prm.value!r}")
+        return SetParametersResult(successful=True)
+
     def _apply_parameters(self, params) -> None:
         for prm in params:
             self._p[prm.name] = prm.value

@@ -21,6 +21,17 @@ matching, left-right consistency check):
   ``map_frame``; reliable, transient local, depth 1: what ``reach_planner`` subscribes) and
   ``/voxel_map/markers`` (MarkerArray: one CUBE_LIST) every ``publish_period_s`` when the map
   changed, and ``/diagnostics``;
+* publishes ``/voxel_map/unobserved`` (the same kind of cloud, latched): the frontier of
+  unobserved space inside ``unobserved_region_{min,max}_m`` -- voxels no ray has reached
+  that touch observed free space (``VoxelMap.frontier_centers``). A path from where the
+  robot stands into space nobody has seen crosses it; ``reach_planner`` treats it as
+  occupied by default. The space the robot's body has been in (its collision shapes grown by
+  ``unobserved_robot_clearance_m`` at every posture ``/joint_states`` reported while the map
+  was published) counts as observed free there: a head camera never sees around its own body
+  (a named simplification: an obstacle that moved into it since would not be known); and
+  ``/voxel_map/unobserved_blocks``: centres of the cubes of
+  ``unobserved_block_voxels``^3 voxels inside the same box that no ray has reached (with
+  nothing observed there is no frontier; the planner refuses a target inside such a cube);
 * serves ``~/clear`` (std_srvs/Trigger): forget the map.
 
 Throughput policy: the subscription callbacks only store clouds (or stereo pairs) in a
@@ -67,6 +78,7 @@ from humanoid_reach_ros.perception.markers import JointStateBuffer, camera_pose
 from humanoid_reach_ros.perception.stereo import StereoCalibration, StereoMatcher, StereoParams
 from humanoid_reach_ros.perception.voxel_map import FusionParams, VoxelMap
 from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.robot.shapes import load_collision_model
 
 NODE_NAME = "voxel_mapper"
 
@@ -120,6 +132,15 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
                                             "integrated depth map, integrate at most one per this period [s] (a "
                                             "static view adds nothing new; a changed scene still shows within it); "
                                             "0 = every depth map", (0.0, 60.0)),
+    "unobserved_region_min_m": ParamSpec([0.0, -1.0, 0.1], "box where the frontier of unobserved space is "
+                                         "published (/voxel_map/unobserved): the robot's reach [m, map_frame]"),
+    "unobserved_region_max_m": ParamSpec([1.3, 1.0, 2.0], "... its upper corner [m, map_frame]"),
+    "unobserved_robot_clearance_m": ParamSpec(0.25, "space within this distance of the robot's collision shapes, at "
+                                              "every posture /joint_states reported, counts as observed free for "
+                                              "the unobserved-space layers (a head camera cannot see around its own "
+                                              "body; occupied voxels stay occupied) [m]", (0.0, 1.0)),
+    "unobserved_block_voxels": ParamSpec(5, "edge of the coarse blocks of /voxel_map/unobserved_blocks [voxels]",
+                                         (1, 50)),
     "publish_period_s": ParamSpec(0.5, "period of /voxel_map and /voxel_map/markers when the map changed [s]",
                                   (0.01, 60.0)),
     "markers_enabled": ParamSpec(True, "publish /voxel_map/markers (a CUBE_LIST of the occupied voxels)"),
@@ -208,8 +229,9 @@ class VoxelMapperNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         p = declare_parameters(self, PARAMETERS)
         self._p = p
-        if len(p["extent_min_m"]) != 3 or len(p["extent_max_m"]) != 3:
-            raise ValueError("extent_min_m and extent_max_m must have 3 entries (x, y, z)")
+        for name in ("extent_min_m", "extent_max_m", "unobserved_region_min_m", "unobserved_region_max_m"):
+            if len(p[name]) != 3 or not all(math.isfinite(v) for v in p[name]):
+                raise ValueError(f"{name} must have 3 finite entries (x, y, z), got {list(p[name])}")
         self.map = VoxelMap(fusion_params(p))   # ValueError for bad fusion parameters
         self.map_frame: str = p["map_frame"]
         self.model = RobotModel(p["robot_config"])
@@ -243,6 +265,12 @@ class VoxelMapperNode(Node):
         self.get_logger().info(f"fusion kernels warmed up in {1e3 * (time.perf_counter() - t0):.0f} ms")
 
         self.map_pub = self.create_publisher(PointCloud2, "voxel_map", LATCHED)
+        self.unobserved_pub = self.create_publisher(PointCloud2, "voxel_map/unobserved", LATCHED)
+        self.blocks_pub = self.create_publisher(PointCloud2, "voxel_map/unobserved_blocks", LATCHED)
+        self._published_frontier: np.ndarray | None = None
+        self.collision_model = load_collision_model(None, self.model)
+        self._swept_joints: np.ndarray | None = None   # the posture last marked as swept
+        self._published_blocks: np.ndarray | None = None
         self.markers_pub = self.create_publisher(MarkerArray, "voxel_map/markers", LATCHED)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         inputs = MutuallyExclusiveCallbackGroup()
@@ -481,21 +509,46 @@ class VoxelMapperNode(Node):
         self._publish_map()
         return resp
 
+    def _sweep_robot(self) -> None:
+        """Mark the space of the robot's body at its newest posture as swept (see the module
+        docstring) when it moved since the last mark; a new mark is a map change."""
+        self._absorb_joint_states()
+        with self._state_lock:
+            joints, _ = self.joint_buffer.at(self._newest_joint_stamp, 0.0) if len(self.joint_buffer) else (None, "")
+        if joints is None or (self._swept_joints is not None and np.max(np.abs(joints - self._swept_joints)) < 1e-3):
+            return
+        q = self.model.config(joints, self.model.base_on_feet(joints))
+        p0, p1, radii = self.collision_model.world_shapes(q)
+        with self._map_lock:
+            if self.map.mark_swept(p0, p1, radii + self._p["unobserved_robot_clearance_m"]):
+                self._version += 1
+        self._swept_joints = joints
+
     def _publish_map(self) -> None:
+        self._sweep_robot()
         with self._map_lock:
             if self._version == self._published_version:
                 return
             version = self._version
             centres = self.map.occupied_centers()
-            if self._published_centres is not None and np.array_equal(centres, self._published_centres):
-                self._published_version = version      # integrated, but no voxel changed: nothing to send
-                return
-            self._published_centres = centres
+            region = (self._p["unobserved_region_min_m"], self._p["unobserved_region_max_m"])
+            frontier = self.map.frontier_centers(*region)
+            blocks = self.map.unobserved_blocks(*region, self._p["unobserved_block_voxels"])
         stamp = self.get_clock().now().to_msg()
-        self.map_pub.publish(msgs.cloud_from_points(centres, self.map_frame, stamp))
-        if self._p["markers_enabled"]:
-            self.markers_pub.publish(msgs.marker_array(
-                [cube_list_marker(centres, self.map.resolution_m, self.map_frame, stamp)], True, self.map_frame, stamp))
+        if self._published_blocks is None or not np.array_equal(blocks, self._published_blocks):
+            self.blocks_pub.publish(msgs.cloud_from_points(blocks, self.map_frame, stamp))
+            self._published_blocks = blocks
+        # the frontier first: a planner that gets the new map has the matching frontier already
+        if self._published_frontier is None or not np.array_equal(frontier, self._published_frontier):
+            self.unobserved_pub.publish(msgs.cloud_from_points(frontier, self.map_frame, stamp))
+            self._published_frontier = frontier
+        if self._published_centres is None or not np.array_equal(centres, self._published_centres):
+            self.map_pub.publish(msgs.cloud_from_points(centres, self.map_frame, stamp))
+            if self._p["markers_enabled"]:
+                self.markers_pub.publish(msgs.marker_array(
+                    [cube_list_marker(centres, self.map.resolution_m, self.map_frame, stamp)], True, self.map_frame,
+                    stamp))
+            self._published_centres = centres
         self._published_version = version
 
     def diagnostic_statuses(self) -> list:
@@ -515,7 +568,9 @@ class VoxelMapperNode(Node):
                   "last_integration_ms": c.last_integration_s * 1e3, "mean_integration_ms": mean_s * 1e3,
                   "points_per_s": (c.points_integrated + c.points_outside + c.points_floor) / c.integration_time_s
                   if c.integration_time_s > 0 else 0.0, "clears": c.clears,
-                  "map_version": version, "published_version": published}
+                  "map_version": version, "published_version": published,
+                  "unobserved_frontier_voxels": 0 if self._published_frontier is None else len(self._published_frontier),
+                  "unobserved_blocks": 0 if self._published_blocks is None else len(self._published_blocks)}
         statuses = [msgs.diagnostic_status(f"{name}: map", msgs.LEVEL_OK,
                                            f"{occupied} occupied voxels from {depth_maps} depth maps", values)]
         values = {k: v for k, v in vars(c).items() if isinstance(v, int)}

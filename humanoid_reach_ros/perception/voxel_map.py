@@ -58,6 +58,7 @@ from typing import Sequence
 
 import numba as nb
 import numpy as np
+from scipy.ndimage import binary_dilation
 
 from humanoid_reach_ros.geometry.camera import PinholeCamera, look_at
 
@@ -342,6 +343,7 @@ class VoxelMap:
         self.V = np.zeros(self.shape, dtype=np.float32)   # fused occupancy V_M(v) in [0, 1]
         self.W = np.zeros(self.shape, dtype=np.float32)   # accumulated weight W_M(v)
         self._stamp = np.zeros(self.shape, dtype=np.int32)   # 8 * depth map + flags (kernel)
+        self.swept = np.zeros(self.shape, dtype=bool)   # space the robot's body has been in (mark_swept)
         self._scan = 0
         max_steps = int(3 * (p.max_range_m / h + 2)) + 3
         self._buf = np.empty((max_steps, 3), dtype=np.int64)
@@ -355,7 +357,7 @@ class VoxelMap:
     @property
     def nbytes(self) -> int:
         """Memory of the map's arrays [bytes] (fixed by the extent)."""
-        return self.V.nbytes + self.W.nbytes + self._stamp.nbytes + self._buf.nbytes
+        return self.V.nbytes + self.W.nbytes + self._stamp.nbytes + self._buf.nbytes + self.swept.nbytes
 
     @property
     def capacity(self) -> int:
@@ -367,6 +369,7 @@ class VoxelMap:
         """Forget everything (all voxels unknown)."""
         self.V.fill(0.0)
         self.W.fill(0.0)
+        self.swept.fill(False)
         self._stamp.fill(0)
         self._scan = 0
         self.depth_maps = 0
@@ -426,6 +429,82 @@ class VoxelMap:
     def occupied_centers(self) -> np.ndarray:
         """Centres ``(i + 1/2) h`` (N, 3) [m, world] of the occupied voxels."""
         return (self.occupied_indices().astype(np.float64) + 0.5) * self.params.resolution_m
+
+    def observed_mask(self) -> np.ndarray:
+        """Voxels some ray has reached (``W > 0``: passed through, or hit)."""
+        return self.W > 0.0
+
+    def mark_swept(self, p0: np.ndarray, p1: np.ndarray, radii: np.ndarray) -> int:
+        """Remember the voxels whose centres lie within capsules (segments ``p0``-``p1``
+        (S, 3) [m, world], ``radii`` (S,)) as space the robot's body has been in: free for
+        the unobserved-space readers (a head camera never sees around its own body), never
+        for occupancy (an occupied voxel stays occupied). Returns the voxels newly marked."""
+        h = self.params.resolution_m
+        before = int(np.count_nonzero(self.swept))
+        for a, b, r in zip(np.asarray(p0, float), np.asarray(p1, float), np.asarray(radii, float)):
+            lo = np.maximum(np.floor((np.minimum(a, b) - r) / h).astype(np.int64), self.index_lo)
+            hi = np.minimum(np.floor((np.maximum(a, b) + r) / h).astype(np.int64), self.index_hi)
+            if np.any(hi < lo):
+                continue
+            axes = [np.arange(lo[k], hi[k] + 1) for k in range(3)]
+            c = (np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3) + 0.5) * h
+            ab = b - a
+            t = np.clip(((c - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
+            inside = (np.linalg.norm(c - (a + t[:, None] * ab), axis=1) <= r).reshape([len(x) for x in axes])
+            s = tuple(slice(int(lo[k] - self.index_lo[k]), int(hi[k] - self.index_lo[k] + 1)) for k in range(3))
+            self.swept[s] |= inside
+        return int(np.count_nonzero(self.swept)) - before
+
+    def frontier_centers(self, region_min_m: Sequence[float], region_max_m: Sequence[float]) -> np.ndarray:
+        """Centres (N, 3) [m, world] of the *unobserved frontier* inside a region: voxels no ray
+        has reached (``W == 0``) and the robot's body has not swept, with an observed free or
+        swept voxel among their 26 neighbours.
+
+        Unobserved space is bounded by its frontier, so a robot that starts in observed space
+        and must not enter unobserved space only has to avoid these voxels (at the map's
+        resolution: the occupied voxels' own argument); the voxels behind a surface (seen from
+        nowhere, next to occupied voxels only) are not on it. Outside ``[region_min_m,
+        region_max_m]`` (clipped to the extent) nothing is returned."""
+        h = self.params.resolution_m
+        lo = np.maximum(np.ceil(np.asarray(region_min_m, float) / h - 0.5 - 1e-9).astype(np.int64), self.index_lo)
+        hi = np.minimum(np.floor(np.asarray(region_max_m, float) / h - 0.5 + 1e-9).astype(np.int64), self.index_hi)
+        if np.any(hi < lo):
+            return np.empty((0, 3))
+        a = lo - self.index_lo
+        b = hi - self.index_lo + 1
+        # one voxel more on every side, so that a free neighbour just outside the region counts
+        a1, b1 = np.maximum(a - 1, 0), np.minimum(b + 1, np.array(self.shape))
+        sl = tuple(slice(int(x), int(y)) for x, y in zip(a1, b1))
+        W, swept = self.W[sl], self.swept[sl]
+        occupied = (self.V[sl] > self.params.occupied_threshold) & (W >= self.params.min_weight)
+        free = ((W > 0.0) | swept) & ~occupied
+        near_free = binary_dilation(free, structure=np.ones((3, 3, 3), bool))
+        frontier = near_free & (W == 0.0) & ~swept
+        inner = tuple(slice(int(x - y), int(x - y + (c - x))) for x, y, c in zip(a, a1, b))
+        idx = np.argwhere(frontier[inner]) + lo
+        return (idx.astype(np.float64) + 0.5) * h
+
+    def unobserved_blocks(self, region_min_m: Sequence[float], region_max_m: Sequence[float],
+                          block_voxels: int) -> np.ndarray:
+        """Centres (M, 3) [m, world] of the cubes of ``block_voxels``^3 voxels inside a region
+        (from its lower corner; a partial cube at the upper end counts) of which no voxel has
+        been reached by a ray nor swept by the robot: space nobody has observed, coarse (a frontier alone cannot tell
+        it: with nothing observed yet there is no frontier)."""
+        h, b = self.params.resolution_m, int(block_voxels)
+        if b < 1:
+            raise ValueError(f"block_voxels must be >= 1, got {block_voxels}")
+        lo = np.maximum(np.ceil(np.asarray(region_min_m, float) / h - 0.5 - 1e-9).astype(np.int64), self.index_lo)
+        hi = np.minimum(np.floor(np.asarray(region_max_m, float) / h - 0.5 + 1e-9).astype(np.int64), self.index_hi)
+        if np.any(hi < lo):
+            return np.empty((0, 3))
+        a, c = lo - self.index_lo, hi - self.index_lo + 1
+        seen = (self.W[a[0]:c[0], a[1]:c[1], a[2]:c[2]] > 0.0) | self.swept[a[0]:c[0], a[1]:c[1], a[2]:c[2]]
+        n = -(-np.array(seen.shape) // b)            # blocks per axis (ceil)
+        padded = np.zeros(n * b, dtype=bool)          # beyond the region: counts as unobserved
+        padded[:seen.shape[0], :seen.shape[1], :seen.shape[2]] = seen
+        any_seen = padded.reshape(n[0], b, n[1], b, n[2], b).any(axis=(1, 3, 5))
+        blocks = np.argwhere(~any_seen)
+        return (lo + blocks * b).astype(np.float64) * h + 0.5 * b * h
 
     def value_at(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(V, W) of the voxels containing world points (N, 3); NaN / 0 outside the extent."""

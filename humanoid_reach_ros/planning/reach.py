@@ -87,6 +87,7 @@ class PlanError(enum.IntEnum):
     NO_TARGET = 9
     NO_JOINT_STATES = 10
     BUSY = 11
+    UNOBSERVED_SPACE = 12
     INTERNAL_ERROR = 99
 
 
@@ -148,6 +149,7 @@ class PlannerParams:
     prm_samples: int = 300
     include_waypoint_times: bool = True
     start_limit_tolerance_rad: float = 1e-3
+    unobserved_check_budget_s: float = 1.0
 
     def __post_init__(self) -> None:
         for name in ("resolution_m", "time_budget_s", "joint_velocity_rad_s", "output_period_s", "edge_resolution",
@@ -256,6 +258,8 @@ class ReachPlanner:
         self.projector = Projector(self.robot, LimbIKSet(self.robot, compiled=compiled_kinematics))
         self.early_exit_checks = bool(early_exit_checks)
         self._collision: RobotCollision | None = None
+        self._collision_known: RobotCollision | None = None   # occupied voxels only, when unobserved ones are set
+        self._unobserved_voxels = 0
         self._map_voxels = 0
         self._tree_build_s = 0.0
         self._map_lock = threading.Lock()
@@ -266,23 +270,30 @@ class ReachPlanner:
         self._left_sole = self.robot.stance_soles[1]
 
     # ------------------------------------------------------------ map
-    def set_map(self, voxels: np.ndarray) -> float:
+    def set_map(self, voxels: np.ndarray, unobserved: np.ndarray | None = None) -> float:
         """Occupied voxel centres (N, 3) in the world -> sphere tree; returns its build
-        time [s]. ValueError on a non-(N, 3) or non-finite array; N = 0 is free space."""
-        V = np.asarray(voxels, dtype=float)
-        if V.size == 0:
-            V = V.reshape(0, 3)
-        if V.ndim != 2 or V.shape[1] != 3:
-            raise ValueError(f"voxels must be an (N, 3) array of centres, got shape {V.shape}")
-        if not np.all(np.isfinite(V)):
-            raise ValueError("voxels contain NaN or inf")
+        time [s]. ValueError on a non-(N, 3) or non-finite array; N = 0 is free space.
+
+        ``unobserved`` (K, 3): voxels of unobserved space the robot must not enter (the
+        mapper's frontier, less the robot's own surroundings), same resolution. Plans avoid
+        them like occupied voxels; a plan that fails only because of them is answered
+        ``UNOBSERVED_SPACE`` (checked against the occupied voxels alone, see :meth:`plan`)."""
+        V = _voxel_array(voxels, "voxels")
+        U = None if unobserved is None else _voxel_array(unobserved, "unobserved voxels")
         t0 = time.perf_counter()
-        tree = SphereTree.from_voxels(np.ascontiguousarray(V), self.params.resolution_m, self.params.safety_margin_m)
+        h, margin = self.params.resolution_m, self.params.safety_margin_m
+        tree = SphereTree.from_voxels(np.ascontiguousarray(V), h, margin)
+        known = None
+        if U is not None and len(U):
+            known = RobotCollision(self.robot, self.collision_model, tree)
+            tree = SphereTree.from_voxels(np.ascontiguousarray(np.vstack([V, U])), h, margin)
         dt = time.perf_counter() - t0
         collision = RobotCollision(self.robot, self.collision_model, tree)
         with self._map_lock:
             self._collision = collision
+            self._collision_known = known
             self._map_voxels = len(V)
+            self._unobserved_voxels = 0 if known is None else len(U)
             self._tree_build_s = dt
         return dt
 
@@ -295,8 +306,8 @@ class ReachPlanner:
 
     def clear_map(self) -> None:
         with self._map_lock:
-            self._collision = None
-            self._map_voxels = 0
+            self._collision = self._collision_known = None
+            self._map_voxels = self._unobserved_voxels = 0
 
     @property
     def has_map(self) -> bool:
@@ -305,6 +316,11 @@ class ReachPlanner:
     @property
     def map_voxels(self) -> int:
         return self._map_voxels
+
+    @property
+    def unobserved_voxels(self) -> int:
+        """Unobserved voxels the current map makes the robot avoid (0: none)."""
+        return self._unobserved_voxels
 
     @property
     def collision(self) -> RobotCollision | None:
@@ -472,7 +488,11 @@ class ReachPlanner:
         t0 = time.perf_counter()
         stats = _empty_stats()
         try:
-            return self._plan(start_joints, request, stats, t0)
+            try:
+                outcome = self._plan(start_joints, request, stats, t0)
+            except _Failure as e:
+                outcome = self._fail(e.error, e.message, stats, t0)
+            return self._unobserved_check(outcome, start_joints, request, t0)
         except _Failure as e:
             return self._fail(e.error, e.message, stats, t0)
         except Exception as e:  # noqa: BLE001 -- the service must answer
@@ -480,6 +500,40 @@ class ReachPlanner:
                               f"internal error: {type(e).__name__}: {e} ({traceback.format_exc(limit=3)!r})", stats, t0)
         finally:
             self._plan_lock.release()
+
+    def _unobserved_check(self, outcome: PlanOutcome, start_joints, request: PlanRequest, t0: float) -> PlanOutcome:
+        """A plan that failed (no goal, no path, budget spent) while unobserved voxels were
+        avoided is tried again on the occupied voxels alone (``unobserved_check_budget_s``):
+        if that succeeds, unobserved space is what stands in the way: ``UNOBSERVED_SPACE``,
+        naming the robot shapes and where the permissive plan would cross it."""
+        with self._map_lock:
+            full, known = self._collision, self._collision_known
+        if known is None or outcome.success or outcome.error not in (
+                PlanError.TARGET_OUT_OF_REACH, PlanError.TIMED_OUT, PlanError.NO_PATH):
+            return outcome
+        check = replace(request, time_budget_s=self.params.unobserved_check_budget_s)
+        try:
+            other = self._plan(start_joints, check, _empty_stats(), time.perf_counter(), collision=known)
+        except _Failure:
+            return outcome
+        if not other.success:
+            return outcome
+        where = "somewhere along it"
+        for j in other.positions:
+            q = self.start_config(j)
+            if not full.check(q):
+                shapes = [n for n in self.colliding_shapes(q, full) if n not in set(self.colliding_shapes(q, known))]
+                P0, P1 = full.world_shapes(q)
+                names = list(self.collision_model.names)
+                mids = [(P0[names.index(n)] + P1[names.index(n)]) / 2 for n in shapes if n in names]
+                at = f" around {np.round(np.mean(mids, axis=0), 2).tolist()} m" if mids else ""
+                where = f"the {', '.join(shapes) or 'robot'} would enter it{at}"
+                break
+        return self._fail(PlanError.UNOBSERVED_SPACE,
+                          f"{outcome.error.name} while avoiding unobserved space ({self._unobserved_voxels} frontier "
+                          f"voxels), but a {other.arm}-arm plan exists through it: {where}. Scan first (reach_operator "
+                          f"--scan) or look there (--look); unobserved_space:=free plans through it "
+                          f"(was: {outcome.message})", dict(outcome.stats or {}), t0)
 
     def _fail(self, error: PlanError, message: str, stats: dict, t0: float | None = None, **kw) -> PlanOutcome:
         if t0 is not None:
@@ -514,12 +568,14 @@ class ReachPlanner:
             raise _Failure(PlanError.INVALID_REQUEST, f"seed must be a non-negative integer, got {seed!r}")
         return region, arm, planner, int(n_goals), float(budget), int(seed)
 
-    def _plan(self, start_joints, request: PlanRequest, stats: dict, t0: float) -> PlanOutcome:
+    def _plan(self, start_joints, request: PlanRequest, stats: dict, t0: float,
+              collision: RobotCollision | None = None) -> PlanOutcome:
         p = self.params
         region, arm_req, planner, n_goals, budget, seed = self._request_values(request)
         joints = self._validate_joints(start_joints)
         with self._map_lock:
-            collision, n_vox, build_s = self._collision, self._map_voxels, self._tree_build_s
+            n_vox, build_s = self._map_voxels, self._tree_build_s
+            collision = self._collision if collision is None else collision
         stats["map_voxels"] = n_vox
         stats["sphere_tree_build_time_s"] = build_s
         if collision is None:
@@ -694,6 +750,17 @@ class _Traj:
     @property
     def duration(self) -> float:
         return self.spline.duration
+
+
+def _voxel_array(voxels, what: str) -> np.ndarray:
+    V = np.asarray(voxels, dtype=float)
+    if V.size == 0:
+        V = V.reshape(0, 3)
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise ValueError(f"{what} must be an (N, 3) array of centres, got shape {V.shape}")
+    if not np.all(np.isfinite(V)):
+        raise ValueError(f"{what} contain NaN or inf")
+    return V
 
 
 def _merge_goals(a: Goals, b: Goals) -> Goals:

@@ -1,0 +1,92 @@
+"""Unobserved space (issue: the operator's flow, part 2): the planner never plans through
+space the head has not observed unless told to, and says so.
+
+On the plant, from depth scans of the head camera at the robot's own head poses (forward
+kinematics of half-sitting with the head turned): after the executor's whole scan pattern
+the valve is planned with the frontier of unobserved space as an obstacle; after a single
+level look (the head as the launch leaves it) the same request is ``UNOBSERVED_SPACE``,
+naming where the permissive plan would enter unobserved space; the occupied voxels alone
+(``unobserved_space: free``) still plan it. The node side (the target-block check, the
+topics) runs in test_operator_flow.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from humanoid_reach_ros.geometry.camera import PinholeCamera
+from humanoid_reach_ros.geometry.voxels import without_target
+from humanoid_reach_ros.nodes.reach_executor_params import PARAMETERS as EXECUTOR_PARAMETERS
+from humanoid_reach_ros.nodes.reach_planner import PARAMETERS as PLANNER_PARAMETERS
+from humanoid_reach_ros.nodes.voxel_mapper import PARAMETERS as MAPPER_PARAMETERS
+from humanoid_reach_ros.perception.markers import camera_pose
+from humanoid_reach_ros.perception.voxel_map import FusionParams, VoxelMap, depth_scan
+from humanoid_reach_ros.planning.reach import PlanError, PlannerParams, PlanRequest, ReachPlanner
+from humanoid_reach_ros.planning.wgr import valve_region
+from humanoid_reach_ros.sim.scene import load_scene
+
+CAM = PinholeCamera.from_fov(320, 240, math.radians(60.0))   # scene_sim's depth grid
+REGION = (MAPPER_PARAMETERS["unobserved_region_min_m"].default, MAPPER_PARAMETERS["unobserved_region_max_m"].default)
+CLEARANCE = MAPPER_PARAMETERS["unobserved_robot_clearance_m"].default
+EXCLUSION = PLANNER_PARAMETERS["target_exclusion_radius_m"].default
+
+
+@pytest.fixture(scope="module")
+def planner() -> ReachPlanner:
+    return ReachPlanner(params=PlannerParams(time_budget_s=3.0))
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return load_scene("scenes/plant.yaml")
+
+
+def scanned(planner: ReachPlanner, scene, poses_deg) -> VoxelMap:
+    m = VoxelMap(FusionParams(resolution_m=0.02))
+    robot = planner.robot
+    j = robot.half_sitting_joints.copy()
+    head = [robot.joint_index[n] for n in robot.semantic["head_joints"]]
+    for yaw, pitch in poses_deg:
+        j[head] = np.radians([yaw, pitch])
+        T = camera_pose(robot, j, robot.semantic["head_camera_frame"])
+        m.integrate(depth_scan(scene, CAM, T), T)
+    p0, p1, radii = planner.collision_model.world_shapes(planner.start_config(j))   # as voxel_mapper does
+    m.mark_swept(p0, p1, radii + CLEARANCE)
+    return m
+
+
+def plan_on(planner: ReachPlanner, scene, m: VoxelMap, with_unobserved: bool):
+    target = scene.target.pose[:3, 3]
+    j0 = planner.robot.half_sitting_joints
+    unobserved = without_target(m.frontier_centers(*REGION), target, EXCLUSION) if with_unobserved else None
+    planner.set_map(without_target(m.occupied_centers(), target, EXCLUSION), unobserved)
+    return planner.plan(j0, PlanRequest(valve_region(scene.target.pose), arm="auto", seed=0))
+
+
+def test_after_the_scan_the_valve_is_planned_around_unobserved_space(planner, scene) -> None:
+    flat = EXECUTOR_PARAMETERS["scan_poses_deg"].default
+    m = scanned(planner, scene, list(zip(flat[::2], flat[1::2])))
+    out = plan_on(planner, scene, m, with_unobserved=True)
+    assert out.success, out.message
+    assert planner.unobserved_voxels > 1000
+    full = planner.collision
+    for j in out.positions:   # the trajectory stays out of the frontier too (sampled at its output period)
+        assert full.check(planner.start_config(j))
+
+
+def test_a_level_look_is_not_enough(planner, scene) -> None:
+    m = scanned(planner, scene, [(0.0, 0.0)])
+    out = plan_on(planner, scene, m, with_unobserved=True)
+    assert not out.success and out.error == PlanError.UNOBSERVED_SPACE, out.message
+    assert "Scan first" in out.message and "would enter it around [" in out.message, out.message
+    free = plan_on(planner, scene, m, with_unobserved=False)   # unobserved_space: free
+    assert free.success, free.message
+
+
+def test_bad_unobserved_input(planner) -> None:
+    with pytest.raises(ValueError, match="unobserved voxels contain NaN"):
+        planner.set_map(np.empty((0, 3)), np.array([[np.nan, 0.0, 0.0]]))
+    with pytest.raises(ValueError, match="unobserved voxels must be an"):
+        planner.set_map(np.empty((0, 3)), np.zeros((3, 2)))
