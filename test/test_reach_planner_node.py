@@ -255,9 +255,28 @@ def test_voxel_map_switch_collision_busy_and_malformed(start_node, ros_probe, mo
     map_pub.publish(msgs.cloud_from_points(inside, "world"))
     line = planner.wait_log_count(r"map source: /voxel_map", 1)[-1]
     assert f"({len(inside)} voxels" in line
+    # unobserved space (unobserved_space: occupied, the default): a /voxel_map without the mapper's
+    # unobserved layers cannot tell observed from unobserved space; a target inside an unobserved block
     resp = planner.call(valve_request())
+    assert resp.error_code == E.UNOBSERVED_SPACE and "no /voxel_map/unobserved" in resp.message, resp.message
+    frontier_pub = ros_probe.node.create_publisher(PointCloud2, "/voxel_map/unobserved", LATCHED)
+    blocks_pub = ros_probe.node.create_publisher(PointCloud2, "/voxel_map/unobserved_blocks", LATCHED)
+    target = valve_region().target_p
+    frontier_pub.publish(msgs.cloud_from_points(np.empty((0, 3)), "world"))
+    blocks_pub.publish(msgs.cloud_from_points(np.array([target + 0.03, [5.0, 5.0, 5.0]]), "world"))
+    resp = ros_probe.spin_until(lambda: (r := planner.call(valve_request())).error_code == E.UNOBSERVED_SPACE
+                                and "lies in space the head has not observed" in r.message and r, 20.0,
+                                "the unobserved target refused", on_timeout=proc.log_tail)
+    assert "scan first" in resp.message and "0.1 m block around" in resp.message, resp.message
+    blocks_pub.publish(msgs.cloud_from_points(np.array([[5.0, 5.0, 5.0]]), "world"))   # the target is observed
+    resp = ros_probe.spin_until(lambda: (r := planner.call(valve_request())).error_code != E.UNOBSERVED_SPACE
+                                and r, 20.0, "the target observed", on_timeout=proc.log_tail)
     assert resp.error_code == E.START_IN_COLLISION, resp.message
     assert resp.statistics.map_voxels == len(inside)
+    broken = msgs.cloud_from_points(np.ones((4, 3)), "map")                          # wrong frame: kept the old one
+    blocks_pub.publish(broken)
+    planner.wait_log_count(r"rejected /voxel_map/unobserved_blocks: frame_id 'map'", 1)
+    assert planner.call(valve_request()).error_code == E.START_IN_COLLISION
     st = ros_probe.spin_until(lambda: (s := status(diags, ": map")) and "/voxel_map" in s.message and s,
                               5.0, "map diagnostic from /voxel_map")
     assert int(msgs.diagnostic_values(st)["voxels"]) == len(inside)
@@ -360,6 +379,10 @@ def test_measured_map_leaves_the_target_object_out(ros_env) -> None:
     try:
         node = reach_planner.ReachPlannerNode(context=ctx)
         node.current_joints = lambda: (node.model.half_sitting_joints.copy(), "")
+        # a scene's voxels as /voxel_map: no unobserved layers, so the permissive policy (set at run time)
+        bad = node.set_parameters([Parameter("unobserved_space", value="maybe")])[0]
+        assert not bad.successful and "unobserved_space must be one of" in bad.reason
+        assert node.set_parameters([Parameter("unobserved_space", value="free")])[0].successful
         full = load_scene(REPO_ROOT / "config/scenes/plant.yaml").voxelize(0.02)  # valve included
         node._on_map(msgs.cloud_from_points(full, "world"))
         target = valve_region().target_p

@@ -21,6 +21,7 @@ from humanoid_reach_ros.perception.markers import camera_pose
 from humanoid_reach_ros.perception.stereo import render_textured_pair
 from humanoid_reach_ros.perception.voxel_map import PinholeCamera, depth_scan
 from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.robot.shapes import load_collision_model
 from humanoid_reach_ros.sim.scene import load_scene
 from nodetools import REPO_ROOT
 
@@ -60,6 +61,8 @@ class Feeder:
         self.joints_pub = probe.node.create_publisher(JointState, "/joint_states", SENSOR)
         self.cloud_pub = probe.node.create_publisher(PointCloud2, "/head_camera/points", SENSOR)
         self.maps = probe.collect(PointCloud2, "/voxel_map", LATCHED)
+        self.frontier = probe.collect(PointCloud2, "/voxel_map/unobserved", LATCHED)
+        self.blocks = probe.collect(PointCloud2, "/voxel_map/unobserved_blocks", LATCHED)
         self.markers = probe.collect(MarkerArray, "/voxel_map/markers", LATCHED)
         self.diags = probe.collect(DiagnosticArray, "/diagnostics")
         self.clear_client = probe.node.create_client(Trigger, "/voxel_mapper/clear")
@@ -196,6 +199,18 @@ def test_head_scan_map_clearing_bad_input_and_clear(start_node, ros_probe, model
     np.testing.assert_allclose(occ, (np.floor(occ / H) + 0.5) * H, atol=1e-5)   # voxel centres
     mk = f.markers.last.markers
     assert mk[0].action == Marker.DELETEALL and mk[1].type == Marker.CUBE_LIST and len(mk[1].points) == len(occ)
+    # unobserved space: a frontier next to what the scans saw, none of it around the robot's body (swept,
+    # unobserved_robot_clearance_m), and fewer unobserved blocks than the region holds
+    frontier = msgs.points_from_cloud(f.frontier.last).points
+    blocks = msgs.points_from_cloud(f.blocks.last).points
+    assert len(frontier) > 1000 and 0 < len(blocks) < 13 * 20 * 19
+    shapes = load_collision_model(None, model).world_shapes(model.config(f.joints(0.0, 0.0),
+                                                                         model.base_on_feet(f.joints(0.0, 0.0))))
+    d = np.min([np.linalg.norm(frontier - (a + np.clip((frontier - a) @ (b - a) / max((b - a) @ (b - a), 1e-12), 0, 1)
+                                          [:, None] * (b - a)), axis=1) - r for a, b, r in zip(*shapes)], axis=0)
+    assert d.min() > 0.25 - H, d.min()
+    values = msgs.diagnostic_values(f.status(": map"))
+    assert int(values["unobserved_frontier_voxels"]) == len(frontier) and int(values["unobserved_blocks"]) == len(blocks)
 
     # a pipe removed from the scene: rescans clear it
     pipe = scene.primitive("passage_pipe")
@@ -242,6 +257,9 @@ def test_head_scan_map_clearing_bad_input_and_clear(start_node, ros_probe, model
     resp = f.clear()
     assert resp.success and "cleared" in resp.message
     ros_probe.spin_until(lambda: len(msgs.points_from_cloud(f.maps.last).points) == 0, 20.0, "an empty /voxel_map")
+    # cleared: nothing observed but the robot's own surroundings (swept again from the last joint state)
+    ros_probe.spin_until(lambda: len(msgs.points_from_cloud(f.blocks.last).points) > len(blocks), 20.0,
+                         "more unobserved blocks after the clear")
     # world-frame clouds are integrated too (origin from the joint states at their stamp)
     f.t += 1.0
     joints = f.joints(0.0, 0.5)
@@ -416,7 +434,8 @@ def test_stereo_front_end_and_bad_images(start_node, ros_probe, model) -> None:
 
 @pytest.mark.node
 @pytest.mark.parametrize("params, message", [
-    ({"extent_max_m": [1.0, 1.0]}, r"cannot start: ValueError: extent_min_m and extent_max_m must have 3 entries"),
+    ({"extent_max_m": [1.0, 1.0]}, r"cannot start: ValueError: extent_max_m must have 3 finite entries"),
+    ({"unobserved_region_min_m": [0.0, 0.0]}, r"cannot start: ValueError: unobserved_region_min_m must have 3 finite"),
     ({"resolution_m": 0.001}, r"cannot start: ValueError: extent at 0.001 m has \d+ voxels"),
     ({"sensor_frame": "no_such_frame"}, r"cannot start: KeyError: .*no_such_frame"),
     ({"stereo_num_disparities": 30}, r"cannot start: ValueError: num_disparities must be a positive multiple of 16"),
