@@ -390,7 +390,9 @@ def test_point_cloud_flood_bounded_memory_planner_responsive(start_node, ros_pro
     maps = ros_probe.collect(PointCloud2, "/voxel_map", LATCHED)
     procs = start_all(start_node, {"joint_driver": {},
                                    "voxel_mapper": {"params": MAPPER_PARAMS},
-                                   "reach_planner": {"params": PLANNER_PARAMS}})
+                                   # one level view never sees the valve: plan through unobserved space here
+                                   # (this test is about the flood; test_unobserved covers the policy)
+                                   "reach_planner": {"params": {**PLANNER_PARAMS, "unobserved_space": "free"}}})
     mapper, planner_proc = procs["voxel_mapper"], procs["reach_planner"]
     planner = Planner(ros_probe, planner_proc)
 

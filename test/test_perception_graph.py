@@ -2,7 +2,7 @@
 voxel_mapper (issue 5, items 2 and 6).
 
 The test commands a head scan on ``/joint_command`` (HEAD_JOINT0 yaw / HEAD_JOINT1 pitch only,
-the poses of ``demo.HEAD_SCAN_DEG``), waits at every pose until the mapper has integrated
+the poses of ``SCAN_DEG``), waits at every pose until the mapper has integrated
 several depth maps, and compares ``/voxel_map`` with the scene (``config/scenes/plant.yaml``
 voxelized at the map's resolution by ``Scene.voxelize``):
 
@@ -35,12 +35,17 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import JointState, PointCloud2
 
-from humanoid_reach_ros.demo import HEAD_JOINTS, HEAD_SCAN_DEG
+from humanoid_reach_ros.demo import HEAD_JOINTS
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.perception.markers import camera_pose
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.sim.camera import without_primitives
 from humanoid_reach_ros.sim.scene import load_scene
+
+# the head scan this test is calibrated with (the six yaw/pitch poses [deg] of the demo's first scan;
+# the executor's scan_poses_deg has four more since: after that scan a single rescan left 3 of a removed
+# pipe's ~400 voxels at its ends, see the issue notes)
+SCAN_DEG = ((0.0, 35.0), (-30.0, 30.0), (30.0, 30.0), (-25.0, 5.0), (25.0, 5.0), (0.0, 10.0))
 
 H = 0.02                                    # voxel_mapper's default resolution_m
 GT_EXTENT = ((-0.5, -1.0, 0.0), (1.5, 1.0, 2.0))
@@ -138,7 +143,7 @@ class Graph:
 
     def scan(self, clouds: int = CLOUDS_PER_POSE) -> list[PointCloud2]:
         held: list[PointCloud2] = []
-        for yaw, pitch in HEAD_SCAN_DEG:
+        for yaw, pitch in SCAN_DEG:
             held += self.hold(yaw, pitch, clouds)
         return held
 
@@ -256,7 +261,7 @@ def test_stereo_map_agrees_with_the_scene_and_the_depth_map(start_node, ros_prob
     sim = start_node("scene_sim", params_file="config/scene_sim.yaml",
                      params={**SIM, "stereo_enabled": True, "period_s": 0.2}, ready_log=r"scene sensors ready")
     g = Graph(ros_probe, model, None, sim)
-    g.look(*HEAD_SCAN_DEG[0])
+    g.look(*SCAN_DEG[0])
     stereo_mapper = start_node("voxel_mapper", params_file="config/voxel_mapper.yaml",
                                params={**MAPPER, "use_stereo": True}, ready_log=r"voxel mapper ready",
                                extra_ros_args=["-r", "head_camera/points:=unused_points",

@@ -33,6 +33,9 @@ Usage::
   time is not used by this package).
 * ``--wait-subscribers S``: before playing, wait up to S s until every played topic has a
   subscriber (so that the first messages are not lost to discovery).
+* At the end the player waits up to ``ACK_TIMEOUT_S`` (5 s) until the subscribers of its
+  reliable topics have acknowledged every message (``Publisher.wait_for_all_acked``), so a
+  short replay is not lost when the process exits; a warning names the topics that did not.
 
 Exit codes: 0 played, 1 stopped by a bag error while playing, 2 bad arguments, missing or
 corrupt bag, unknown topic filter or message type.
@@ -45,6 +48,7 @@ import time
 from typing import Any
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
@@ -103,6 +107,19 @@ class BagPlayerNode(Node):
             time.sleep(0.02)
         return []
 
+    def wait_for_acks(self, timeout_s: float) -> list[str]:
+        """Reliable topics whose subscribers have not acknowledged every message within
+        ``timeout_s`` (a short replay is not lost when the player exits right after it)."""
+        deadline = time.monotonic() + timeout_s
+        late = []
+        for topic, pub in self.publishers_.items():
+            if pub.qos_profile.reliability != ReliabilityPolicy.RELIABLE:
+                continue
+            left = max(0.0, deadline - time.monotonic())
+            if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))):
+                late.append(topic)
+        return late
+
     def publish(self, topic: str, data: bytes) -> None:
         if topic in self.restamp:
             msg = deserialize_message(data, self.classes[topic])
@@ -153,6 +170,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     return a
 
 
+ACK_TIMEOUT_S = 5.0   # at the end, reliable subscribers get this long to acknowledge what was played
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv if argv is None else argv
     args = parse_args(remove_ros_args(argv)[1:])
@@ -182,6 +202,11 @@ def main(argv: list[str] | None = None) -> int:
                                f"{', looping' if args.loop else ''}")
         while node.play(args.rate, args.start_offset, stop) and args.loop:
             pass
+        if stop.signal is None:
+            unacked = node.wait_for_acks(ACK_TIMEOUT_S)
+            if unacked:
+                node.get_logger().warning(f"not every reliable subscriber acknowledged the last messages within "
+                                          f"{ACK_TIMEOUT_S:g} s on {', '.join(unacked)}")
         if any(reader.topics[t].qos.transient_local for t in topics) and stop.signal is None:
             time.sleep(0.2)  # let late-joining readers of latched topics fetch before the publisher goes
     except BagError as exc:
