@@ -80,7 +80,10 @@ _D = PlannerParams()
 PLANNER_PARAMETERS: dict[str, ParamSpec] = {
     "resolution_m": ParamSpec(_D.resolution_m, "voxel size of the environment map [m] (scene-file maps are voxelised at it)",
                               (0.001, 1.0)),
-    "safety_margin_m": ParamSpec(_D.safety_margin_m, "extra clearance added to the robot's collision shapes [m]", (0.0, 0.5)),
+    # the executor's velocity dampers keep d_s = 0.01 m (reach_executor security_distance_m): a plan closer
+    # than that ends with the hand held off its goal (TARGET_NOT_REACHED), so plans keep it too
+    "safety_margin_m": ParamSpec(0.01, "extra clearance added to the robot's collision shapes [m]; at least the "
+                                 "executor's security_distance_m", (0.0, 0.5)),
     "goal_count": ParamSpec(_D.goal_count, "goal postures sampled per request (a request's goal_count > 0 overrides)"),
     "planner": ParamSpec(_D.planner, "default path planner (a request's non-empty planner overrides)",
                          constraints=f"one of {', '.join(msgs.PLANNERS)}"),
