@@ -22,7 +22,7 @@ import numba as nb
 import numpy as np
 
 from humanoid_reach_ros.robot.limb_ik import (
-    GIMBAL_TOL, LIMIT_TOL, PSI_SNAP, REACH_TOL, STRETCH_TOL, IKReason, LimbIK, _leg_rot_ok, chain_frames,
+    GIMBAL_TOL, LIMIT_TOL, PSI_SNAP, REACH_TOL, STRETCH_TOL, IKReason, LimbIK, _leg_rot_ok,
     redistribute_pair, wrap_angle,
 )
 
@@ -65,7 +65,18 @@ def arm_ik_pose(rp, rR, tp, tR, rf, R0, t0, Re, te, U, F, lo, hi, q_out):
     c = np.empty(3)
     w = np.empty(3)
     r = np.empty(3)
-    chain_frames(rp, rR, tp, tR, R0, t0, Re, te, Rc, R5, Mt, c, w, r)
+    for a in range(3):
+        for b in range(3):
+            Rc[a, b] = rR[a, 0] * R0[0, b] + rR[a, 1] * R0[1, b] + rR[a, 2] * R0[2, b]
+            R5[a, b] = tR[a, 0] * Re[b, 0] + tR[a, 1] * Re[b, 1] + tR[a, 2] * Re[b, 2]
+        c[a] = rp[a] + rR[a, 0] * t0[0] + rR[a, 1] * t0[1] + rR[a, 2] * t0[2]
+    for a in range(3):
+        w[a] = tp[a] - (R5[a, 0] * te[0] + R5[a, 1] * te[1] + R5[a, 2] * te[2])
+    d0, d1, d2 = c[0] - w[0], c[1] - w[1], c[2] - w[2]
+    for a in range(3):
+        r[a] = R5[0, a] * d0 + R5[1, a] * d1 + R5[2, a] * d2
+        for b in range(3):
+            Mt[a, b] = Rc[0, a] * R5[0, b] + Rc[1, a] * R5[1, b] + Rc[2, a] * R5[2, b]
     k = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2] + F * F - U * U) / (2.0 * F)
     rho = math.hypot(r[0], r[2])
     phi = math.atan2(r[0], r[2])

@@ -841,25 +841,6 @@ def _leg_rot_ok(R):
 
 
 @nb.njit(**_JIT)
-def chain_frames(rp, rR, tp, tR, R0, t0, Re, te, Rc, R5, Mt, c, w, r):
-    """The frames both closed-form chains (legs, arms) start from, into the given arrays:
-    ``Rc = root_R R0``, ``c = root_p + root_R t0`` (the first joint's frame), ``R5 = tip_R Re^T``,
-    ``w = tip_p - R5 te`` (the last joint's frame), ``r = R5^T (c - w)`` and ``Mt = Rc^T R5``."""
-    for a in range(3):
-        for b in range(3):
-            Rc[a, b] = rR[a, 0] * R0[0, b] + rR[a, 1] * R0[1, b] + rR[a, 2] * R0[2, b]
-            R5[a, b] = tR[a, 0] * Re[b, 0] + tR[a, 1] * Re[b, 1] + tR[a, 2] * Re[b, 2]
-        c[a] = rp[a] + (rR[a, 0] * t0[0] + rR[a, 1] * t0[1] + rR[a, 2] * t0[2])
-    for a in range(3):
-        w[a] = tp[a] - (R5[a, 0] * te[0] + R5[a, 1] * te[1] + R5[a, 2] * te[2])
-    d0, d1, d2 = c[0] - w[0], c[1] - w[1], c[2] - w[2]
-    for a in range(3):
-        r[a] = R5[0, a] * d0 + R5[1, a] * d1 + R5[2, a] * d2
-        for b in range(3):
-            Mt[a, b] = Rc[0, a] * R5[0, b] + Rc[1, a] * R5[1, b] + Rc[2, a] * R5[2, b]
-
-
-@nb.njit(**_JIT)
 def _leg_ik_kernel(root_p, root_R, tip_p, tip_R, ref, R0, t0, Re, te, A, B, lo, hi,
                    out_q, out_ok, out_reason, out_branch):
     """Closed-form leg IK of N poses (inputs with a leading dimension N or 1)."""
@@ -910,7 +891,19 @@ def leg_ik_pose(rp, rR, tp, tR, rf, R0, t0, Re, te, A, B, lo, hi, q_out, work):
     r = work[51:54]
     Q = work[54:102].reshape((8, 6))
     gim = work[102:110]          # 1.0 where the branch is at gimbal lock
-    chain_frames(rp, rR, tp, tR, R0, t0, Re, te, Rc, R5, Mt, c, w, r)
+    # Rc = root_R R0, c = root_p + root_R t0, R5 = tip_R Re^T, w = tip_p - R5 te
+    for a in range(3):
+        for b in range(3):
+            Rc[a, b] = rR[a, 0] * R0[0, b] + rR[a, 1] * R0[1, b] + rR[a, 2] * R0[2, b]
+            R5[a, b] = tR[a, 0] * Re[b, 0] + tR[a, 1] * Re[b, 1] + tR[a, 2] * Re[b, 2]
+        c[a] = rp[a] + (rR[a, 0] * t0[0] + rR[a, 1] * t0[1] + rR[a, 2] * t0[2])
+    for a in range(3):
+        w[a] = tp[a] - (R5[a, 0] * te[0] + R5[a, 1] * te[1] + R5[a, 2] * te[2])
+    d0, d1, d2 = c[0] - w[0], c[1] - w[1], c[2] - w[2]
+    for a in range(3):
+        r[a] = R5[0, a] * d0 + R5[1, a] * d1 + R5[2, a] * d2
+        for b in range(3):
+            Mt[a, b] = Rc[0, a] * R5[0, b] + Rc[1, a] * R5[1, b] + Rc[2, a] * R5[2, b]
     # knee (law of cosines), 2 branches
     c3 = ((r[0] * r[0] + r[1] * r[1] + r[2] * r[2]) - A * A - B * B) / (2.0 * A * B)
     reach = abs(c3) <= 1.0 + REACH_TOL
