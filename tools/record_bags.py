@@ -67,26 +67,6 @@ SCENE_FILE = "scenes/plant.yaml"
 
 
 # ---------------------------------------------------------------- ROS-free helpers
-
-def command_head(op, yaw_deg: float, pitch_deg: float, timeout: float) -> None:
-    """The head to (yaw, pitch) straight through the driver's /joint_command (head joints only;
-    the driver holds them). Recording needs no executor: only joint_driver and scene_sim run."""
-    from sensor_msgs.msg import JointState
-
-    from humanoid_reach_ros.io import msgs
-
-    if not hasattr(op, "_head_pub"):
-        op._head_pub = op.node.create_publisher(JointState, "/joint_command", 10)
-    goal = np.radians([yaw_deg, pitch_deg])
-    cmd = msgs.joint_state(list(demo.HEAD_JOINTS), goal)
-
-    def there() -> bool:
-        op._head_pub.publish(cmd)
-        js = op.joint_states
-        pos = np.array([js.position[list(js.name).index(n)] for n in demo.HEAD_JOINTS])
-        return bool(np.all(np.abs(pos - goal) < 0.01))
-    op.spin_until(there, timeout, f"the head at yaw {yaw_deg:g}, pitch {pitch_deg:g} deg")
-
 def thin_joint_states(stamps_ns: Sequence[int], keep_stamps: set[int], min_period_ns: int) -> list[bool]:
     """Which joint states to keep: one at most every ``min_period_ns`` (the first always), and
     every one whose stamp is in ``keep_stamps`` (the stamps the sensor frames carry)."""
@@ -200,10 +180,27 @@ def postprocess(raw: Path, out: Path, joint_states_hz: float) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------- recording
+def command_head(op, pub, yaw_deg: float, pitch_deg: float, timeout: float) -> None:
+    """The head to (yaw, pitch) straight through the driver's /joint_command (``pub``; head joints
+    only, the driver holds them). Recording needs no executor: only joint_driver and scene_sim run."""
+    from humanoid_reach_ros.demo import HEAD_JOINTS
+    from humanoid_reach_ros.io import msgs
+
+    goal = np.radians([yaw_deg, pitch_deg])
+    cmd = msgs.joint_state(list(HEAD_JOINTS), goal)
+
+    def there() -> bool:
+        pub.publish(cmd)
+        js = op.joint_states
+        pos = np.array([js.position[list(js.name).index(n)] for n in HEAD_JOINTS])
+        return bool(np.all(np.abs(pos - goal) < 0.01))
+    op.spin_until(there, timeout, f"the head at yaw {yaw_deg:g}, pitch {pitch_deg:g} deg")
+
+
 def record(args: argparse.Namespace, work: Path) -> tuple[Path, list[dict[str, Any]]]:
     """Run the graph, command the scan, return the raw bag and the scan log."""
     from rclpy.qos import qos_profile_sensor_data
-    from sensor_msgs.msg import PointCloud2
+    from sensor_msgs.msg import JointState, PointCloud2
 
     from humanoid_reach_ros import demo
     from humanoid_reach_ros.graph import allocate_domain, graph_env
@@ -220,6 +217,7 @@ def record(args: argparse.Namespace, work: Path) -> tuple[Path, list[dict[str, A
         rec = graph.start_command("bag_record", [sys.executable, "-m", "humanoid_reach_ros.nodes.bag_record",
                                                  "-o", str(raw), *TOPICS])
         op = demo.Operator(lease.domain_id, graph)
+        head_pub = op.node.create_publisher(JointState, "/joint_command", 10)
         clouds: list[int] = []
         op.node.create_subscription(
             PointCloud2, "/head_camera/points",
@@ -232,7 +230,7 @@ def record(args: argparse.Namespace, work: Path) -> tuple[Path, list[dict[str, A
         poses = [(y, p, args.frames_per_pose, "scan") for y, p in demo.HEAD_SCAN_DEG]
         poses.append((*LOOK_AT_VALVE_DEG, args.valve_frames, "look_at_valve"))
         for yaw, pitch, frames, kind in poses:
-            command_head(op, yaw, pitch, timeout=30.0)
+            command_head(op, head_pub, yaw, pitch, timeout=30.0)
             js = op.joint_states
             arrived = js.header.stamp.sec * 1_000_000_000 + js.header.stamp.nanosec
             op.spin_until(lambda: sum(1 for s in clouds if s >= arrived) >= frames, 60.0,

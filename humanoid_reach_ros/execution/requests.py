@@ -301,9 +301,7 @@ class ExecutionRequests:
         Timed by ``head_speed_rad_s`` (the clamped spline's peak)."""
         from humanoid_reach_ros.execution.supervisor import Motion
         from humanoid_reach_ros.geometry.trajectory import SplineTrajectory, TrajectoryOptions
-        if joints is None:
-            raise RequestError(C.NO_JOINT_STATES, reason)
-        q0 = self.measured_start(joints, reason)
+        q0 = self.measured_start(joints, reason)   # NO_JOINT_STATES without joints
         start = np.asarray(joints, float)
         goal = start.copy()
         goal[[self.robot.joint_index[n] for n in self.head_joints]] = pose

@@ -156,8 +156,8 @@ class ReachExecutorNode(Node):
         self.create_timer(0.1, self._watch_joint_states, clock=steady, callback_group=state)
         self.add_post_set_parameters_callback(lambda params: [self._p.__setitem__(x.name, x.value) for x in params])
         self.get_logger().info(
-            f"reach executor ready: actions execute_reach (trajectory, dual arm) and look (head poses, scan), topics reach_trajectory, "
-            f"dual_arm/targets (follow {'on' if p['dual_arm_follow'] else 'off'}); /joint_command every "
+            f"reach executor ready: actions execute_reach (trajectory, dual arm) and look (head poses, scan), "
+            f"topics reach_trajectory, dual_arm/targets (follow {'on' if p['dual_arm_follow'] else 'off'}); /joint_command every "
             f"{self.period_s * 1e3:g} ms while executing or holding; solver {self.params.solver}, distance bound "
             f"{self.params.distance_bound_m:g} m; joint_states stale after {p['joint_states_timeout_s']:g} s")
 

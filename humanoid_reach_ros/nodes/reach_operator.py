@@ -397,7 +397,6 @@ class Operator:
         duration = pts[-1].time_from_start.sec + pts[-1].time_from_start.nanosec * 1e-9 if pts else 0.0
         return self._await(send, duration + self.timeout_s)
 
-
     def look(self, yaw_rad: list[float], pitch_rad: list[float], dwell_s: float,
              on_feedback: Callable[[Any], None]) -> tuple[str, Any]:
         """The /look action: same outcomes as :meth:`execute`."""
@@ -452,13 +451,18 @@ RESULT_FIELDS = ("duration_s", "steps", "overruns", "max_com_error_m", "min_dist
                  "final_hand_error_rad")
 
 
-def execution_summary(outcome: str, result: Any) -> dict[str, Any]:
+LOOK_FIELDS = ("poses_done", "duration_s", "max_com_error_m")
+
+
+def execution_summary(outcome: str, result: Any, fields: tuple[str, ...] = RESULT_FIELDS) -> dict[str, Any]:
+    """An ``ExecuteReach`` (or, with ``LOOK_FIELDS``, a ``Look``) outcome and result for --json;
+    non-finite numbers become null."""
     out: dict[str, Any] = {"outcome": outcome}
     if result is not None:
         name = EXECUTE_CODES.get(result.error_code, (f"UNKNOWN_CODE_{result.error_code}",))[0]
         out.update({"success": bool(result.success), "error_code": int(result.error_code), "error_name": name,
                     "message": result.message})
-        out.update({k: getattr(result, k) for k in RESULT_FIELDS})
+        out.update({k: getattr(result, k) for k in fields})
         out = {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in out.items()}
     return out
 
@@ -483,16 +487,6 @@ def execution_report(e: dict[str, Any]) -> str:
             f"error {f('final_hand_error_m', 1e3, 'mm', 1)} / {f('final_hand_error_rad', 1.0, 'rad', 3)}")
 
 
-def look_summary(outcome: str, result: Any) -> dict[str, Any]:
-    out: dict[str, Any] = {"outcome": outcome}
-    if result is not None:
-        name = EXECUTE_CODES.get(result.error_code, (f"UNKNOWN_CODE_{result.error_code}",))[0]
-        out.update({"success": bool(result.success), "error_code": int(result.error_code), "error_name": name,
-                    "message": result.message, "poses_done": int(result.poses_done),
-                    "duration_s": float(result.duration_s), "max_com_error_m": float(result.max_com_error_m)})
-    return out
-
-
 def look(op: Operator, args: argparse.Namespace, text: TextIO, err: TextIO, summary: dict[str, Any]) -> int:
     """``--scan`` / ``--look``: the /look action with a line per head pose; the exit code."""
     yaw, pitch = ([], []) if args.scan else ([math.radians(args.look[0])], [math.radians(args.look[1])])
@@ -506,7 +500,7 @@ def look(op: Operator, args: argparse.Namespace, text: TextIO, err: TextIO, summ
                    f"{math.degrees(fb.pitch_rad):+.1f} deg ({state})\n")
         text.flush()
     outcome, result = op.look(yaw, pitch, args.dwell or 0.0, feedback)
-    summary["look"] = look_summary(outcome, result)
+    summary["look"] = execution_summary(outcome, result, LOOK_FIELDS)
     if outcome == "unavailable":
         return EXIT["unavailable"]
     if outcome == "timeout":

@@ -49,9 +49,9 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 from diagnostic_msgs.msg import DiagnosticArray
-from rcl_interfaces.msg import SetParametersResult
 from geometry_msgs.msg import PoseStamped
 from humanoid_reach_interfaces.srv import PlanReach
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import MultiThreadedExecutor
@@ -209,10 +209,9 @@ class ReachPlannerNode(Node):
         self.markers_pub = self.create_publisher(MarkerArray, "planning/markers", LATCHED)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(PointCloud2, "voxel_map", self._on_map, LATCHED, callback_group=self._map_group)
-        self.create_subscription(PointCloud2, "voxel_map/unobserved", lambda m: self._on_unobserved("_frontier", m),
-                                 LATCHED, callback_group=self._map_group)
-        self.create_subscription(PointCloud2, "voxel_map/unobserved_blocks",
-                                 lambda m: self._on_unobserved("_blocks", m), LATCHED, callback_group=self._map_group)
+        for topic, attr in (("voxel_map/unobserved", "_frontier"), ("voxel_map/unobserved_blocks", "_blocks")):
+            self.create_subscription(PointCloud2, topic, lambda m, t=topic, a=attr: self._on_unobserved(t, a, m),
+                                     LATCHED, callback_group=self._map_group)
         # the start posture only: the latest joint state taken when needed (no 200 Hz callbacks); a 10 Hz
         # take keeps its age (staleness) exact to 0.1 s
         self.joint_states = LatestOnDemand(self, JointState, "joint_states", qos_profile_sensor_data)
@@ -271,9 +270,10 @@ class ReachPlannerNode(Node):
             log.warning(f"/voxel_map had {cloud.dropped_nonfinite} points with NaN/inf coordinates (dropped)")
         self._publish_diagnostics()
 
-    def _on_unobserved(self, attr: str, msg: PointCloud2) -> None:
-        """/voxel_map/unobserved (the frontier) or /voxel_map/unobserved_blocks: kept for the next request."""
-        topic = "/voxel_map/unobserved" + ("_blocks" if attr == "_blocks" else "")
+    def _on_unobserved(self, topic: str, attr: str, msg: PointCloud2) -> None:
+        """/voxel_map/unobserved (the frontier, into ``_frontier``) or /voxel_map/unobserved_blocks
+        (``_blocks``): kept for the next request."""
+        topic = self.resolve_topic_name(topic)
         try:
             cloud = msgs.points_from_cloud(msg)
             if cloud.frame_id not in ("", self.map_frame):

@@ -430,10 +430,6 @@ class VoxelMap:
         """Centres ``(i + 1/2) h`` (N, 3) [m, world] of the occupied voxels."""
         return (self.occupied_indices().astype(np.float64) + 0.5) * self.params.resolution_m
 
-    def observed_mask(self) -> np.ndarray:
-        """Voxels some ray has reached (``W > 0``: passed through, or hit)."""
-        return self.W > 0.0
-
     def mark_swept(self, p0: np.ndarray, p1: np.ndarray, radii: np.ndarray) -> int:
         """Remember the voxels whose centres lie within capsules (segments ``p0``-``p1``
         (S, 3) [m, world], ``radii`` (S,)) as space the robot's body has been in: free for
@@ -466,18 +462,17 @@ class VoxelMap:
         nowhere, next to occupied voxels only) are not on it. Outside ``[region_min_m,
         region_max_m]`` (clipped to the extent) nothing is returned."""
         h = self.params.resolution_m
-        lo = np.maximum(np.ceil(np.asarray(region_min_m, float) / h - 0.5 - 1e-9).astype(np.int64), self.index_lo)
-        hi = np.minimum(np.floor(np.asarray(region_max_m, float) / h - 0.5 + 1e-9).astype(np.int64), self.index_hi)
-        if np.any(hi < lo):
+        region = self._region_indices(region_min_m, region_max_m)
+        if region is None:
             return np.empty((0, 3))
+        lo, hi = region
         a = lo - self.index_lo
         b = hi - self.index_lo + 1
         # one voxel more on every side, so that a free neighbour just outside the region counts
         a1, b1 = np.maximum(a - 1, 0), np.minimum(b + 1, np.array(self.shape))
         sl = tuple(slice(int(x), int(y)) for x, y in zip(a1, b1))
         W, swept = self.W[sl], self.swept[sl]
-        occupied = (self.V[sl] > self.params.occupied_threshold) & (W >= self.params.min_weight)
-        free = ((W > 0.0) | swept) & ~occupied
+        free = ((W > 0.0) | swept) & ~self.occupied_mask()[sl]
         near_free = binary_dilation(free, structure=np.ones((3, 3, 3), bool))
         frontier = near_free & (W == 0.0) & ~swept
         inner = tuple(slice(int(x - y), int(x - y + (c - x))) for x, y, c in zip(a, a1, b))
@@ -488,15 +483,15 @@ class VoxelMap:
                           block_voxels: int) -> np.ndarray:
         """Centres (M, 3) [m, world] of the cubes of ``block_voxels``^3 voxels inside a region
         (from its lower corner; a partial cube at the upper end counts) of which no voxel has
-        been reached by a ray nor swept by the robot: space nobody has observed, coarse (a frontier alone cannot tell
-        it: with nothing observed yet there is no frontier)."""
+        been reached by a ray nor swept by the robot: space nobody has observed, coarse (a
+        frontier alone cannot tell it: with nothing observed yet there is no frontier)."""
         h, b = self.params.resolution_m, int(block_voxels)
         if b < 1:
             raise ValueError(f"block_voxels must be >= 1, got {block_voxels}")
-        lo = np.maximum(np.ceil(np.asarray(region_min_m, float) / h - 0.5 - 1e-9).astype(np.int64), self.index_lo)
-        hi = np.minimum(np.floor(np.asarray(region_max_m, float) / h - 0.5 + 1e-9).astype(np.int64), self.index_hi)
-        if np.any(hi < lo):
+        region = self._region_indices(region_min_m, region_max_m)
+        if region is None:
             return np.empty((0, 3))
+        lo, hi = region
         a, c = lo - self.index_lo, hi - self.index_lo + 1
         seen = (self.W[a[0]:c[0], a[1]:c[1], a[2]:c[2]] > 0.0) | self.swept[a[0]:c[0], a[1]:c[1], a[2]:c[2]]
         n = -(-np.array(seen.shape) // b)            # blocks per axis (ceil)
@@ -505,6 +500,14 @@ class VoxelMap:
         any_seen = padded.reshape(n[0], b, n[1], b, n[2], b).any(axis=(1, 3, 5))
         blocks = np.argwhere(~any_seen)
         return (lo + blocks * b).astype(np.float64) * h + 0.5 * b * h
+
+    def _region_indices(self, region_min_m: Sequence[float], region_max_m: Sequence[float]):
+        """Voxel index range ``(lo, hi)`` (inclusive) of the centres in a box, clipped to the
+        extent (as the extent itself: ``__init__``); None when it holds none."""
+        h = self.params.resolution_m
+        lo = np.maximum(np.ceil(np.asarray(region_min_m, float) / h - 0.5 - 1e-9).astype(np.int64), self.index_lo)
+        hi = np.minimum(np.floor(np.asarray(region_max_m, float) / h - 0.5 + 1e-9).astype(np.int64), self.index_hi)
+        return None if np.any(hi < lo) else (lo, hi)
 
     def value_at(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(V, W) of the voxels containing world points (N, 3); NaN / 0 outside the extent."""

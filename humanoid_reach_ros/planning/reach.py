@@ -487,12 +487,14 @@ class ReachPlanner:
             return self._fail(PlanError.BUSY, "another plan is running", _empty_stats())
         t0 = time.perf_counter()
         stats = _empty_stats()
+        with self._map_lock:   # the plan and its unobserved-space check use the maps it started with
+            full, known = self._collision, self._collision_known
         try:
             try:
-                outcome = self._plan(start_joints, request, stats, t0)
+                outcome = self._plan(start_joints, request, stats, t0, collision=full)
             except _Failure as e:
                 outcome = self._fail(e.error, e.message, stats, t0)
-            return self._unobserved_check(outcome, start_joints, request, t0)
+            return self._unobserved_check(outcome, start_joints, request, t0, full, known)
         except _Failure as e:
             return self._fail(e.error, e.message, stats, t0)
         except Exception as e:  # noqa: BLE001 -- the service must answer
@@ -501,13 +503,13 @@ class ReachPlanner:
         finally:
             self._plan_lock.release()
 
-    def _unobserved_check(self, outcome: PlanOutcome, start_joints, request: PlanRequest, t0: float) -> PlanOutcome:
+    def _unobserved_check(self, outcome: PlanOutcome, start_joints, request: PlanRequest, t0: float,
+                          full: RobotCollision | None, known: RobotCollision | None) -> PlanOutcome:
         """A plan that failed (no goal, no path, budget spent) while unobserved voxels were
         avoided is tried again on the occupied voxels alone (``unobserved_check_budget_s``):
         if that succeeds, unobserved space is what stands in the way: ``UNOBSERVED_SPACE``,
-        naming the robot shapes and where the permissive plan would cross it."""
-        with self._map_lock:
-            full, known = self._collision, self._collision_known
+        naming the robot shapes and where the permissive plan would cross it. ``full`` is the
+        map the plan used (occupied + unobserved voxels), ``known`` the occupied voxels alone."""
         if known is None or outcome.success or outcome.error not in (
                 PlanError.TARGET_OUT_OF_REACH, PlanError.TIMED_OUT, PlanError.NO_PATH):
             return outcome
@@ -522,7 +524,8 @@ class ReachPlanner:
         for j in other.positions:
             q = self.start_config(j)
             if not full.check(q):
-                shapes = [n for n in self.colliding_shapes(q, full) if n not in set(self.colliding_shapes(q, known))]
+                occupied = set(self.colliding_shapes(q, known))
+                shapes = [n for n in self.colliding_shapes(q, full) if n not in occupied]
                 P0, P1 = full.world_shapes(q)
                 names = list(self.collision_model.names)
                 mids = [(P0[names.index(n)] + P1[names.index(n)]) / 2 for n in shapes if n in names]
