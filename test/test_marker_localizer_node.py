@@ -162,7 +162,7 @@ def test_bad_images_and_camera_info_get_warnings_and_the_node_keeps_working(star
     # camera_info arrives (step 3) must not give a target
     blank_img = lambda: msgs.image_msg(np.zeros_like(frame), "rgb8", "head_camera_optical_frame", None)  # noqa: E731
     expect_warning(r"no valid camera_info received yet", lambda: (blank_img(), None))
-    expect_warning(r"skipping camera_info .*focal lengths must be > 0", lambda: (good_img(), zero_focal()))
+    expect_warning(r"skipping camera_info .*focal lengths must be > 0", lambda: (blank_img(), zero_focal()))
     expect_warning(r"unsupported image encoding '32FC1'", lambda: (bad_encoding(), good_info()))
     expect_warning(r"image data has \d+ bytes", lambda: (short_data(), good_info()))
     ros_probe.spin_until(lambda: status(diags, ": localization", msgs.LEVEL_WARN, "skipping input"), 20.0,
