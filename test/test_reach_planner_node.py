@@ -217,7 +217,12 @@ def test_valve_plan_execute_markers_and_bad_requests(start_node, ros_probe, mode
     assert resp.success, resp.message
     assert proc.alive()
 
-    planning = ros_probe.spin_until(lambda: status(diags, ": planning"), 5.0, "planning diagnostic")
+    def planning_after_last_request():
+        # the diagnostic is periodic: the latest one may predate the last request's response
+        st = status(diags, ": planning")
+        return st if st is not None and int(msgs.diagnostic_values(st)["successes"]) >= 4 else None
+
+    planning = ros_probe.spin_until(planning_after_last_request, 10.0, "planning diagnostic counting 4 successes")
     values = msgs.diagnostic_values(planning)
     assert int(values["successes"]) == 4 and int(values["requests"]) >= 10
     assert values["last_result"] == "SUCCESS"
