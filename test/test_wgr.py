@@ -151,3 +151,13 @@ def test_contains_accepts_every_sample(center, width):
     reg = region(lo, hi, p=(0.3, -0.2, 1.0), R=rot("y", 0.4))
     p, R = reg.sample(np.random.default_rng(0), 50)
     assert reg.contains(p, R, tol=1e-7).all()
+
+
+def test_negative_zero_bounds_sample() -> None:
+    """An upper bound of -0.0 (what `-lower` gives for lower 0.0) equals lower 0.0: the
+    region samples instead of numpy's "high - low < 0" (a plan request answered
+    INTERNAL_ERROR before)."""
+    lo = np.array([0.0, 0.0, 0.0, -1.0, -1.0, -np.pi])
+    region = WorkspaceGoalRegion(np.zeros(3), np.eye(3), lo, -lo)
+    p, R = region.sample(np.random.default_rng(0), 8)
+    assert np.all(p == 0.0) and R.shape == (8, 3, 3)

@@ -61,8 +61,8 @@ PLAN_CODES: dict[int, tuple[str, str, str]] = {
     2: ("INVALID_BOUNDS", "invalid", "WGR lower > upper, or a rotation bound outside [-pi, pi] (+-180 deg): "
         "check --wgr-deg / --wgr"),
     3: ("UNKNOWN_FRAME", "invalid", "the target frame is not known to the planner: use --frame world or base_link"),
-    4: ("TARGET_OUT_OF_REACH", "no_motion", "no balanced, collision-free goal posture: move the target closer, "
-        "widen the WGR (--wgr) or try the other arm (--arm)"),
+    4: ("TARGET_OUT_OF_REACH", "no_motion", "proven out of the arms' reach from any stance-keeping trunk pose: "
+        "move the target closer (or the robot nearer)"),
     5: ("START_IN_COLLISION", "no_motion", "the robot's current posture collides with the map: check /voxel_map "
         "or move the robot"),
     6: ("NO_MAP", "no_input", "the planner has no environment model: start voxel_mapper (or give reach_planner "
@@ -75,6 +75,8 @@ PLAN_CODES: dict[int, tuple[str, str, str]] = {
     11: ("BUSY", "no_input", "another request is being planned: try again"),
     12: ("UNOBSERVED_SPACE", "no_input", "the target or the way to it lies in space the head has not observed: "
          "scan first (--scan) or look there (--look YAW PITCH)"),
+    13: ("NO_GOAL_FOUND", "no_motion", "no goal posture found within the budget (not proven unreachable): raise "
+         "--budget, widen the WGR (--wgr-deg) or try the other arm (--arm)"),
     99: ("INTERNAL_ERROR", "internal", "the planner failed internally: see its log"),
 }
 

@@ -122,7 +122,7 @@ class Goals:
 
 
 def sample_goals(region: WorkspaceGoalRegion, n_goals: int, robot: RobotModel, collision: RobotCollision,
-                 rng: np.random.Generator, arm: str = "auto", trunk: TrunkSampling | None = None,
+                 rng: np.random.Generator, arm: str = "auto", trunk: "TrunkSampling | TrunkSampler | None" = None,
                  time_budget_s: float = float("inf"), batch_size: int = 512,
                  projector: Projector | None = None, max_samples: int | None = None) -> Goals:
     """Sample up to ``n_goals`` collision-free goal postures for ``region``.
@@ -131,7 +131,10 @@ def sample_goals(region: WorkspaceGoalRegion, n_goals: int, robot: RobotModel, c
     ``"left"``. Stops after ``time_budget_s`` (``stats.timed_out``) with the goals
     found so far, or once ``max_samples`` samples are drawn (both also
     ``stats.timed_out``; with neither, an infeasible region loops forever).
-    ``projector`` may be shared between calls (it is built otherwise).
+    ``projector`` may be shared between calls (it is built otherwise). ``trunk``: a
+    :class:`TrunkSampling` box (the paper's independent uniform draw; the default) or a
+    :class:`~humanoid_reach_ros.planning.trunk_region.TrunkSampler` (the planner's: ranges
+    from the robot and the target, draws conditioned on the hand pose).
     """
     if n_goals < 0 or batch_size < 1:
         raise ValueError(f"need n_goals >= 0 and batch_size >= 1, got {n_goals}, {batch_size}")
@@ -142,13 +145,17 @@ def sample_goals(region: WorkspaceGoalRegion, n_goals: int, robot: RobotModel, c
     qs, arms, ps, Rs = [], [], [], []
     c0 = collision.counters
     chk0, ct0, cf0 = c0.checks, c0.check_time_s, c0.fk_time_s
+    n_batches = 0
     while len(qs) < n_goals:
         if time.perf_counter() - t_start > time_budget_s or (max_samples is not None
                                                             and stats.n_samples >= max_samples):
             stats.timed_out = True
             break
         p_e, R_e = region.sample(rng, batch_size)
-        z_t, rpy_t = trunk.sample(rng, batch_size)
+        if hasattr(trunk, "sample_for"):   # TrunkSampler: trunk draws conditioned on the hand poses
+            z_t, rpy_t = trunk.sample_for(rng, p_e, R_e, arm, batch=n_batches)
+        else:
+            z_t, rpy_t = trunk.sample(rng, batch_size)
         res = projector.project_config(p_e, R_e, z_t, rpy_t, arm=arm)
         idx = np.flatnonzero(res.ok)
         free = collision.check_batch(res.q[idx]) if idx.size else np.zeros(0, bool)
@@ -160,6 +167,7 @@ def sample_goals(region: WorkspaceGoalRegion, n_goals: int, robot: RobotModel, c
             res = projector.project_config(p_e[:end], R_e[:end], z_t[:end], rpy_t[:end], arm=arm)
         for k, v in res.failures.items():
             stats.ik_failures[k] += v
+        n_batches += 1
         in_prefix = idx < end
         stats.n_samples += end
         stats.collision_checks += int(np.count_nonzero(in_prefix))

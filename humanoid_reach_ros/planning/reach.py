@@ -49,14 +49,15 @@ import pinocchio as pin
 
 from humanoid_reach_ros.geometry.distance import RobotCollision
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree
-from humanoid_reach_ros.planning.goal_sampler import Goals, TrunkSampling, sample_goals
+from humanoid_reach_ros.planning.goal_sampler import Goals, sample_goals
+from humanoid_reach_ros.planning.trunk_region import TrunkRegion, TrunkSampler
 from humanoid_reach_ros.planning.path import (
     PLANNER_NAMES, PlanningSpace, PlanStatus, ShortcutOptions, plan as run_planner, shortcut_path,
 )
 from humanoid_reach_ros.planning.plan_check import PlanChecker
-from humanoid_reach_ros.planning.projector import ARM_CODES, LEFT, LEGS, RIGHT, Projector
+from humanoid_reach_ros.planning.projector import ARM_CODES, LEFT, LEGS, RIGHT, Projector, quat_xyzw_matrix
 from humanoid_reach_ros.geometry.trajectory import SplineTrajectory, TrajectoryOptions
-from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion
+from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion, matrix_rpy
 from humanoid_reach_ros.robot.limb_ik import LimbIKSet
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 from humanoid_reach_ros.robot.shapes import load_collision_model
@@ -79,15 +80,16 @@ class PlanError(enum.IntEnum):
     INVALID_REQUEST = 1
     INVALID_BOUNDS = 2
     UNKNOWN_FRAME = 3
-    TARGET_OUT_OF_REACH = 4
+    TARGET_OUT_OF_REACH = 4     # proven by the geometric reach bound (planning/trunk_region.py)
     START_IN_COLLISION = 5
     NO_MAP = 6
-    TIMED_OUT = 7
-    NO_PATH = 8
+    TIMED_OUT = 7               # reserved: no longer returned (NO_GOAL_FOUND / NO_PATH say which part ran out)
+    NO_PATH = 8                 # goal postures found, no path to any within the budget
     NO_TARGET = 9
     NO_JOINT_STATES = 10
     BUSY = 11
     UNOBSERVED_SPACE = 12
+    NO_GOAL_FOUND = 13          # the budget ran out before a goal posture was found (not proven out of reach)
     INTERNAL_ERROR = 99
 
 
@@ -98,15 +100,19 @@ class PlannerParams:
     Map: ``resolution_m`` voxel size = environment sphere diameter, ``safety_margin_m``
     added to every environment sphere radius. Requests: ``goal_count`` goal postures,
     ``planner`` (``rrt_connect`` | ``prm`` | ``modified_prm``), ``time_budget_s`` for goal
-    sampling + path planning, ``seed``. Goal sampling may use at most
-    ``goal_time_fraction`` of the budget (then plans with the goals found, >= 1) and stops
-    after ``max_goal_samples`` samples (an unreachable target fails fast); no goal after
-    fewer than ``min_goal_samples`` samples because the budget ran out is ``TIMED_OUT``,
-    otherwise ``TARGET_OUT_OF_REACH``. Arm ``auto``: the first arm gets at most
-    ``first_arm_time_fraction`` of the remaining budget when the other arm has goals.
+    sampling + path planning, ``seed``. Goal sampling runs until ``goal_count`` goals or
+    ``goal_time_fraction`` of the budget (then plans with the goals found, >= 1; with none
+    it keeps looking for one until the whole budget is spent: ``NO_GOAL_FOUND``). A target
+    the geometric reach bound proves out of reach is answered ``TARGET_OUT_OF_REACH`` at
+    once. Trunk ranges (:mod:`~humanoid_reach_ros.planning.trunk_region`): the heights and
+    pitches the legs' IK allows at the stance within ``trunk_z_m`` (None: the legs' chain
+    length decides) x ``trunk_pitch_rad``, narrowed to the cells from which the arm may
+    reach the target; roll and yaw uniform in ``trunk_roll_rad`` / ``trunk_yaw_rad``. Arm
+    ``auto``: the first arm gets at most ``first_arm_time_fraction`` of the remaining
+    budget when the other arm has goals.
     Planning space (eq. 2) ``q_plan = (q_arm (6), z_t, rpy_t (3))``: bounds = the arm
-    joint limits and the trunk ranges ``trunk_*`` (also the goal sampling ranges; grown to
-    include the start), metric ``||W dq||`` with ``W = (arm_weight x6, trunk_z_weight,
+    joint limits and the request's trunk ranges (grown to include the start and the
+    goals), metric ``||W dq||`` with ``W = (arm_weight x6, trunk_z_weight,
     trunk_rpy_weight x3)``, edges checked every ``edge_resolution``, RRT step ``rrt_step``.
     ``rrt_step`` is 1.0 (not 0.3): every checker call projects its batch through the
     closed-form leg IK, whose numpy cost was per call rather than per configuration, so
@@ -129,19 +135,18 @@ class PlannerParams:
     edge_resolution: float = 0.03
     rrt_step: float = 1.0
     seed: int = 0
-    # trunk sampling ranges (TrunkSampling defaults)
-    trunk_z_m: tuple[float, float] = (0.55, 0.78)
+    # trunk ranges searched (planning/trunk_region.py: the legs and the target narrow them)
+    trunk_z_m: tuple[float, float] | None = None
     trunk_roll_rad: tuple[float, float] = (-0.1, 0.1)
-    trunk_pitch_rad: tuple[float, float] = (-0.1, 0.6)
+    trunk_pitch_rad: tuple[float, float] = (-0.3, 0.9)
     trunk_yaw_rad: tuple[float, float] = (-0.4, 0.4)
+    trunk_space_margin: tuple[float, float] | None = (0.05, 0.15)
     # metric weights
     arm_weight: float = 1.0
     trunk_z_weight: float = 2.0
     trunk_rpy_weight: float = 1.0
     # budgets
     goal_time_fraction: float = 0.6
-    max_goal_samples: int = 50_000
-    min_goal_samples: int = 10_000
     first_arm_time_fraction: float = 0.5
     goal_batch_size: int = 512
     shortcut_iterations: int = 30
@@ -165,12 +170,12 @@ class PlannerParams:
             raise ValueError(f"PlannerParams.planner must be one of {PLANNER_NAMES}, got {self.planner!r}")
         if not 0 < self.goal_time_fraction <= 1:
             raise ValueError("PlannerParams.goal_time_fraction must be in (0, 1]")
-        self.trunk_sampling  # validates the ranges
-
-    @property
-    def trunk_sampling(self) -> TrunkSampling:
-        return TrunkSampling(tuple(self.trunk_z_m), tuple(self.trunk_roll_rad), tuple(self.trunk_pitch_rad),
-                             tuple(self.trunk_yaw_rad))
+        for name in ("trunk_z_m", "trunk_roll_rad", "trunk_pitch_rad", "trunk_yaw_rad"):
+            r = getattr(self, name)
+            if r is None and name == "trunk_z_m":
+                continue
+            if not (len(r) == 2 and all(math.isfinite(x) for x in r) and r[0] <= r[1]):
+                raise ValueError(f"PlannerParams.{name}: need finite lo <= hi, got {r}")
 
     @property
     def weights(self) -> np.ndarray:
@@ -256,6 +261,8 @@ class ReachPlanner:
         self.params = params
         self.collision_model = load_collision_model(None, self.robot)
         self.projector = Projector(self.robot, LimbIKSet(self.robot, compiled=compiled_kinematics))
+        self.trunk_region = TrunkRegion(self.projector, params.trunk_z_m, params.trunk_pitch_rad,
+                                        params.trunk_roll_rad, params.trunk_yaw_rad)
         self.early_exit_checks = bool(early_exit_checks)
         self._collision: RobotCollision | None = None
         self._collision_known: RobotCollision | None = None   # occupied voxels only, when unobserved ones are set
@@ -379,14 +386,30 @@ class ReachPlanner:
             return False, e.message
 
     # ------------------------------------------------------------ planning space
-    def planning_space(self, arm: str, include: np.ndarray | None = None) -> PlanningSpace:
-        """Box of eq. 2 for ``arm``: arm joint limits, trunk ranges (grown to ``include`` (n, 10))."""
+    def trunk_sampling(self, region: WorkspaceGoalRegion, arm: str = "auto",
+                       q_start: np.ndarray | None = None) -> TrunkSampler:
+        """The trunk heights x pitches searched for ``region`` (``TrunkRegion.for_target``),
+        nearest the trunk of ``q_start`` (a full configuration) first."""
+        trunk = self.trunk_region.for_target(region, arm)
+        if q_start is None:
+            return trunk
+        pitch = float(matrix_rpy(quat_xyzw_matrix(np.asarray(q_start[3:7], float)))[1])
+        return trunk.near(float(q_start[2]), pitch, self.params.trunk_z_weight, self.params.trunk_rpy_weight)
+
+    def planning_space(self, arm: str, include: np.ndarray | None = None,
+                       trunk: TrunkSampler | None = None) -> PlanningSpace:
+        """Box of eq. 2 for ``arm``: arm joint limits, the trunk ranges of ``trunk`` (default:
+        every leg-feasible cell), grown to ``include`` (n, 10)."""
         p = self.params
         ji = np.array(self.robot.limbs[f"{arm}_arm"].joint_index)
-        lo = np.concatenate([self.robot.lower[ji], [p.trunk_z_m[0], p.trunk_roll_rad[0], p.trunk_pitch_rad[0],
-                                                    p.trunk_yaw_rad[0]]])
-        hi = np.concatenate([self.robot.upper[ji], [p.trunk_z_m[1], p.trunk_roll_rad[1], p.trunk_pitch_rad[1],
-                                                    p.trunk_yaw_rad[1]]])
+        t_lo, t_hi = (self.trunk_region.all_cells() if trunk is None else trunk).bounds()
+        if include is not None and len(include) and p.trunk_space_margin is not None:
+            m = np.array([p.trunk_space_margin[0], p.trunk_roll_rad[1] - p.trunk_roll_rad[0], p.trunk_space_margin[1],
+                          p.trunk_yaw_rad[1] - p.trunk_yaw_rad[0]])
+            t_lo = np.maximum(t_lo, np.min(include[:, 6:], axis=0) - m)
+            t_hi = np.minimum(t_hi, np.max(include[:, 6:], axis=0) + m)
+        lo = np.concatenate([self.robot.lower[ji], t_lo])
+        hi = np.concatenate([self.robot.upper[ji], t_hi])
         if include is not None and len(include):
             lo = np.minimum(lo, np.min(include, axis=0))
             hi = np.maximum(hi, np.max(include, axis=0))
@@ -510,8 +533,7 @@ class ReachPlanner:
         if that succeeds, unobserved space is what stands in the way: ``UNOBSERVED_SPACE``,
         naming the robot shapes and where the permissive plan would cross it. ``full`` is the
         map the plan used (occupied + unobserved voxels), ``known`` the occupied voxels alone."""
-        if known is None or outcome.success or outcome.error not in (
-                PlanError.TARGET_OUT_OF_REACH, PlanError.TIMED_OUT, PlanError.NO_PATH):
+        if known is None or outcome.success or outcome.error not in (PlanError.NO_GOAL_FOUND, PlanError.NO_PATH):
             return outcome
         check = replace(request, time_budget_s=self.params.unobserved_check_budget_s)
         try:
@@ -576,6 +598,10 @@ class ReachPlanner:
         p = self.params
         region, arm_req, planner, n_goals, budget, seed = self._request_values(request)
         joints = self._validate_joints(start_joints)
+        out_of_reach = self.trunk_region.out_of_reach(region, arm_req)
+        if out_of_reach:
+            raise _Failure(PlanError.TARGET_OUT_OF_REACH,
+                           f"target out of reach ({out_of_reach}): move the target closer or walk the robot nearer")
         with self._map_lock:
             n_vox, build_s = self._map_voxels, self._tree_build_s
             collision = self._collision if collision is None else collision
@@ -599,17 +625,15 @@ class ReachPlanner:
 
         # ---- goal postures (Algorithm 1)
         tg = time.perf_counter()
-        goals = sample_goals(region, n_goals, self.robot, collision, rng, arm=arm_req, trunk=p.trunk_sampling,
+        trunk = self.trunk_sampling(region, arm_req, q_start)
+        goals = sample_goals(region, n_goals, self.robot, collision, rng, arm=arm_req, trunk=trunk,
                              time_budget_s=max(0.0, p.goal_time_fraction * budget - (tg - t0)),
-                             batch_size=p.goal_batch_size, projector=self.projector,
-                             max_samples=p.max_goal_samples)
-        if (len(goals) == 0 and goals.stats.timed_out and time.perf_counter() < deadline
-                and goals.stats.n_samples < p.max_goal_samples):
+                             batch_size=p.goal_batch_size, projector=self.projector)
+        if len(goals) == 0 and time.perf_counter() < deadline:
             # the goal share of the budget ran out before a first goal: keep looking for one
-            more = sample_goals(region, 1, self.robot, collision, rng, arm=arm_req, trunk=p.trunk_sampling,
+            more = sample_goals(region, 1, self.robot, collision, rng, arm=arm_req, trunk=trunk,
                                 time_budget_s=max(0.0, deadline - time.perf_counter()),
-                                batch_size=p.goal_batch_size, projector=self.projector,
-                                max_samples=p.max_goal_samples - goals.stats.n_samples)
+                                batch_size=p.goal_batch_size, projector=self.projector)
             goals = _merge_goals(goals, more)
         gs = goals.stats
         stats.update(goal_sampling_time_s=time.perf_counter() - tg, goals_requested=n_goals, goals_found=len(goals),
@@ -621,13 +645,14 @@ class ReachPlanner:
         goal_kw = dict(goals=goals.q if len(goals) else None, goal_arms=goals.arm if len(goals) else None)
         if len(goals) == 0:
             f = gs.ik_failures
-            if gs.n_samples < p.min_goal_samples:
-                raise _Failure(PlanError.TIMED_OUT, f"time budget {budget:.3f} s spent before a goal posture was "
-                                                    f"found ({gs.n_samples} samples)")
-            raise _Failure(PlanError.TARGET_OUT_OF_REACH,
-                           f"no collision-free goal posture for the target in {stats['goal_sampling_time_s']:.2f} s "
-                           f"({gs.n_samples} samples; IK failures arm right/left {f['right_arm']}/{f['left_arm']}, "
-                           f"leg right/left {f['right_leg']}/{f['left_leg']}; {gs.n_in_collision} in collision)")
+            hint = (f"all {gs.n_in_collision} postures the IK found collide: the target may be enclosed "
+                    "(check /voxel_map there) or the region too tight (--wgr-deg)" if gs.n_in_collision else
+                    "widen the region (--wgr-deg), try the other arm (--arm) or raise --budget")
+            raise _Failure(PlanError.NO_GOAL_FOUND,
+                           f"no balanced, collision-free goal posture found in {stats['goal_sampling_time_s']:.2f} s "
+                           f"({gs.n_samples} samples over {trunk.describe()}; IK failures arm right/left "
+                           f"{f['right_arm']}/{f['left_arm']}, leg right/left {f['right_leg']}/{f['left_leg']}; "
+                           f"{gs.n_in_collision} in collision): the target was not proven out of reach; {hint}")
 
         # ---- path planning, arm by arm (order of the first goal found)
         arms_order = []
@@ -655,7 +680,7 @@ class ReachPlanner:
             if pre is None:
                 failures.append((arm, "pre_segment"))
                 continue
-            space = self.planning_space(arm, np.vstack([start_plan[None], goal_plan]))
+            space = self.planning_space(arm, np.vstack([start_plan[None], goal_plan]), trunk)
             is_valid = self.validity_fn(arm, collision)
             options = self._planner_options(planner, remaining)
             result = run_planner(planner, start_plan, goal_plan, is_valid, space, rng, options)
@@ -693,10 +718,11 @@ class ReachPlanner:
                            f"the start posture cannot be moved to the planning manifold (trunk above COG_approx, "
                            f"other joints at the reference) without collision or leg IK failure ({why})")
         timed_out = any(s is PlanStatus.TIMED_OUT for _, s in failures) or time.perf_counter() >= deadline
-        code = PlanError.TIMED_OUT if timed_out else PlanError.NO_PATH
+        hint = ("raise --budget or --goals" if timed_out else
+                "the search ended without connecting them: try rrt_connect (--planner) or more --goals")
         stats["total_time_s"] = time.perf_counter() - t0
-        return self._fail(code, f"no path to any of {len(goals)} goal postures within {budget:.2f} s ({why})",
-                          stats, **goal_kw)
+        return self._fail(PlanError.NO_PATH, f"{len(goals)} goal postures found but no path to any within "
+                                             f"{budget:.2f} s ({why}): {hint}", stats, **goal_kw)
 
     def _projected_start(self, q_start: np.ndarray, arm: str) -> tuple[np.ndarray | None, np.ndarray]:
         start_plan = self.projector.plan_config_of(q_start, arm)[0]

@@ -116,6 +116,8 @@ class WorkspaceGoalRegion:
         if bad.size:
             raise ValueError("WGR: lower > upper for " + ", ".join(f"{names[i]} ({lo[i]} > {hi[i]})" for i in bad))
         lo[3:], hi[3:] = clamp_angle_bounds(lo[3:], hi[3:])
+        lo += 0.0   # -0.0 -> 0.0: numpy's uniform refuses upper -0.0 above lower 0.0 ("high - low < 0")
+        hi += 0.0
         for name, a in (("target_p", p), ("target_R", R), ("lower", lo), ("upper", hi)):
             a.setflags(write=False)
             object.__setattr__(self, name, a)

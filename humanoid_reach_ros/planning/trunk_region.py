@@ -1,0 +1,335 @@
+"""Where the trunk can be, from the robot: the goal sampler's trunk heights and pitches,
+and a geometric bound that proves a target out of reach.
+
+The paper samples the trunk height ``z_t`` and orientation ``rpy_t`` of ``q_goal`` but does
+not say from which ranges. Constant ranges tuned to one scene miss low and high targets,
+so the ranges here come from the robot and from the target:
+
+* **What the legs allow** (:class:`TrunkRegion`): a grid over trunk height x pitch at the
+  stance of the :class:`~humanoid_reach_ros.planning.projector.Projector` (roll and yaw 0,
+  the horizontal position from ``COG_approx``, lines 2-4 of Algorithm 1), each cell kept
+  when both legs' closed-form IK succeeds at its centre. The grid spans the heights the
+  legs' chain lengths allow (soles up to ``|t0| + l1 + l2 + |te|``) and the pitches of
+  ``pitch_span`` (our choice: -0.3 to 0.9 rad, leaning back a little to folded well
+  forward); the legs' IK and joint limits decide within it.
+* **What the target needs** (:meth:`TrunkRegion.for_target`): a cell is kept when some
+  shoulder position it allows (yaw across its range) is within the arm's reach
+  ``l1 + l2 + |te|`` of the target region, horizontally and vertically: a low target gets
+  a low trunk, a high one a high trunk, a far one a forward lean. Simplification, named:
+  the band is computed at roll 0 with a 2 cm slack, and each cell is tested at its centre;
+  the projector still decides every sample exactly. When no cell passes (the target is
+  farther than that band test allows but not provably out of reach) every leg-feasible
+  cell is sampled.
+* **Proof of "out of reach"** (:meth:`TrunkRegion.out_of_reach`): the trunk origin is at
+  most ``R_leg`` above the soles (the legs' chain length), its orientation within the
+  roll, pitch and yaw ranges the planner searches, its horizontal position set by
+  ``COG_approx`` (``p_t = R_t v + COG_approx``); the shoulder is at ``R_t u`` from it and
+  the hand within ``l1 + l2 + |te|`` of the shoulder (the closed form's reach condition).
+  A region farther than that from every such shoulder position, for every arm allowed,
+  has no goal posture in the planner's search space whatever the sampler would try: the
+  planner answers ``TARGET_OUT_OF_REACH`` at once instead of spending the budget. The
+  bound ignores joint limits, orientation and collisions, so a target it cannot rule out
+  may still have no goal (``NO_GOAL_FOUND`` when the budget runs out).
+
+No ROS here.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion, rpy_matrix
+
+ARMS = ("right", "left")
+BAND_SLACK_M = 0.02     # vertical slack of the target band (roll, cell size)
+PROOF_STEP_RAD = 0.05   # orientation grid of the out-of-reach proof
+
+
+@dataclass(frozen=True, eq=False)
+class ArmReach:
+    """What decides whether an arm may reach a hand pose from a trunk pose: the shoulder
+    centre ``shoulder`` (trunk frame), the wrist centre ``w = p_e - R_e Re^T te`` of a hand
+    pose, and the closed form's reach ``|shoulder - w| <= l1 + l2`` (``wrist_reach``)."""
+
+    shoulder: np.ndarray
+    Re: np.ndarray
+    te: np.ndarray
+    wrist_reach: float
+
+
+@dataclass(frozen=True, eq=False)
+class TrunkSampler:
+    """Uniform over grid cells (``z_cells``, ``pitch_cells`` centres, size ``dz`` x
+    ``dpitch``), roll and yaw uniform in their ranges. ``narrowed``: the cells were
+    narrowed to the target (False: all leg-feasible cells).
+
+    :meth:`sample_for` conditions the draw on the hand poses (``arms``, ``v``, ``cog_xy``
+    give the geometry): ``candidates`` trunk draws per hand pose, the first whose shoulder
+    reaches the pose's wrist centre kept. Our simplification of the paper's independent
+    uniform ``q_goal`` draw, named: it only skips trunk draws Algorithm 1 would reject at
+    the arm IK (the reach test is the closed form's own), so every goal it yields is one
+    the plain draw could have yielded, at a far higher rate for low, high or far targets.
+    """
+
+    z_cells: np.ndarray
+    pitch_cells: np.ndarray
+    dz: float
+    dpitch: float
+    roll: tuple[float, float]
+    yaw: tuple[float, float]
+    narrowed: bool = True
+    arms: dict | None = None        # arm name -> ArmReach
+    v: np.ndarray | None = None     # COG_approx -> trunk origin, trunk frame
+    cog_xy: np.ndarray | None = None
+    candidates: int = 8
+    order: np.ndarray | None = None  # cells nearest the start first (see :meth:`near`)
+    first_fraction: float = 0.25
+
+    def near(self, z: float, pitch: float, z_weight: float = 2.0, pitch_weight: float = 1.0) -> "TrunkSampler":
+        """The same cells, drawn nearest the trunk pose (``z``, ``pitch``) first: batch ``b``
+        of :meth:`sample_for` draws from the nearest ``first_fraction * 2**b`` of the cells
+        (all from the third batch on with 0.25), distance ``z_weight |dz| + pitch_weight
+        |dpitch|`` (the planner's metric). The search starts where the robot stands and
+        moves toward what the target needs: reachable targets get goals, and so paths,
+        close to the start; hard ones still get every cell within a few batches."""
+        d = z_weight * np.abs(self.z_cells - z) + pitch_weight * np.abs(self.pitch_cells - pitch)
+        return replace(self, order=np.argsort(d, kind="stable"))
+
+    def _cells(self, batch: int) -> np.ndarray:
+        if self.order is None:
+            return np.arange(len(self.z_cells))
+        m = len(self.order)
+        take = m if batch >= 30 else min(m, max(1, int(math.ceil(m * self.first_fraction * 2.0 ** batch))))
+        return self.order[:take]
+
+    def sample(self, rng: np.random.Generator, n: int, batch: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """z_t (n,), rpy_t (n, 3) = (roll, pitch, yaw)."""
+        cells = self._cells(batch)
+        k = cells[rng.integers(0, len(cells), size=n)]
+        jitter = rng.uniform(-0.5, 0.5, size=(n, 2))
+        z = self.z_cells[k] + jitter[:, 0] * self.dz
+        pitch = self.pitch_cells[k] + jitter[:, 1] * self.dpitch
+        roll = rng.uniform(self.roll[0], self.roll[1], size=n)
+        yaw = rng.uniform(self.yaw[0], self.yaw[1], size=n)
+        return z, np.stack([roll, pitch, yaw], axis=1)
+
+    def sample_for(self, rng: np.random.Generator, p_e: np.ndarray, R_e: np.ndarray,
+                   arm: str = "auto", batch: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """z_t (n,), rpy_t (n, 3) for hand poses ``p_e`` (n, 3), ``R_e`` (n, 3, 3): per pose
+        the first of ``candidates`` draws from which ``arm`` ("auto": either) reaches the
+        wrist centre (the first draw when none does; Algorithm 1 then rejects it)."""
+        n, k = len(p_e), self.candidates
+        z, rpy = self.sample(rng, n * k, batch)
+        if self.arms is None or k <= 1:
+            return z[:n], rpy[:n]
+        R_t = rpy_matrix(rpy)                                   # (k n, 3, 3)
+        p_t = R_t @ self.v
+        p_t[:, :2] += self.cog_xy
+        p_t[:, 2] = z
+        ok = np.zeros((k, n), bool)
+        for a in _arms(arm):
+            g = self.arms[a]
+            w = p_e - np.einsum("nij,j->ni", R_e @ g.Re.T, g.te)  # wrist centres (n, 3)
+            s = (p_t + R_t @ g.shoulder).reshape(k, n, 3)
+            ok |= np.einsum("kni,kni->kn", s - w, s - w) <= g.wrist_reach ** 2
+        pick = np.argmax(ok, axis=0) * n + np.arange(n)         # first reaching draw (0 if none)
+        return z[pick], rpy[pick]
+
+    @property
+    def z_range(self) -> tuple[float, float]:
+        return float(self.z_cells.min() - self.dz / 2), float(self.z_cells.max() + self.dz / 2)
+
+    @property
+    def pitch_range(self) -> tuple[float, float]:
+        return float(self.pitch_cells.min() - self.dpitch / 2), float(self.pitch_cells.max() + self.dpitch / 2)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) of (z_t, roll, pitch, yaw): the trunk part of the planning space."""
+        (z0, z1), (p0, p1) = self.z_range, self.pitch_range
+        return (np.array([z0, self.roll[0], p0, self.yaw[0]]), np.array([z1, self.roll[1], p1, self.yaw[1]]))
+
+    def describe(self) -> str:
+        (z0, z1), (p0, p1) = self.z_range, self.pitch_range
+        return f"trunk z {z0:.2f}-{z1:.2f} m, pitch {p0:.2f}-{p1:.2f} rad ({len(self.z_cells)} cells)"
+
+
+class TrunkRegion:
+    """Leg-feasible trunk heights x pitches of a projector's stance (module doc).
+
+    ``z_span`` / ``pitch_span``: the grid's extent (``None`` z span: from the lowest sole to
+    the legs' chain length above the highest); ``roll`` / ``yaw``: sampled uniformly;
+    ``dz`` [m] / ``dpitch`` [rad]: cell size; ``candidates``: trunk draws per hand pose in
+    :meth:`TrunkSampler.sample_for`. ValueError when no cell is leg-feasible.
+    """
+
+    def __init__(self, projector, z_span: tuple[float, float] | None = None,
+                 pitch_span: tuple[float, float] = (-0.3, 0.9), roll: tuple[float, float] = (-0.1, 0.1),
+                 yaw: tuple[float, float] = (-0.4, 0.4), dz: float = 0.01, dpitch: float = 0.05,
+                 candidates: int = 8) -> None:
+        for name, r in (("pitch_span", pitch_span), ("roll", roll), ("yaw", yaw)) + (
+                (("z_span", z_span),) if z_span is not None else ()):
+            if not (len(r) == 2 and all(math.isfinite(x) for x in r) and r[0] <= r[1]):
+                raise ValueError(f"TrunkRegion.{name}: need finite lo <= hi, got {r}")
+        if not (dz > 0 and dpitch > 0):
+            raise ValueError(f"TrunkRegion: cell sizes must be > 0, got dz={dz}, dpitch={dpitch}")
+        self.projector = projector
+        ik = projector.ik
+        soles = [projector.feet[leg][0] for leg in ("right_leg", "left_leg")]
+        #: longest trunk-origin -> sole distance of each leg's chain
+        self.leg_reach = {leg: _chain_reach(ik[leg]) for leg in ("right_leg", "left_leg")}
+        self.trunk_z_max = min(float(s[2]) + self.leg_reach[leg] for s, leg in zip(soles, self.leg_reach))
+        if z_span is None:
+            z_span = (min(float(s[2]) for s in soles), self.trunk_z_max)
+        self.z_span, self.pitch_span = tuple(map(float, z_span)), tuple(map(float, pitch_span))
+        self.roll, self.yaw = tuple(map(float, roll)), tuple(map(float, yaw))
+        self.dz, self.dpitch = float(dz), float(dpitch)
+        self.candidates = int(candidates)
+        zs = _cells(*self.z_span, self.dz)
+        ps = _cells(*self.pitch_span, self.dpitch)
+        Z, P = np.meshgrid(zs, ps, indexing="ij")
+        self.z_grid, self.pitch_grid = Z.ravel(), P.ravel()
+        self.pitches = ps
+        q_plan = np.zeros((len(self.z_grid), 10))
+        q_plan[:, :6] = projector.q_ref[projector.cols["right_arm"]]
+        q_plan[:, 6] = self.z_grid
+        q_plan[:, 8] = self.pitch_grid
+        self.feasible = projector.project_plan_config(q_plan, "right").ok.copy()
+        if not self.feasible.any():
+            raise ValueError(f"TrunkRegion: the legs' IK admits no trunk height in {self.z_span} m at pitch "
+                             f"{self.pitch_span} rad on this stance")
+        #: per arm: trunk -> shoulder centre (trunk frame) and the hand's reach from it
+        self.shoulder = {}
+        self.arm_reach = {}
+        self.arms = {}
+        for arm in ARMS:
+            lk = ik[f"{arm}_arm"]
+            self.shoulder[arm] = projector.chest_p_in_trunk + projector.chest_R_in_trunk @ lk.t0
+            self.arm_reach[arm] = _chain_reach(lk, with_root=False)
+            self.arms[arm] = ArmReach(self.shoulder[arm], np.array(lk.Re, float), np.array(lk.te, float),
+                                      float(lk.l1 + lk.l2) + 1e-3)
+        self.cog_xy = np.array(projector.cog_approx_xy, float)
+        self.v = np.array(projector.v, float)
+
+    # ------------------------------------------------------------ the robot's ranges
+    def all_cells(self) -> TrunkSampler:
+        return self._sampler(self.feasible, False)
+
+    def _sampler(self, cells: np.ndarray, narrowed: bool) -> TrunkSampler:
+        return TrunkSampler(self.z_grid[cells], self.pitch_grid[cells], self.dz, self.dpitch, self.roll, self.yaw,
+                            narrowed, self.arms, self.v, self.cog_xy, self.candidates)
+
+    def describe(self) -> str:
+        s = self.all_cells()
+        return f"legs allow {s.describe()} at roll/yaw 0 ({int(self.feasible.sum())} of {len(self.feasible)} cells)"
+
+    # ------------------------------------------------------------ the target's band
+    def for_target(self, region: WorkspaceGoalRegion, arm: str = "auto") -> TrunkSampler:
+        """The leg-feasible cells from which ``arm`` ("auto": either) may reach ``region``."""
+        centre, half, z_lo, z_hi, half_xy = _region_extent(region)
+        keep = np.zeros(len(self.z_grid), bool)
+        yaws = np.linspace(self.yaw[0], self.yaw[1], 9)
+        for a in _arms(arm):
+            u = self.shoulder[a]
+            w = self.v + u                    # COG_approx -> shoulder, trunk frame
+            L = self.arm_reach[a]
+            for pitch in self.pitches:
+                cp, sp = math.cos(pitch), math.sin(pitch)
+                wx = cp * w[0] + sp * w[2]    # (Ry(pitch) w)_x
+                uz = -sp * u[0] + cp * u[2]   # (Ry(pitch) u)_z: shoulder height above the trunk origin
+                sx = self.cog_xy[0] + np.cos(yaws) * wx - np.sin(yaws) * w[1]
+                sy = self.cog_xy[1] + np.sin(yaws) * wx + np.cos(yaws) * w[1]
+                d = max(0.0, float(np.min(np.hypot(sx - centre[0], sy - centre[1]))) - half_xy)
+                if d > L:
+                    continue
+                reach_z = math.sqrt(L * L - d * d) + BAND_SLACK_M
+                lo, hi = z_lo - reach_z - uz, z_hi + reach_z - uz
+                keep |= ((self.pitch_grid == pitch) & (self.z_grid >= lo - self.dz / 2)
+                         & (self.z_grid <= hi + self.dz / 2))
+        keep &= self.feasible
+        if not keep.any():
+            return self.all_cells()
+        return self._sampler(keep, True)
+
+    # ------------------------------------------------------------ the proof
+    def out_of_reach(self, region: WorkspaceGoalRegion, arm: str = "auto") -> str | None:
+        """A message when no allowed arm can reach ``region`` from any trunk pose searched
+        (module doc), else None. Conservative: None does not mean reachable.
+
+        The trunk poses: height up to the legs' chain length above the soles (at any
+        height below), orientation within the roll, pitch and yaw ranges searched. The
+        orientations are gridded at ``PROOF_STEP_RAD``; between grid points the shoulder
+        moves at most ``|w| eps`` (``eps``: half the steps summed), which is subtracted."""
+        centre, half, _, _, _ = _region_extent(region)
+        reasons = []
+        rolls, pitches, yaws = (_grid(r, PROOF_STEP_RAD) for r in (self.roll, self.pitch_span, self.yaw))
+        eps = sum(_step(r, PROOF_STEP_RAD) for r in (self.roll, self.pitch_span, self.yaw)) / 2
+        R, Rp, Ry = np.meshgrid(rolls, pitches, yaws, indexing="ij")
+        Rt = rpy_matrix(np.stack([R.ravel(), Rp.ravel(), Ry.ravel()], axis=1))
+        z_lo, z_hi = self.z_span[0], self.trunk_z_max
+        for a in _arms(arm):
+            u = self.shoulder[a]
+            w = self.v + u
+            sxy = self.cog_xy + (Rt @ w)[:, :2]
+            uz = (Rt @ u)[:, 2]
+            dh = np.hypot(sxy[:, 0] - centre[0], sxy[:, 1] - centre[1])
+            dv = np.maximum(0.0, np.maximum(centre[2] - (z_hi + uz), (z_lo + uz) - centre[2]))
+            slack = eps * math.hypot(np.linalg.norm(w), np.linalg.norm(u))
+            closest = float(np.min(np.hypot(dh, dv)))
+            gap = closest - slack - half - self.arm_reach[a]
+            if gap <= 0:
+                return None
+            reasons.append(f"{a} hand {self.arm_reach[a]:.2f} m from a shoulder at best {closest - slack:.2f} m "
+                           f"away, {gap:.2f} m short")
+        return (f"{'; '.join(reasons)}; searched: trunk up to {z_hi:.2f} m, roll {self.roll[0]:.2f}..{self.roll[1]:.2f},"
+                f" pitch {self.pitch_span[0]:.2f}..{self.pitch_span[1]:.2f}, yaw {self.yaw[0]:.2f}..{self.yaw[1]:.2f} rad")
+
+
+def _arms(arm: str) -> tuple[str, ...]:
+    if arm in (None, "", "auto"):
+        return ARMS
+    if arm not in ARMS:
+        raise ValueError(f"arm must be 'auto', 'right' or 'left', got {arm!r}")
+    return (arm,)
+
+
+def _step(r: tuple[float, float], step: float) -> float:
+    n = max(1, int(math.ceil((r[1] - r[0]) / step - 1e-9)))
+    return (r[1] - r[0]) / n
+
+
+def _grid(r: tuple[float, float], step: float) -> np.ndarray:
+    """Points of ``r`` at most ``step`` apart, both ends included."""
+    n = max(1, int(math.ceil((r[1] - r[0]) / step - 1e-9)))
+    return np.linspace(r[0], r[1], n + 1)
+
+
+def _cells(lo: float, hi: float, step: float) -> np.ndarray:
+    n = max(1, int(math.ceil((hi - lo) / step - 1e-9)))
+    return lo + (np.arange(n) + 0.5) * ((hi - lo) / n if hi > lo else 0.0)
+
+
+def _chain_reach(lk, with_root: bool = True) -> float:
+    """Longest root -> tip distance of a closed-form limb: ``|t0|`` (root -> first axes'
+    intersection, when ``with_root``) + ``l1 + l2`` (the two links between the
+    intersections: the reach condition of the closed form) + ``|te|`` (wrist -> tip),
+    plus 1 mm for the solver's tolerances."""
+    r = float(lk.l1 + lk.l2 + np.linalg.norm(lk.te)) + 1e-3
+    return r + (float(np.linalg.norm(lk.t0)) if with_root else 0.0)
+
+
+def _region_extent(region: WorkspaceGoalRegion):
+    """Centre (3,), half diagonal, world z range and horizontal half extent of the region's
+    position box."""
+    lo, hi = np.asarray(region.lower[:3], float), np.asarray(region.upper[:3], float)
+    mid = (lo + hi) / 2
+    centre = np.asarray(region.target_p, float) + np.asarray(region.target_R, float) @ mid
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    world = corners @ np.asarray(region.target_R, float).T + np.asarray(region.target_p, float)
+    half = float(np.linalg.norm(hi - lo) / 2)
+    half_xy = float(np.max(np.hypot(world[:, 0] - centre[0], world[:, 1] - centre[1])))
+    return centre, half, float(world[:, 2].min()), float(world[:, 2].max()), half_xy
+
+
+__all__ = ["TrunkRegion", "TrunkSampler"]

@@ -1,0 +1,127 @@
+"""The generality suite (``config/scenes/suite.yaml``): scenes beyond the plant, the
+targets an operator would point at in them, and what the planner must answer for each
+arm. Used by ``bench/generality.py`` and ``test/test_scene_suite.py``.
+
+A case: ``name``, ``scene`` (a scene YAML, relative to ``config/``), an optional
+``target`` ``{position, rpy}`` (default: the scene's), ``region`` (``hemisphere``: the
+paper's eq. 3 -- hand at the target, roll and pitch within +-90 deg, yaw free -- or
+``cone``: roll and pitch within +-``cone_deg``), ``exclude_groups`` (default
+``[target]``: the reached object is not an obstacle) and ``expect`` per arm:
+``reachable`` (SUCCESS), ``out_of_reach`` (TARGET_OUT_OF_REACH, proven by the geometric
+bound) or ``no_goal`` (NO_GOAL_FOUND: not ruled out by the bound, yet no goal posture).
+
+No ROS here.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from humanoid_reach_ros.paths import config_path
+from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion
+from humanoid_reach_ros.sim.scene import Scene, load_scene, pose_matrix
+from humanoid_reach_ros.yaml_checks import vec3
+
+SUITE_FILE = "scenes/suite.yaml"
+EXPECTATIONS = {"reachable": "SUCCESS", "out_of_reach": "TARGET_OUT_OF_REACH", "no_goal": "NO_GOAL_FOUND"}
+REGIONS = ("hemisphere", "cone")
+ARMS = ("right", "left")
+_CASE_KEYS = {"name", "scene", "target", "region", "cone_deg", "exclude_groups", "expect"}
+
+
+@dataclass(frozen=True, eq=False)
+class SuiteCase:
+    """One target in one scene and the answer expected per arm (module doc)."""
+
+    name: str
+    scene_path: Path
+    target_pose: np.ndarray          # 4x4, world
+    region_kind: str
+    cone_deg: float
+    exclude_groups: tuple[str, ...]
+    expect: dict                     # arm -> key of EXPECTATIONS
+
+    def region(self) -> WorkspaceGoalRegion:
+        a = math.pi / 2 if self.region_kind == "hemisphere" else math.radians(self.cone_deg)
+        lo = np.array([0.0, 0.0, 0.0, -a, -a, -math.pi])
+        return WorkspaceGoalRegion(self.target_pose[:3, 3], self.target_pose[:3, :3], lo, -lo)
+
+    def scene(self) -> Scene:
+        return load_scene(self.scene_path)
+
+    def voxels(self, resolution_m: float) -> np.ndarray:
+        """The scene's occupied voxel centres without the reached object."""
+        return self.scene().voxelize(resolution_m, exclude_groups=self.exclude_groups)
+
+    def expected_code(self, arm: str) -> str:
+        """PlanReach error code name expected for ``arm``."""
+        return EXPECTATIONS[self.expect[arm]]
+
+    @property
+    def scene_class(self) -> str:
+        """What kind of case it is: the expectation of its best arm."""
+        kinds = set(self.expect.values())
+        return "reachable" if "reachable" in kinds else sorted(kinds)[0]
+
+
+def load_suite(path: str | Path = SUITE_FILE) -> list[SuiteCase]:
+    """Load and validate the suite; ValueError naming the entry on bad input."""
+    p = Path(path)
+    if not p.is_absolute() and not p.exists():
+        p = config_path(str(path))
+    with open(p) as f:
+        doc = yaml.safe_load(f)
+    if not isinstance(doc, dict) or not isinstance(doc.get("cases"), list) or not doc["cases"]:
+        raise ValueError(f"suite {p}: expected a mapping with a non-empty list 'cases'")
+    cases, seen = [], set()
+    for k, entry in enumerate(doc["cases"]):
+        where = f"suite {p}: case #{k}"
+        if not isinstance(entry, dict):
+            raise ValueError(f"{where}: expected a mapping")
+        extra = set(entry) - _CASE_KEYS
+        if extra:
+            raise ValueError(f"{where}: unknown key(s) {sorted(extra)}; expected some of {sorted(_CASE_KEYS)}")
+        name = entry.get("name")
+        if not isinstance(name, str) or not name or name in seen:
+            raise ValueError(f"{where}: 'name' must be a unique non-empty string, got {name!r}")
+        seen.add(name)
+        where = f"suite {p}: case {name!r}"
+        scene_file = entry.get("scene")
+        if not isinstance(scene_file, str):
+            raise ValueError(f"{where}: 'scene' must be a scene YAML path")
+        scene_path = Path(scene_file) if Path(scene_file).is_absolute() else config_path(scene_file)
+        if not scene_path.exists():
+            raise ValueError(f"{where}: scene {scene_path} does not exist")
+        scene = load_scene(scene_path)
+        if "target" in entry:
+            t = entry["target"]
+            if not isinstance(t, dict) or set(t) - {"position", "rpy"} or "position" not in t:
+                raise ValueError(f"{where}: 'target' must be {{position: [x, y, z], rpy: [r, p, y]}}")
+            pose = pose_matrix(vec3(t["position"], f"{where}: target.position"),
+                               vec3(t.get("rpy", [0.0, 0.0, 0.0]), f"{where}: target.rpy"))
+        elif scene.target is not None:
+            pose = scene.target.pose
+        else:
+            raise ValueError(f"{where}: no 'target' and the scene has none")
+        region = entry.get("region", "hemisphere")
+        if region not in REGIONS:
+            raise ValueError(f"{where}: region must be one of {REGIONS}, got {region!r}")
+        cone = entry.get("cone_deg", 90.0)
+        if not isinstance(cone, (int, float)) or not 0 < cone <= 90:
+            raise ValueError(f"{where}: cone_deg must be in (0, 90], got {cone!r}")
+        groups = entry.get("exclude_groups", ["target"])
+        if not isinstance(groups, list) or not all(isinstance(g, str) for g in groups):
+            raise ValueError(f"{where}: exclude_groups must be a list of group names")
+        expect = entry.get("expect")
+        if not isinstance(expect, dict) or set(expect) != set(ARMS) or not all(
+                v in EXPECTATIONS for v in expect.values()):
+            raise ValueError(f"{where}: expect must give each of {ARMS} one of {sorted(EXPECTATIONS)}, got {expect!r}")
+        cases.append(SuiteCase(name, scene_path, pose, region, float(cone), tuple(groups), dict(expect)))
+    return cases
+
+
+__all__ = ["SuiteCase", "load_suite", "EXPECTATIONS", "SUITE_FILE"]
