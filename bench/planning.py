@@ -51,7 +51,8 @@ SEED = 20120514
 def goal_table(rp: ReachPlanner, region, n: int) -> tuple[dict, object]:
     col = rp.collision
     col.reset_counters()
-    goals = sample_goals(region, n, rp.robot, col, np.random.default_rng(SEED), trunk=rp.params.trunk_sampling,
+    trunk = rp.trunk_sampling(region, "auto", rp.start_config(rp.robot.half_sitting_joints))
+    goals = sample_goals(region, n, rp.robot, col, np.random.default_rng(SEED), trunk=trunk,
                          projector=rp.projector, batch_size=rp.params.goal_batch_size)
     d = goals.stats.as_dict()
     err = cog_errors(goals.q, rp.robot, rp.projector)

@@ -252,3 +252,21 @@ def test_fast_paths_plan_like_the_reference(planner, voxels, region):
         rows = Q[s:s + 30]
         v = is_valid(rows)
         assert is_valid.first_invalid(rows) == (len(rows) if v.all() else int(np.argmin(v)))
+
+
+@pytest.mark.parametrize("kwargs, text", [
+    ({"trunk_z_m": (0.8, 0.5)}, "trunk_z_m"), ({"trunk_pitch_rad": (0.0, float("nan"))}, "trunk_pitch_rad"),
+    ({"trunk_space_margin": (-0.1, 0.3)}, "trunk_space_margin"), ({"trunk_space_margin": (0.1,)}, "trunk_space_margin"),
+])
+def test_trunk_parameters_are_validated(kwargs, text):
+    with pytest.raises(ValueError, match=text):
+        PlannerParams(**kwargs)
+
+
+def test_trunk_ranges_narrow_the_search(region):
+    """A given trunk_z_m bounds the leg grid: goals stay inside it."""
+    rp = ReachPlanner(params=PlannerParams(trunk_z_m=(0.60, 0.70)))
+    rp.set_map(np.zeros((0, 3)))
+    o = rp.plan(rp.robot.half_sitting_joints, PlanRequest(region, seed=0))
+    assert o.success, o.message
+    assert np.all((o.goals[:, 2] >= 0.60 - 1e-9) & (o.goals[:, 2] <= 0.70 + 1e-9))

@@ -36,7 +36,7 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability
 FAST_DIAG = {"diagnostics_period_s": 0.2, "joint_states_timeout_s": 5.0}
 # Generous: these tests assert correctness, not speed (bench/planning.py measures that). Inside the
 # node, requests after the first run several times slower than in-process (open in issue #3), and a
-# loaded 2-core CI machine must not turn a reachable valve into TIMED_OUT.
+# loaded 2-core CI machine must not turn a reachable valve into NO_GOAL_FOUND or NO_PATH.
 SUCCESS_BUDGET_S = 20.0
 
 
@@ -313,7 +313,7 @@ def test_voxel_map_switch_collision_busy_and_malformed(start_node, ros_probe, mo
     print(f"\nwall: {r1.error_code} {r1.message!r}; concurrent: {r2.error_code} {r2.message!r}")
     assert E.BUSY in codes, codes
     blocked = r1 if r2.error_code == E.BUSY else r2
-    assert blocked.error_code in (E.TARGET_OUT_OF_REACH, E.NO_PATH, E.TIMED_OUT), blocked.message
+    assert blocked.error_code in (E.NO_GOAL_FOUND, E.NO_PATH), blocked.message
     # the voxels around the valve target are left out (target_exclusion_radius_m)
     kept = without_target(walled, valve_region().target_p, 0.15)
     assert len(kept) < len(walled) and blocked.statistics.map_voxels == len(kept)

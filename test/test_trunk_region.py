@@ -125,3 +125,29 @@ def test_bad_spans_are_refused(region_and_projector):
         TrunkRegion(projector, z_span=(1.5, 1.6))
     with pytest.raises(ValueError, match="cell sizes"):
         TrunkRegion(projector, dz=0.0)
+
+
+def test_compiled_pick_equals_a_numpy_reference(region_and_projector):
+    """sample_for keeps, per hand pose, the first of its candidates whose shoulder reaches
+    the wrist centre (computed here with the projector's own trunk and chest poses)."""
+    tr, projector = region_and_projector
+    region = valve_region((0.5, -0.1, 0.5))
+    s = tr.for_target(region)
+    rng = np.random.default_rng(11)
+    p_e, R_e = region.sample(rng, 300)
+    state = rng.bit_generator.state
+    z_c, rpy_c = s.sample_for(rng, p_e, R_e, "auto")
+    rng.bit_generator.state = state
+    n, k = len(p_e), s.candidates
+    z, rpy = s.sample(rng, n * k)
+    p_t, R_t = projector.trunk_pose(z, rpy)
+    ok = np.zeros((k, n), bool)
+    for arm in ("right", "left"):
+        g = tr.arms[arm]
+        c = (p_t + R_t @ g.shoulder).reshape(k, n, 3)
+        w = p_e - np.einsum("nij,j->ni", R_e @ g.Re.T, g.te)
+        ok |= np.linalg.norm(c - w[None], axis=2) <= g.wrist_reach
+    pick = np.where(ok.any(axis=0), np.argmax(ok, axis=0), 0) * n + np.arange(n)
+    np.testing.assert_array_equal(z_c, z[pick])
+    np.testing.assert_array_equal(rpy_c, rpy[pick])
+    assert 0 < ok.any(axis=0).sum() < n

@@ -78,11 +78,12 @@ def run_worker(venv: Path, script: str, args: list[str], timeout_s: float, ld_cm
 # ------------------------------------------------------------------ ours
 def ours_goals(prob, n_goals: int) -> tuple[dict, object]:
     rp = prob.planner
+    trunk = rp.trunk_sampling(prob.region, "auto", rp.start_config(rp.robot.half_sitting_joints))
     sample_goals(prob.region, 2, prob.robot, prob.collision, np.random.default_rng(0),
-                 trunk=rp.params.trunk_sampling, projector=prob.projector)   # JIT warm-up
+                 trunk=trunk, projector=prob.projector)   # JIT warm-up
     t0 = time.perf_counter()
     goals = sample_goals(prob.region, n_goals, prob.robot, prob.collision, np.random.default_rng(PB.SEED),
-                         trunk=rp.params.trunk_sampling, projector=prob.projector,
+                         trunk=trunk, projector=prob.projector,
                          batch_size=rp.params.goal_batch_size)
     t_gen = time.perf_counter() - t0
     chk = PB.goal_validity(prob, goals.q)
@@ -125,7 +126,7 @@ def ours_paths(prob, goals, k: int) -> dict:
 
 def collision_configs(prob, n: int) -> np.ndarray:
     rng = np.random.default_rng(PB.SEED + 1)
-    tr = prob.params.trunk_sampling
+    tr = prob.planner.trunk_sampling(prob.region)
     out = []
     while sum(len(o) for o in out) < n:
         p_e, R_e = prob.region.sample(rng, 4096)

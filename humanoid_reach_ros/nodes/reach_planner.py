@@ -175,7 +175,8 @@ class ReachPlannerNode(Node):
         self.planner = ReachPlanner(RobotModel(p["robot_config"]), planner_params(p))
         t0 = time.perf_counter()
         self.planner.warm_up()  # compiled kernels before the first request (cache: tools/setup.sh)
-        self.get_logger().info(f"planning kernels warmed up in {1e3 * (time.perf_counter() - t0):.0f} ms")
+        self.get_logger().info(f"planning kernels warmed up in {1e3 * (time.perf_counter() - t0):.0f} ms; goal "
+                               f"search: {self.planner.trunk_region.describe()}")
         self.hardware_id = str(self.model.semantic.get("robot_name", "robot"))
 
         self._plan_lock = threading.Lock()   # one request at a time; a second one gets BUSY

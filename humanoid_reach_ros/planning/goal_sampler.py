@@ -145,7 +145,7 @@ def sample_goals(region: WorkspaceGoalRegion, n_goals: int, robot: RobotModel, c
     qs, arms, ps, Rs = [], [], [], []
     c0 = collision.counters
     chk0, ct0, cf0 = c0.checks, c0.check_time_s, c0.fk_time_s
-    n_batches = 0
+    n_dry = 0   # batches that gave no goal: a TrunkSampler widens its cells with each
     while len(qs) < n_goals:
         if time.perf_counter() - t_start > time_budget_s or (max_samples is not None
                                                             and stats.n_samples >= max_samples):
@@ -153,7 +153,7 @@ def sample_goals(region: WorkspaceGoalRegion, n_goals: int, robot: RobotModel, c
             break
         p_e, R_e = region.sample(rng, batch_size)
         if hasattr(trunk, "sample_for"):   # TrunkSampler: trunk draws conditioned on the hand poses
-            z_t, rpy_t = trunk.sample_for(rng, p_e, R_e, arm, batch=n_batches)
+            z_t, rpy_t = trunk.sample_for(rng, p_e, R_e, arm, batch=n_dry)
         else:
             z_t, rpy_t = trunk.sample(rng, batch_size)
         res = projector.project_config(p_e, R_e, z_t, rpy_t, arm=arm)
@@ -167,7 +167,7 @@ def sample_goals(region: WorkspaceGoalRegion, n_goals: int, robot: RobotModel, c
             res = projector.project_config(p_e[:end], R_e[:end], z_t[:end], rpy_t[:end], arm=arm)
         for k, v in res.failures.items():
             stats.ik_failures[k] += v
-        n_batches += 1
+        n_dry += int(len(take) == 0)
         in_prefix = idx < end
         stats.n_samples += end
         stats.collision_checks += int(np.count_nonzero(in_prefix))

@@ -111,8 +111,11 @@ class PlannerParams:
     ``auto``: the first arm gets at most ``first_arm_time_fraction`` of the remaining
     budget when the other arm has goals.
     Planning space (eq. 2) ``q_plan = (q_arm (6), z_t, rpy_t (3))``: bounds = the arm
-    joint limits and the request's trunk ranges (grown to include the start and the
-    goals), metric ``||W dq||`` with ``W = (arm_weight x6, trunk_z_weight,
+    joint limits and the request's trunk ranges, cut to ``trunk_space_margin`` (height
+    [m], pitch [rad]; None: no cut) around the start and the goals (our choice: (0.1, 0.3)
+    keeps paths from wandering through squats they do not need -- plant valve, 30 seeds:
+    trajectory p50 / p90 3.6 / 5.1 s against 4.6 / 7.5 s uncut -- while leaving room to
+    duck under a pipe), and grown to include them; metric ``||W dq||`` with ``W = (arm_weight x6, trunk_z_weight,
     trunk_rpy_weight x3)``, edges checked every ``edge_resolution``, RRT step ``rrt_step``.
     ``rrt_step`` is 1.0 (not 0.3): every checker call projects its batch through the
     closed-form leg IK, whose numpy cost was per call rather than per configuration, so
@@ -140,7 +143,7 @@ class PlannerParams:
     trunk_roll_rad: tuple[float, float] = (-0.1, 0.1)
     trunk_pitch_rad: tuple[float, float] = (-0.3, 0.9)
     trunk_yaw_rad: tuple[float, float] = (-0.4, 0.4)
-    trunk_space_margin: tuple[float, float] | None = (0.05, 0.15)
+    trunk_space_margin: tuple[float, float] | None = (0.1, 0.3)
     # metric weights
     arm_weight: float = 1.0
     trunk_z_weight: float = 2.0
@@ -170,6 +173,9 @@ class PlannerParams:
             raise ValueError(f"PlannerParams.planner must be one of {PLANNER_NAMES}, got {self.planner!r}")
         if not 0 < self.goal_time_fraction <= 1:
             raise ValueError("PlannerParams.goal_time_fraction must be in (0, 1]")
+        m = self.trunk_space_margin
+        if m is not None and not (len(m) == 2 and all(math.isfinite(x) and x >= 0 for x in m)):
+            raise ValueError(f"PlannerParams.trunk_space_margin: need None or (height >= 0, pitch >= 0), got {m}")
         for name in ("trunk_z_m", "trunk_roll_rad", "trunk_pitch_rad", "trunk_yaw_rad"):
             r = getattr(self, name)
             if r is None and name == "trunk_z_m":

@@ -38,6 +38,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
+import numba as nb
 import numpy as np
 
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion, rpy_matrix
@@ -88,12 +89,13 @@ class TrunkSampler:
     first_fraction: float = 0.25
 
     def near(self, z: float, pitch: float, z_weight: float = 2.0, pitch_weight: float = 1.0) -> "TrunkSampler":
-        """The same cells, drawn nearest the trunk pose (``z``, ``pitch``) first: batch ``b``
-        of :meth:`sample_for` draws from the nearest ``first_fraction * 2**b`` of the cells
-        (all from the third batch on with 0.25), distance ``z_weight |dz| + pitch_weight
-        |dpitch|`` (the planner's metric). The search starts where the robot stands and
-        moves toward what the target needs: reachable targets get goals, and so paths,
-        close to the start; hard ones still get every cell within a few batches."""
+        """The same cells, drawn nearest the trunk pose (``z``, ``pitch``) first: after ``b``
+        batches without a goal (``sample_for``'s ``batch``), draws come from the nearest
+        ``first_fraction * 2**b`` of the cells (all after two dry batches with 0.25),
+        distance ``z_weight |dz| + pitch_weight |dpitch|`` (the planner's metric). The
+        search starts where the robot stands and moves toward what the target needs only
+        when it must: reachable targets get goals, and so paths, close to the start; hard
+        ones get every cell within a few batches."""
         d = z_weight * np.abs(self.z_cells - z) + pitch_weight * np.abs(self.pitch_cells - pitch)
         return replace(self, order=np.argsort(d, kind="stable"))
 
@@ -124,17 +126,11 @@ class TrunkSampler:
         z, rpy = self.sample(rng, n * k, batch)
         if self.arms is None or k <= 1:
             return z[:n], rpy[:n]
-        R_t = rpy_matrix(rpy)                                   # (k n, 3, 3)
-        p_t = R_t @ self.v
-        p_t[:, :2] += self.cog_xy
-        p_t[:, 2] = z
-        ok = np.zeros((k, n), bool)
-        for a in _arms(arm):
-            g = self.arms[a]
-            w = p_e - np.einsum("nij,j->ni", R_e @ g.Re.T, g.te)  # wrist centres (n, 3)
-            s = (p_t + R_t @ g.shoulder).reshape(k, n, 3)
-            ok |= np.einsum("kni,kni->kn", s - w, s - w) <= g.wrist_reach ** 2
-        pick = np.argmax(ok, axis=0) * n + np.arange(n)         # first reaching draw (0 if none)
+        arms = [self.arms[a] for a in _arms(arm)]
+        pick = np.empty(n, np.int64)
+        _first_reaching(z, rpy, np.ascontiguousarray(p_e, dtype=float), np.ascontiguousarray(R_e, dtype=float),
+                        self.v, self.cog_xy, np.array([g.shoulder for g in arms]), np.array([g.Re for g in arms]),
+                        np.array([g.te for g in arms]), np.array([g.wrist_reach ** 2 for g in arms]), k, pick)
         return z[pick], rpy[pick]
 
     @property
@@ -284,6 +280,60 @@ class TrunkRegion:
                            f"away, {gap:.2f} m short")
         return (f"{'; '.join(reasons)}; searched: trunk up to {z_hi:.2f} m, roll {self.roll[0]:.2f}..{self.roll[1]:.2f},"
                 f" pitch {self.pitch_span[0]:.2f}..{self.pitch_span[1]:.2f}, yaw {self.yaw[0]:.2f}..{self.yaw[1]:.2f} rad")
+
+
+@nb.njit(cache=True, nogil=False, fastmath=False)
+def _first_reaching(z, rpy, p_e, R_e, v, cog_xy, shoulder, Re, te, reach2, k, pick):
+    """:meth:`TrunkSampler.sample_for`'s choice, compiled: for hand pose ``i`` (of n), the
+    first candidate ``j * n + i`` (j < k) whose trunk ``(z, rpy)`` puts some arm's shoulder
+    within ``sqrt(reach2)`` of the pose's wrist centre ``p_e - R_e Re^T te``; ``i`` if none.
+    The trunk pose is Algorithm 1's lines 2-4 (``p_t = R_t v + COG_approx``, height z)."""
+    n = p_e.shape[0]
+    n_arms = shoulder.shape[0]
+    w = np.empty((n_arms, 3))
+    R = np.empty((3, 3))
+    for i in range(n):
+        for a in range(n_arms):     # wrist centres of pose i
+            for r in range(3):
+                acc = 0.0
+                for c in range(3):
+                    m = 0.0        # (R_e Re^T)[r, c]
+                    for t in range(3):
+                        m += R_e[i, r, t] * Re[a, c, t]
+                    acc += m * te[a, c]
+                w[a, r] = p_e[i, r] - acc
+        pick[i] = i
+        for j in range(k):
+            c_ = j * n + i
+            cr, sr = math.cos(rpy[c_, 0]), math.sin(rpy[c_, 0])
+            cp, sp = math.cos(rpy[c_, 1]), math.sin(rpy[c_, 1])
+            cy, sy = math.cos(rpy[c_, 2]), math.sin(rpy[c_, 2])
+            R[0, 0] = cy * cp
+            R[0, 1] = cy * sp * sr - sy * cr
+            R[0, 2] = cy * sp * cr + sy * sr
+            R[1, 0] = sy * cp
+            R[1, 1] = sy * sp * sr + cy * cr
+            R[1, 2] = sy * sp * cr - cy * sr
+            R[2, 0] = -sp
+            R[2, 1] = cp * sr
+            R[2, 2] = cp * cr
+            found = False
+            for a in range(n_arms):
+                d2 = 0.0
+                for r in range(3):
+                    s_r = R[r, 0] * (v[0] + shoulder[a, 0]) + R[r, 1] * (v[1] + shoulder[a, 1]) \
+                        + R[r, 2] * (v[2] + shoulder[a, 2])
+                    if r < 2:
+                        s_r += cog_xy[r]
+                    else:   # height: z_t + (R_t u)_z
+                        s_r = z[c_] + R[2, 0] * shoulder[a, 0] + R[2, 1] * shoulder[a, 1] + R[2, 2] * shoulder[a, 2]
+                    d2 += (s_r - w[a, r]) ** 2
+                if d2 <= reach2[a]:
+                    found = True
+                    break
+            if found:
+                pick[i] = c_
+                break
 
 
 def _arms(arm: str) -> tuple[str, ...]:
