@@ -64,17 +64,11 @@ def goal_table(rp: ReachPlanner, region, n: int) -> tuple[dict, object]:
 
 def _one_path(rp: ReachPlanner, q0, goal_q, arm: str, k: int, budget_s: float):
     """Plan + shortcut to one goal with seed ``k``: (wall s, CPU s of this process, result, path or None)."""
-    p = rp.params
     goal_plan = rp.projector.plan_config_of(goal_q, arm)
     _, start_plan = rp._projected_start(q0, arm)
-    space = rp.planning_space(arm, np.vstack([start_plan[None], goal_plan]))
-    is_valid = rp.validity_fn(arm, rp.collision)
     rng = np.random.default_rng(k)
     t0, c0 = time.perf_counter(), time.process_time()
-    res = run_planner(p.planner, start_plan, goal_plan, is_valid, space, rng, rp._planner_options(p.planner, budget_s))
-    path = None
-    if res.success:
-        path = shortcut_path(res.path, is_valid, space, rng, ShortcutOptions(p.shortcut_iterations, p.shortcut_time_s))
+    res, path, _ = rp.search_path(arm, start_plan, goal_plan, rp.collision, rng, rp.params.planner, budget_s)
     return time.perf_counter() - t0, time.process_time() - c0, res, path
 
 
@@ -171,6 +165,7 @@ def run(params: PlannerParams, voxels, region, n_goals: int, n_wait: int, baseli
     if baseline:
         base = ReachPlanner(rp.robot, params, compiled_kinematics=False, early_exit_checks=False)
         base.set_map(voxels)
+    goal_table(rp, region, n_goals)   # warm-up: the first sampling run after start-up is ~2x slower
     t1, goals = goal_table(rp, region, n_goals)
     t2 = path_table(rp, goals, params.time_budget_s, base)
     w = operator_wait(rp, region, n_wait)
