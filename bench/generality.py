@@ -110,7 +110,8 @@ def summarize(runs: list[dict]) -> dict:
         d["ms"].append(r["ms"])
     out["per_case"] = {k: {"expect": d["expect"], "codes": dict(d["codes"]), "ms": ms_stats(d["ms"])}
                        for k, d in per.items()}
-    out["wrong"] = [{k: r[k] for k in ("case", "arm", "seed", "expect", "code", "ms")} for r in runs if not r["correct"]]
+    keys = ("case", "arm", "seed", "expect", "code", "ms")
+    out["wrong"] = [{k: r[k] for k in keys} for r in runs if not r["correct"]]
     return out
 
 
@@ -118,10 +119,10 @@ def node_runs(cases, budget_s: float, timeout_s: float) -> list[dict]:
     """One case per class through /plan_reach (the planner restarted on each scene)."""
     from operator_wait import Client
 
+    from humanoid_reach_ros.codes import ARM_CODES
     from humanoid_reach_ros.graph import NodeProcess, allocate_domain, graph_env
     from humanoid_reach_ros.io import msgs
 
-    arm_code = {"right": 1, "left": 2}
     log_dir = Path(tempfile.mkdtemp(prefix="generality_"))
     lease = allocate_domain()
     env = graph_env(lease.domain_id)
@@ -141,7 +142,7 @@ def node_runs(cases, budget_s: float, timeout_s: float) -> list[dict]:
             planner.wait_for_log(r"reach planner ready", 120.0)
             client.spin_until(client.client.service_is_ready, 60.0, "/plan_reach", planner.log_tail)
             req = msgs.plan_reach_request(case.region(), "world", seed=0, time_budget_s=budget_s)
-            req.arm = arm_code[arm]
+            req.arm = ARM_CODES[arm]
             deadline = time.monotonic() + 60.0
             while True:   # the first answers may be NO_JOINT_STATES until the planner has them
                 first, first_s = client.call(req, timeout_s, planner.log_tail)

@@ -184,7 +184,7 @@ class Bench:
 
     def execute(self, name: str, traj, arm_code: int, hold_s: float = 2.0) -> dict[str, Any]:
         from humanoid_reach_ros.io import msgs
-        arm = "right" if arm_code == 1 else "left"
+        arm = ARM_NAMES[arm_code]
         t_end = traj.points[-1].time_from_start
         duration = t_end.sec + t_end.nanosec * 1e-9
         ex = self.op.ExecuteReach

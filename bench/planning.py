@@ -95,7 +95,7 @@ def path_table(rp: ReachPlanner, goals, budget_s: float, baseline: ReachPlanner 
     t_all = 0.0
     base_ms, base_cpu, cpu_ms, base_ok, same = [], [], [], 0, 0
     for k in range(len(goals)):
-        arm = "right" if goals.arm[k] == 0 else "left"
+        arm = ARM_NAMES[int(goals.arm[k])]
         dt, cpu, res, path = _one_path(rp, q0, goals.q[k], arm, k, budget_s)
         t_all += dt
         if res.success:

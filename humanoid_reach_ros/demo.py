@@ -32,6 +32,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from humanoid_reach_ros.codes import ARM_REQUESTS
 from humanoid_reach_ros.graph import STOP_DEADLINE_S, NodeProcess, allocate_domain, graph_env, wait_for
 from humanoid_reach_ros.nodes.reach_executor_params import PARAMETERS
 from humanoid_reach_ros.paths import config_path
@@ -51,7 +52,7 @@ SIM_JOINT_STATES_ABORT_S = 5.0     # executor: abort a motion when /joint_states
 
 
 def arm_code(arm: str) -> int:
-    return {"auto": 0, "right": 1, "left": 2}[arm]
+    return ARM_REQUESTS[arm]
 
 
 @dataclass

@@ -7,7 +7,8 @@ import pytest
 from humanoid_reach_ros.geometry.distance import RobotCollision
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree
 from humanoid_reach_ros.planning.goal_sampler import TrunkSampling, cog_errors, sample_goals
-from humanoid_reach_ros.planning.projector import LEFT, RIGHT, Projector
+from humanoid_reach_ros.codes import ARM_LEFT as LEFT, ARM_RIGHT as RIGHT
+from humanoid_reach_ros.planning.projector import Projector
 from humanoid_reach_ros.planning.wgr import valve_region
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.shapes import load_collision_model

@@ -6,7 +6,8 @@ import pinocchio as pin
 import pytest
 
 from humanoid_reach_ros.planning.goal_sampler import TrunkSampling
-from humanoid_reach_ros.planning.projector import LEFT, NONE, RIGHT, Projector, quat_xyzw_from_rpy
+from humanoid_reach_ros.codes import ARM_LEFT as LEFT, ARM_NONE as NONE, ARM_RIGHT as RIGHT
+from humanoid_reach_ros.planning.projector import Projector, quat_xyzw_from_rpy
 from humanoid_reach_ros.planning.wgr import rpy_matrix, valve_region
 
 

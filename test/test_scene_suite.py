@@ -69,9 +69,3 @@ def test_bad_suite_files_are_refused(tmp_path, edit, text):
     with pytest.raises(ValueError, match=text):
         load_suite(path)
 
-
-def test_plan_error_codes_match_the_interface():
-    from humanoid_reach_interfaces.srv import PlanReach
-
-    for e in PlanError:
-        assert getattr(PlanReach.Response, e.name) == e.value, e.name

@@ -130,7 +130,7 @@ def paths(workdir) -> dict:
     res = {"plans": 0, "success": 0, "time_s": [], "nodes": [], "failures": []}
     problems = {}
     for k, (qg, arm) in enumerate(zip(P["goals_q"], P["goals_arm"])):
-        arm_name = "right" if int(arm) == 0 else "left"
+        arm_name = {1: "right", 2: "left"}[int(arm)]   # the project's arm codes (codes.ARM_*; no import here)
         if arm_name not in problems:
             other = lock_names["left_arm" if arm_name == "right" else "right_arm"]
             locked = [K.LockedJoint(robot, f"hrp2/{n}", np.array([q0[7 + idx[n]]]))

@@ -54,7 +54,7 @@ def run(workdir) -> dict:
     rp.plan(rp.robot.half_sitting_joints, __import__("humanoid_reach_ros.planning.reach", fromlist=["x"]).PlanRequest(
         prob.region, seed=0))
     for k, (qg, arm_code) in enumerate(zip(P["goals_q"], P["goals_arm"])):
-        arm = "right" if int(arm_code) == 0 else "left"
+        arm = {1: "right", 2: "left"}[int(arm_code)]   # the project's arm codes (codes.ARM_*; no import here)
         goal_plan = rp.projector.plan_config_of(qg, arm)
         _, start_plan = rp._projected_start(q0, arm)
         space_ours = rp.planning_space(arm, np.vstack([start_plan[None], goal_plan]))

@@ -39,6 +39,7 @@ sys.path.insert(0, str(REPO))
 import problem as PB  # noqa: E402
 import report  # noqa: E402
 from humanoid_reach_ros.machine import describe as describe_machine  # noqa: E402
+from humanoid_reach_ros.codes import ARM_NAMES  # noqa: E402
 from humanoid_reach_ros.planning.goal_sampler import sample_goals  # noqa: E402
 from humanoid_reach_ros.planning.path import ShortcutOptions, plan as run_planner, shortcut_path  # noqa: E402
 from humanoid_reach_ros.planning.reach import PlanRequest  # noqa: E402
@@ -101,7 +102,7 @@ def ours_paths(prob, goals, k: int) -> dict:
     q0 = rp.start_config(rp.robot.half_sitting_joints)
     plan_s, sc_s, ok = [], [], 0
     for i in range(min(k, len(goals))):
-        arm = "right" if goals.arm[i] == 0 else "left"
+        arm = ARM_NAMES[int(goals.arm[i])]
         gp = rp.projector.plan_config_of(goals.q[i], arm)
         _, sp = rp._projected_start(q0, arm)
         space = rp.planning_space(arm, np.vstack([sp[None], gp]))
@@ -195,7 +196,7 @@ def main() -> None:
     rp = prob.planner
     q0 = rp.start_config(rp.robot.half_sitting_joints)
     PB.add_goals(wd, goals.q[:k], goals.arm[:k],
-                 np.vstack([rp.projector.plan_config_of(goals.q[i], "right" if goals.arm[i] == 0 else "left")
+                 np.vstack([rp.projector.plan_config_of(goals.q[i], ARM_NAMES[int(goals.arm[i])])
                             for i in range(k)]),
                  {a: rp._projected_start(q0, a)[1] for a in ("right", "left")})
     rp.plan(rp.robot.half_sitting_joints, PlanRequest(prob.region, seed=0))   # JIT warm-up of the planner

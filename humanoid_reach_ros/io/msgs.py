@@ -311,6 +311,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E
 from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
 from humanoid_reach_ros.planning.path import PLANNER_NAMES  # noqa: E402
+from humanoid_reach_ros.codes import ARM_REQUESTS  # noqa: E402
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion  # noqa: E402
 
 
@@ -480,9 +481,7 @@ def parse_joint_trajectory(msg: JointTrajectory) -> TrajectoryArrays:
 
 # ---------------------------------------------------------------- PlanReach requests
 REQUEST_FRAMES = ("", "world", "base_link")
-ARM_NAMES = {PlanReach.Request.ARM_AUTO: "auto", PlanReach.Request.ARM_RIGHT: "right",
-             PlanReach.Request.ARM_LEFT: "left"}
-ARM_CODES = {"right": PlanReach.Request.ARM_RIGHT, "left": PlanReach.Request.ARM_LEFT}
+ARM_NAMES = {code: name for name, code in ARM_REQUESTS.items()}   # PlanReach.Request.ARM_* -> name
 PLANNERS = PLANNER_NAMES  # the planners ReachPlanner knows, one list for node and planner
 
 

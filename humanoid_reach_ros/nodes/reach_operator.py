@@ -44,53 +44,56 @@ from typing import Any, Callable, TextIO
 
 import numpy as np
 
+from humanoid_reach_ros.codes import ARM_REQUESTS, ExecuteCode, PlanError
 from humanoid_reach_ros.planning.wgr import ANGLE_TOL
 
 EXIT = {"success": 0, "internal": 1, "usage": 2, "unavailable": 3, "invalid": 4, "no_motion": 5,
         "no_input": 6, "execution": 7, "canceled": 130}
 
 SCAN_POSES_ASSUMED = 20   # for the result deadline of a scan: poses of the executor's scan_poses_deg at most
-ARMS = {"auto": 0, "right": 1, "left": 2}  # PlanReach.Request.ARM_*
-ARM_LABELS = {0: "auto", 1: "right", 2: "left"}
+ARMS = ARM_REQUESTS                     # --arm name -> PlanReach.Request.ARM_*
+ARM_LABELS = {code: name for name, code in ARM_REQUESTS.items()}
 
-# PlanReach.Response codes: (name, exit class, hint). Names are checked against the
-# generated constants by the tests.
-PLAN_CODES: dict[int, tuple[str, str, str]] = {
-    0: ("SUCCESS", "success", "planned"),
-    1: ("INVALID_REQUEST", "invalid", "a NaN/inf value, or an unknown arm or planner: check the arguments"),
-    2: ("INVALID_BOUNDS", "invalid", "WGR lower > upper, or a rotation bound outside [-pi, pi] (+-180 deg): "
+# PlanReach.Response codes (codes.PlanError): exit class and hint per code.
+_PLAN_HINTS = {
+    PlanError.SUCCESS: ("success", "planned"),
+    PlanError.INVALID_REQUEST: ("invalid", "a NaN/inf value, or an unknown arm or planner: check the arguments"),
+    PlanError.INVALID_BOUNDS: ("invalid", "WGR lower > upper, or a rotation bound outside [-pi, pi] (+-180 deg): "
         "check --wgr-deg / --wgr"),
-    3: ("UNKNOWN_FRAME", "invalid", "the target frame is not known to the planner: use --frame world or base_link"),
-    4: ("TARGET_OUT_OF_REACH", "no_motion", "proven out of the arms' reach from any stance-keeping trunk pose: "
+    PlanError.UNKNOWN_FRAME: ("invalid", "the target frame is not known to the planner: use --frame world or "
+        "base_link"),
+    PlanError.TARGET_OUT_OF_REACH: ("no_motion", "proven out of the arms' reach from any stance-keeping trunk pose: "
         "move the target closer (or the robot nearer)"),
-    5: ("START_IN_COLLISION", "no_motion", "the robot's current posture collides with the map: check /voxel_map "
+    PlanError.START_IN_COLLISION: ("no_motion", "the robot's current posture collides with the map: check /voxel_map "
         "or move the robot"),
-    6: ("NO_MAP", "no_input", "the planner has no environment model: start voxel_mapper (or give reach_planner "
+    PlanError.NO_MAP: ("no_input", "the planner has no environment model: start voxel_mapper (or give reach_planner "
         "a scene_file)"),
-    7: ("TIMED_OUT", "no_motion", "the time budget ran out: raise --budget"),
-    8: ("NO_PATH", "no_motion", "goal postures were found but no path to them: raise --budget or --goals"),
-    9: ("NO_TARGET", "no_input", "no recent /target_pose from the marker: is marker_localizer running and the "
+    PlanError.TIMED_OUT: ("no_motion", "the time budget ran out: raise --budget"),
+    PlanError.NO_PATH: ("no_motion", "goal postures were found but no path to them: raise --budget or --goals"),
+    PlanError.NO_TARGET: ("no_input", "no recent /target_pose from the marker: is marker_localizer running and the "
         "marker in view? Or give --target"),
-    10: ("NO_JOINT_STATES", "no_input", "no recent /joint_states: is joint_driver running?"),
-    11: ("BUSY", "no_input", "another request is being planned: try again"),
-    12: ("UNOBSERVED_SPACE", "no_input", "the target or the way to it lies in space the head has not observed: "
+    PlanError.NO_JOINT_STATES: ("no_input", "no recent /joint_states: is joint_driver running?"),
+    PlanError.BUSY: ("no_input", "another request is being planned: try again"),
+    PlanError.UNOBSERVED_SPACE: ("no_input", "the target or the way to it lies in space the head has not observed: "
          "scan first (--scan) or look there (--look YAW PITCH)"),
-    13: ("NO_GOAL_FOUND", "no_motion", "no goal posture found within the budget (not proven unreachable): raise "
+    PlanError.NO_GOAL_FOUND: ("no_motion", "no goal posture found within the budget (not proven unreachable): raise "
          "--budget, widen the WGR (--wgr-deg) or try the other arm (--arm)"),
-    99: ("INTERNAL_ERROR", "internal", "the planner failed internally: see its log"),
+    PlanError.INTERNAL_ERROR: ("internal", "the planner failed internally: see its log"),
 }
 
-# ExecuteReach.Result codes
-EXECUTE_CODES: dict[int, tuple[str, str, str]] = {
-    0: ("SUCCESS", "success", "executed"),
-    1: ("INVALID_GOAL", "execution", "the executor refused the trajectory or targets"),
-    2: ("NO_JOINT_STATES", "execution", "the executor has no current /joint_states: is joint_driver running?"),
-    3: ("PREEMPTED", "execution", "replaced by a newer goal or /reach_trajectory"),
-    4: ("CANCELED", "canceled", "the executor holds the robot at the last command"),
-    5: ("ABORTED", "execution", "the executor stopped the motion and holds the robot (e.g. stale joint states)"),
-    6: ("TARGET_NOT_REACHED", "execution", "the hand was held off the trajectory's end (a collision damper or a "
+# ExecuteReach.Result codes (codes.ExecuteCode)
+_EXECUTE_HINTS = {
+    ExecuteCode.SUCCESS: ("success", "executed"),
+    ExecuteCode.INVALID_GOAL: ("execution", "the executor refused the trajectory or targets"),
+    ExecuteCode.NO_JOINT_STATES: ("execution", "the executor has no current /joint_states: is joint_driver running?"),
+    ExecuteCode.PREEMPTED: ("execution", "replaced by a newer goal or /reach_trajectory"),
+    ExecuteCode.CANCELED: ("canceled", "the executor holds the robot at the last command"),
+    ExecuteCode.ABORTED: ("execution", "the executor stopped the motion and holds the robot (e.g. stale joint states)"),
+    ExecuteCode.TARGET_NOT_REACHED: ("execution", "the hand was held off the trajectory's end (a collision damper or a "
         "joint limit); the robot holds there: plan again from here"),
 }
+PLAN_CODES: dict[int, tuple[str, str, str]] = {int(c): (c.name, *v) for c, v in _PLAN_HINTS.items()}
+EXECUTE_CODES: dict[int, tuple[str, str, str]] = {int(c): (c.name, *v) for c, v in _EXECUTE_HINTS.items()}
 
 
 def code_text(codes: dict[int, tuple[str, str, str]], code: int, message: str) -> str:

@@ -61,6 +61,7 @@ from sensor_msgs.msg import JointState, PointCloud2
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
+from humanoid_reach_ros.codes import ARM_CODES, ARM_NAMES, ARM_NONE, ARMS
 from humanoid_reach_ros.geometry.voxels import without_target
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes.common import (LATCHED, RELIABLE_LATEST, LatestOnDemand, ParamSpec, current_joints,
@@ -450,7 +451,7 @@ class ReachPlannerNode(Node):
         stats.setdefault("sphere_tree_build_time_s", self.map_info.build_time_s)
         stats["total_time_s"] = total_s
         resp.statistics = msgs.planning_statistics(stats)
-        resp.arm = msgs.ARM_CODES.get(getattr(out, "arm", None) or "", 0)
+        resp.arm = ARM_CODES.get(getattr(out, "arm", None) or "", ARM_NONE)
         waist = getattr(out, "waist_start", None) or result.waist
         if waist is not None:
             resp.waist_start = msgs.pose_stamped(waist, self.map_frame, stamp)
@@ -470,7 +471,7 @@ class ReachPlannerNode(Node):
         if resp.success:
             pts = resp.trajectory.points
             dur = msgs.seconds_from_duration(pts[-1].time_from_start) if pts else 0.0
-            arm = {1: "right", 2: "left"}.get(resp.arm, "?")
+            arm = ARM_NAMES.get(resp.arm, "?")
             tail = (f"; {arm} arm, {len(pts)} points over {dur:.2f} s"
                     f"{', published on reach_trajectory' if published else ''}")
             self.get_logger().info(head + tail + f": {resp.message}")
@@ -517,8 +518,8 @@ class ReachPlannerNode(Node):
                 tips = [self.model.limbs[limb].tip for limb in HAND_LIMBS.values()]  # right, left
                 poses = []
                 for i, q in enumerate(goals):
-                    if arms is not None and len(arms) == len(goals) and int(arms[i]) in (0, 1):
-                        poses.append(self.model.frame_pose(q, tips[int(arms[i])]))
+                    if arms is not None and len(arms) == len(goals) and int(arms[i]) in ARM_NAMES:
+                        poses.append(self.model.frame_pose(q, tips[ARMS.index(ARM_NAMES[int(arms[i])])]))
                     elif result.region is not None:  # the hand that reaches: the one nearest the target
                         hands = [self.model.frame_pose(q, tip) for tip in tips]
                         target = np.asarray(result.region.target_p)

@@ -19,7 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from humanoid_reach_ros.geometry.distance import RobotCollision
-from humanoid_reach_ros.planning.projector import LEFT, RIGHT, Projector
+from humanoid_reach_ros.codes import ARM_LEFT, ARM_RIGHT
+from humanoid_reach_ros.planning.projector import Projector
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion
 from humanoid_reach_ros.robot.model import RobotModel
 
@@ -108,7 +109,7 @@ class GoalSamplingStats:
 
 @dataclass(frozen=True, eq=False)
 class Goals:
-    """Goal postures ``q`` (G, nq), ``arm`` (G,) int8 (0 right, 1 left), the hand poses
+    """Goal postures ``q`` (G, nq), ``arm`` (G,) int8 arm codes (codes.ARM_RIGHT / ARM_LEFT), the hand poses
     sampled for them ``p_e`` (G, 3), ``R_e`` (G, 3, 3), and ``stats``."""
 
     q: np.ndarray
@@ -184,7 +185,8 @@ def sample_goals(region: WorkspaceGoalRegion, n_goals: int, robot: RobotModel, c
     stats.collision_fk_time_s = (c1.fk_time_s - cf0) * scale
     arm_arr = np.array(arms, np.int8)
     stats.n_goals = len(qs)
-    stats.arm_used = {"right": int(np.count_nonzero(arm_arr == RIGHT)), "left": int(np.count_nonzero(arm_arr == LEFT))}
+    stats.arm_used = {"right": int(np.count_nonzero(arm_arr == ARM_RIGHT)),
+                      "left": int(np.count_nonzero(arm_arr == ARM_LEFT))}
     stats.total_time_s = time.perf_counter() - t_start
     nq = robot.model.nq
     return Goals(np.array(qs).reshape(-1, nq), arm_arr, np.array(ps).reshape(-1, 3), np.array(Rs).reshape(-1, 3, 3),

@@ -42,16 +42,15 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from humanoid_reach_ros.codes import ARM_CODES, ARM_LEFT, ARM_NONE, ARM_RIGHT
 from humanoid_reach_ros.planning.wgr import matrix_rpy, rpy_matrix
 from humanoid_reach_ros.robot.limb_ik import LEG_WORK_SIZE, LimbIKSet, leg_ik_pose
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 
 ARMS = ("right_arm", "left_arm")
 LEGS = ("right_leg", "left_leg")
-RIGHT, LEFT, NONE = 0, 1, -1
 #: numba options; nogil=False: see geometry/distance.py (GIL convoy in the reach_planner node)
 _JIT = dict(cache=True, nogil=False, fastmath=False)
-ARM_CODES = {"right": RIGHT, "left": LEFT}
 
 
 def quat_xyzw_from_rpy(rpy: np.ndarray) -> np.ndarray:
@@ -158,8 +157,9 @@ class ProjectionResult:
     """Outcome of :meth:`Projector.project_config` for N samples.
 
     ``q`` (N, nq): full configurations (valid only where ``ok``; failed rows keep the
-    reference values of the limbs not solved); ``ok`` (N,); ``arm`` (N,) int8:
-    0 right, 1 left, -1 none; ``failures``: IK failures per limb, counted as in
+    reference values of the limbs not solved); ``ok`` (N,); ``arm`` (N,) int8: the arm
+    code (codes.ARM_RIGHT, ARM_LEFT; ARM_NONE where no arm reached); ``failures``: IK
+    failures per limb, counted as in
     Table I (left arm tried only where the right one failed in ``auto`` mode, the
     legs only where an arm succeeded, the left leg only after the right one);
     ``trunk_p`` (N, 3), ``trunk_R`` (N, 3, 3): trunk (waist) poses.
@@ -282,7 +282,7 @@ class Projector:
         c_p, c_R = self.chest_pose(p_t, R_t)
         Q = self._base(p_t, R_t, rpy_t)
         failures = {"right_arm": 0, "left_arm": 0, "right_leg": 0, "left_leg": 0}
-        arm_used = np.full(n, NONE, np.int8)
+        arm_used = np.full(n, ARM_NONE, np.int8)
         todo = np.arange(n)
         order = ARMS if arm == "auto" else (("right_arm",) if arm == "right" else ("left_arm",))
         for name in order:
@@ -300,13 +300,13 @@ class Projector:
                 ok_rows[cand[res.ok]] = True
                 good = todo[cand[res.ok]]
                 Q[good[:, None], self.cols[name][None]] = res.q[res.ok]
-                arm_used[good] = RIGHT if name == "right_arm" else LEFT
+                arm_used[good] = ARM_RIGHT if name == "right_arm" else ARM_LEFT
             failures[name] += int(np.count_nonzero(~ok_rows))
             todo = todo[~ok_rows]
-        idx = self._legs(Q, p_t, R_t, np.flatnonzero(arm_used != NONE), failures)
+        idx = self._legs(Q, p_t, R_t, np.flatnonzero(arm_used != ARM_NONE), failures)
         ok = np.zeros(n, bool)
         ok[idx] = True
-        arm_used[~ok] = NONE
+        arm_used[~ok] = ARM_NONE
         return ProjectionResult(Q, ok, arm_used, failures, p_t, R_t)
 
     def project_plan_config(self, q_plan, arm: str) -> ProjectionResult:
@@ -332,7 +332,7 @@ class Projector:
         idx = self._legs(Q, p_t, R_t, np.flatnonzero(lim), failures)
         ok = np.zeros(len(q_plan), bool)
         ok[idx] = True
-        arm_used = np.where(ok, ARM_CODES[arm], NONE).astype(np.int8)
+        arm_used = np.where(ok, ARM_CODES[arm], ARM_NONE).astype(np.int8)
         return ProjectionResult(Q, ok, arm_used, failures, p_t, R_t)
 
     def _kernel_args(self, arm: str) -> tuple:
@@ -349,7 +349,7 @@ class Projector:
         _project_plan_kernel(np.ascontiguousarray(q_plan, dtype=np.float64), self._v_c, self._cog_xy_c,
                              self._q_ref_c, *self._kernel_arm[arm], *self._kernel_legs, Q, ok, p_t, R_t, fails)
         failures = {"right_leg": int(fails[0]), "left_leg": int(fails[1]), "arm_limits": int(fails[2])}
-        arm_used = np.where(ok, ARM_CODES[arm], NONE).astype(np.int8)
+        arm_used = np.where(ok, ARM_CODES[arm], ARM_NONE).astype(np.int8)
         return ProjectionResult(Q, ok, arm_used, failures, p_t, R_t)
 
     def plan_config_of(self, q: np.ndarray, arm: str) -> np.ndarray:
@@ -359,4 +359,4 @@ class Projector:
         return np.concatenate([q[:, self.cols[f"{arm}_arm"]], q[:, 2:3], matrix_rpy(R)], axis=1)
 
 
-__all__ = ["Projector", "ProjectionResult", "quat_xyzw_from_rpy", "quat_xyzw_matrix", "RIGHT", "LEFT", "NONE"]
+__all__ = ["Projector", "ProjectionResult", "quat_xyzw_from_rpy", "quat_xyzw_matrix"]

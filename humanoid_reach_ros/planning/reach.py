@@ -37,7 +37,6 @@ No ROS here.
 """
 from __future__ import annotations
 
-import enum
 import math
 import threading
 import time
@@ -55,15 +54,14 @@ from humanoid_reach_ros.planning.path import (
     PLANNER_NAMES, PlanningSpace, PlanStatus, ShortcutOptions, plan as run_planner, shortcut_path,
 )
 from humanoid_reach_ros.planning.plan_check import PlanChecker
-from humanoid_reach_ros.planning.projector import ARM_CODES, LEFT, LEGS, RIGHT, Projector, quat_xyzw_matrix
+from humanoid_reach_ros.codes import ARM_CODES, ARM_LEFT, ARM_NAMES, ARM_REQUESTS, ARM_RIGHT, PlanError
+from humanoid_reach_ros.planning.projector import LEGS, Projector, quat_xyzw_matrix
 from humanoid_reach_ros.geometry.trajectory import SplineTrajectory, TrajectoryOptions
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion, matrix_rpy
 from humanoid_reach_ros.robot.limb_ik import LimbIKSet
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 from humanoid_reach_ros.robot.shapes import load_collision_model
 
-ARM_NAMES = ("right", "left")
-ARM_REQUESTS = ("auto",) + ARM_NAMES
 STAT_KEYS = (
     "goal_sampling_time_s", "goals_requested", "goals_found", "goals_right_arm", "goals_left_arm", "samples",
     "ik_failures_right_arm", "ik_failures_left_arm", "ik_failures_right_leg", "ik_failures_left_leg",
@@ -71,26 +69,6 @@ STAT_KEYS = (
     "map_voxels", "sphere_tree_build_time_s", "total_time_s",
 )
 """Keys of :attr:`PlanOutcome.stats` = fields of ``humanoid_reach_interfaces/msg/PlanningStatistics``."""
-
-
-class PlanError(enum.IntEnum):
-    """Response codes of ``humanoid_reach_interfaces/srv/PlanReach`` (same numbers)."""
-
-    SUCCESS = 0
-    INVALID_REQUEST = 1
-    INVALID_BOUNDS = 2
-    UNKNOWN_FRAME = 3
-    TARGET_OUT_OF_REACH = 4     # proven by the geometric reach bound (planning/trunk_region.py)
-    START_IN_COLLISION = 5
-    NO_MAP = 6
-    TIMED_OUT = 7               # reserved: no longer returned (NO_GOAL_FOUND / NO_PATH say which part ran out)
-    NO_PATH = 8                 # goal postures found, no path to any within the budget
-    NO_TARGET = 9
-    NO_JOINT_STATES = 10
-    BUSY = 11
-    UNOBSERVED_SPACE = 12
-    NO_GOAL_FOUND = 13          # the budget ran out before a goal posture was found (not proven out of reach)
-    INTERNAL_ERROR = 99
 
 
 @dataclass(frozen=True)
@@ -210,7 +188,7 @@ class PlanOutcome:
     ``goals`` which holds whatever was sampled). ``waypoint_times`` (W,): the time of
     each waypoint in the trajectory (its sample is exactly the waypoint's joints);
     ``waypoints_plan`` (W', 10): the shortcut path in q_plan (without the pre-segment);
-    ``goal_arms`` (G,) 0 right / 1 left; ``goal_index``: the goal reached.
+    ``goal_arms`` (G,) arm codes (``codes.ARM_RIGHT`` / ``ARM_LEFT``); ``goal_index``: the goal reached.
     ``stats["collision_time_s"]`` includes the capsule forward kinematics."""
 
     success: bool
@@ -434,8 +412,8 @@ class ReachPlanner:
         ``trunk_space_cut_iterations`` iterations: deterministic for a seed), then, if that
         found nothing, in the whole box of the target's trunk cells for the rest of
         ``budget_s``: short paths where they exist, a detour (ducking under a pipe) where
-        one is needed. The roadmap planners search the whole box at once. ``shortcut_s``: a callable giving the shortcut's time cap when
-        it starts (default ``shortcut_time_s``)."""
+        one is needed. The roadmap planners search the whole box at once. ``shortcut_s``: a
+        callable giving the shortcut's time cap when it starts (default ``shortcut_time_s``)."""
         p = self.params
         t0 = time.perf_counter()
         include = np.vstack([start_plan[None], goal_plan])
@@ -622,7 +600,7 @@ class ReachPlanner:
             raise _Failure(PlanError.INVALID_BOUNDS, "target region has lower > upper")
         arm = "auto" if request.arm in (None, "") else request.arm
         if arm not in ARM_REQUESTS:
-            raise _Failure(PlanError.INVALID_REQUEST, f"arm must be one of {ARM_REQUESTS}, got {arm!r}")
+            raise _Failure(PlanError.INVALID_REQUEST, f"arm must be one of {tuple(ARM_REQUESTS)}, got {arm!r}")
         planner = p.planner if request.planner in (None, "") else request.planner
         if planner not in PLANNER_NAMES:
             raise _Failure(PlanError.INVALID_REQUEST, f"planner must be one of {PLANNER_NAMES}, got {planner!r}")
@@ -681,8 +659,8 @@ class ReachPlanner:
             goals = _merge_goals(goals, more)
         gs = goals.stats
         stats.update(goal_sampling_time_s=time.perf_counter() - tg, goals_requested=n_goals, goals_found=len(goals),
-                     goals_right_arm=int(np.count_nonzero(goals.arm == RIGHT)),
-                     goals_left_arm=int(np.count_nonzero(goals.arm == LEFT)), samples=gs.n_samples,
+                     goals_right_arm=int(np.count_nonzero(goals.arm == ARM_RIGHT)),
+                     goals_left_arm=int(np.count_nonzero(goals.arm == ARM_LEFT)), samples=gs.n_samples,
                      ik_failures_right_arm=gs.ik_failures["right_arm"], ik_failures_left_arm=gs.ik_failures["left_arm"],
                      ik_failures_right_leg=gs.ik_failures["right_leg"], ik_failures_left_leg=gs.ik_failures["left_leg"])
         collision_stats()

@@ -41,9 +41,9 @@ from dataclasses import dataclass, replace
 import numba as nb
 import numpy as np
 
+from humanoid_reach_ros.codes import ARMS
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion, rpy_matrix
 
-ARMS = ("right", "left")
 BAND_SLACK_M = 0.02     # vertical slack of the target band (roll, cell size)
 PROOF_STEP_RAD = 0.05   # orientation grid of the out-of-reach proof
 
@@ -278,8 +278,9 @@ class TrunkRegion:
                 return None
             reasons.append(f"{a} hand {self.arm_reach[a]:.2f} m from a shoulder at best {closest - slack:.2f} m "
                            f"away, {gap:.2f} m short")
-        return (f"{'; '.join(reasons)}; searched: trunk up to {z_hi:.2f} m, roll {self.roll[0]:.2f}..{self.roll[1]:.2f},"
-                f" pitch {self.pitch_span[0]:.2f}..{self.pitch_span[1]:.2f}, yaw {self.yaw[0]:.2f}..{self.yaw[1]:.2f} rad")
+        return (f"{'; '.join(reasons)}; searched: trunk up to {z_hi:.2f} m, roll "
+                f"{self.roll[0]:.2f}..{self.roll[1]:.2f}, pitch {self.pitch_span[0]:.2f}..{self.pitch_span[1]:.2f}, "
+                f"yaw {self.yaw[0]:.2f}..{self.yaw[1]:.2f} rad")
 
 
 @nb.njit(cache=True, nogil=False, fastmath=False)

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from humanoid_reach_ros.codes import ARMS
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion
 from humanoid_reach_ros.sim.scene import Scene, load_scene, pose_matrix
@@ -29,7 +30,6 @@ from humanoid_reach_ros.yaml_checks import vec3
 SUITE_FILE = "scenes/suite.yaml"
 EXPECTATIONS = {"reachable": "SUCCESS", "out_of_reach": "TARGET_OUT_OF_REACH", "no_goal": "NO_GOAL_FOUND"}
 REGIONS = ("hemisphere", "cone")
-ARMS = ("right", "left")
 _CASE_KEYS = {"name", "scene", "target", "region", "cone_deg", "exclude_groups", "expect"}
 
 
