@@ -189,7 +189,7 @@ def main() -> int:
     if args.seeds < 1 or not args.budget_s > 0:
         ap.error("--seeds must be >= 1 and --budget-s > 0")
 
-    from humanoid_reach_ros.sim.suite import load_suite
+    from humanoid_reach_ros.planning.suite import load_suite
 
     cases = load_suite()
     if args.cases:

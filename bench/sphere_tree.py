@@ -11,7 +11,7 @@ Measured here, on the plant scene (config/scenes/plant.yaml) voxelized at its de
 
 * build time: median (and min) of repeated builds after compilation;
 * ``any_intersection`` per configuration for the robot's collision shapes
-  (config/robots/hrp2_collision.yaml) in randomly perturbed half-sitting postures
+  (config/robots/hrp2/collision.yaml) in randomly perturbed half-sitting postures
   around the pipes -- colliding and free configurations separately -- both per
   Python call (one configuration per call, what a Python planner pays) and in
   batches of configurations (one kernel call, per-configuration cost);

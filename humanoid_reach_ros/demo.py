@@ -46,7 +46,6 @@ RECORDED_TOPICS = ("/joint_states", "/joint_command", "/base_pose", "/robot_desc
 # down; tools/record_bags.py and test_perception_graph command the same poses without the executor
 _SCAN = PARAMETERS["scan_poses_deg"].default
 HEAD_SCAN_DEG = tuple(zip(_SCAN[::2], _SCAN[1::2]))
-HEAD_JOINTS = ("HEAD_JOINT0", "HEAD_JOINT1")
 SIM_JOINT_STATES_TIMEOUT_S = 2.0   # planner/executor staleness of /joint_states in the demo [s]
 SIM_JOINT_STATES_ABORT_S = 5.0     # executor: abort a motion when /joint_states stop this long [s]
 
@@ -293,7 +292,8 @@ def measured_balance(samples: list[Any]) -> dict[str, float]:
         js = msgs.parse_joint_state(msg)
         joints = robot.joints_from_dict(dict(zip(js.names, js.positions)))
         q = robot.config(joints, robot.base_on_feet(joints))
-        feet = max(feet, float(np.linalg.norm(robot.frame_pose(q, "l_sole").translation - left.translation)))
+        feet = max(feet, float(np.linalg.norm(robot.frame_pose(q, robot.sole_frames[1]).translation
+                                              - left.translation)))
         c = np.asarray(robot.com(q))[:2]
         com0 = c if com0 is None else com0
         com = max(com, float(np.linalg.norm(c - com0)))

@@ -116,7 +116,7 @@ def measured_balance(robot, joint_series: Sequence[np.ndarray], arm: str | None 
     * ``hand_error_final_mm``: the last sample's hand position vs that of ``final_reference``
       (the trajectory's last point), when ``arm`` and ``final_reference`` are given.
     """
-    rs, ls = "r_sole", "l_sole"
+    rs, ls = robot.sole_frames
     feet, com = 0.0, 0.0
     left0, com0 = None, None if com_reference_xy is None else np.asarray(com_reference_xy, float)
     for j in joint_series:
@@ -145,7 +145,7 @@ def nominal_com_in_sole(robot) -> np.ndarray:
     """Half-sitting's COG xy in the right sole's frame: the executor's COG target after an
     off-nominal start (``WholeBodyExecutor``'s recentering)."""
     q = robot.half_sitting()
-    return robot.frame_pose(q, "r_sole").actInv(np.asarray(robot.com(q)))[:2]
+    return robot.frame_pose(q, robot.sole_frames[0]).actInv(np.asarray(robot.com(q)))[:2]
 
 
 __all__ = ["process_tree", "cpu_seconds", "CpuSampler", "log_lines_at_or_above", "percentile", "max_gap_ms",

@@ -41,7 +41,9 @@ def warm_up_all() -> dict[str, float]:
     from humanoid_reach_ros.reach.controller import ControllerConfig, DualArmReachController
     from humanoid_reach_ros.reach.torso_regression import ReachWorkspace, TorsoRegression
 
-    ctl = DualArmReachController(RobotModel(), TorsoRegression.load(), ReachWorkspace.load(), ControllerConfig())
+    robot = RobotModel()
+    ctl = DualArmReachController(robot, TorsoRegression.load(robot.spec.torso_regression), ReachWorkspace.load(),
+                                 ControllerConfig())
     ctl.reset(robot.half_sitting())
     ws = ctl.ws
     pair = ws.targets(0.5 * (ws.right_lower + ws.right_upper), 0.5 * (ws.left_lower + ws.left_upper))

@@ -79,7 +79,7 @@ def seen_surface_voxels(h: float, extent: tuple[np.ndarray, np.ndarray]) -> tupl
     from humanoid_reach_ros.sim import camera as cam
     from humanoid_reach_ros.sim.scene import load_scene
 
-    model = RobotModel("robots/hrp2.yaml")
+    model = RobotModel("hrp2")
     scene = load_scene(config_path("scenes/plant.yaml"))
     floor = np.array([p.floor for p in scene.primitives])
     buffer = JointStateBuffer(window_s=3600.0, max_items=100_000)

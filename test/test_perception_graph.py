@@ -35,7 +35,6 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import JointState, PointCloud2
 
-from humanoid_reach_ros.demo import HEAD_JOINTS
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.perception.markers import camera_pose
 from humanoid_reach_ros.robot.model import RobotModel
@@ -92,7 +91,8 @@ class Graph:
         self.clouds = probe.collect(PointCloud2, "/head_camera/points", qos_profile_sensor_data)
         self.maps = probe.collect(PointCloud2, "/voxel_map", LATCHED)
         self.diags = probe.collect(DiagnosticArray, "/diagnostics")
-        self.head = [model.joint_index[n] for n in HEAD_JOINTS]
+        self.head_joints = list(model.spec.head_joints)
+        self.head = [model.joint_index[n] for n in self.head_joints]
 
     def logs(self) -> str:
         return "\n".join(p.log_tail() for p in (self.sim, self.mapper) if p is not None)
@@ -111,7 +111,7 @@ class Graph:
     def look(self, yaw_deg: float, pitch_deg: float) -> None:
         """Command the head (the two head joints only) until the driver reports it there."""
         goal = np.radians([yaw_deg, pitch_deg])
-        cmd = msgs.joint_state(list(HEAD_JOINTS), goal)
+        cmd = msgs.joint_state(self.head_joints, goal)
 
         def there() -> bool:
             self.command_pub.publish(cmd)
@@ -119,7 +119,7 @@ class Graph:
             if js is None:
                 return False
             pos = dict(zip(js.name, js.position))
-            return bool(np.all(np.abs(np.array([pos[n] for n in HEAD_JOINTS]) - goal) < 0.005))
+            return bool(np.all(np.abs(np.array([pos[n] for n in self.head_joints]) - goal) < 0.005))
 
         self.probe.spin_until(there, 30.0, f"the head at yaw {yaw_deg:g}, pitch {pitch_deg:g} deg",
                               on_timeout=self.logs)

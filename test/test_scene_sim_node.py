@@ -84,7 +84,7 @@ def test_headers_sizes_clouds_stereo_and_disabled_primitives(start_node, ros_pro
     assert img.header.frame_id == info.header.frame_id == cloud.header.frame_id == "head_camera_optical_frame"
     assert (info.width, info.height) == (320, 240) and info.k[0] > 0 and info.k[0] == info.k[4]
     right = stereo["right"].last
-    assert right.encoding == "mono8" and right.header.frame_id == "head_camera_right_optical_frame"
+    assert right.encoding == "mono8" and right.header.frame_id == model.camera_frame + "_right"   # the default: camera frame + _right
     assert stereo_info.last.p[3] == pytest.approx(-stereo_info.last.k[0] * 0.07)
     # stamps: those of /joint_states messages the driver published
     joint_stamps = {msgs.nanoseconds_from_time(m.header.stamp) for m in joints.messages}

@@ -7,7 +7,7 @@ import pytest
 import yaml
 
 from humanoid_reach_ros.planning.reach import PlanError, PlannerParams, PlanRequest, ReachPlanner
-from humanoid_reach_ros.sim.suite import load_suite
+from humanoid_reach_ros.planning.suite import load_suite
 
 CASES = load_suite()
 NO_GOAL_BUDGET_S = 0.3      # a no_goal case spends its whole budget: keep it short here

@@ -46,7 +46,7 @@ def test_ament_layout_installed():
     prefix = REPO / "install" / "humanoid_reach_ros"
     assert (prefix / "share/ament_index/resource_index/packages/humanoid_reach_ros").is_file()
     assert (prefix / "share/humanoid_reach_ros/package.xml").is_file()
-    assert (prefix / "share/humanoid_reach_ros/config/robots/hrp2.urdf").exists()
+    assert (prefix / "share/humanoid_reach_ros/config/robots/hrp2/hrp2.urdf").exists()
     exe = prefix / "lib/humanoid_reach_ros/joint_driver"
     assert exe.is_file() and os.access(exe, os.X_OK)
     iface = REPO / "install/humanoid_reach_interfaces/share/humanoid_reach_interfaces/srv/PlanReach.srv"

@@ -318,7 +318,7 @@ def test_nothing_below_the_floor_when_half_sitting(robot, cm):
 def right_hand_in_chest(robot: RobotModel) -> np.ndarray:
     """Right arm raised forward (shoulder pitch -90 deg), upper arm rolled so that the elbow
     bends towards the body, elbow fully bent: the hand ends inside the chest."""
-    deg = dict(robot.semantic["half_sitting"])
+    deg = dict(robot.spec.half_sitting_deg)
     deg.update(RARM_JOINT0=-90, RARM_JOINT1=0, RARM_JOINT2=90, RARM_JOINT3=-130, RARM_JOINT4=0, RARM_JOINT5=0)
     joints = robot.joints_from_dict({k: np.radians(v) for k, v in deg.items()})
     assert robot.in_limits(joints)

@@ -25,7 +25,7 @@ def _random_q(robot, rng):
 
 
 def _non_gripper(robot):
-    grip = set(robot.semantic["gripper_joints"])
+    grip = set(robot.spec.gripper_joints)
     return [i for i, n in enumerate(robot.joint_names) if n not in grip]
 
 
@@ -75,7 +75,7 @@ def test_dof_selection_drops_grippers(robot):
     assert dofs.n == robot.model.nv - 2
     x = np.arange(dofs.n, dtype=float) + 1
     dq = dofs.expand(x)
-    for name in robot.semantic["gripper_joints"]:
+    for name in robot.spec.gripper_joints:
         assert dq[6 + robot.joint_index[name]] == 0.0
     assert np.allclose(dofs.reduce(dq), x)
 

@@ -7,7 +7,7 @@ import yaml
 
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.reach.torso_regression import (
-    DEFAULT_MODEL, ReachWorkspace, TorsoRegression, generate_dataset,
+    ReachWorkspace, TorsoRegression, generate_dataset,
 )
 from humanoid_reach_ros.reach.upper_body_ik import UpperBodyIK
 from humanoid_reach_ros.reach.whole_body_ik import lowered_initial_posture
@@ -16,7 +16,7 @@ from humanoid_reach_ros.robot.model import RobotModel
 
 @pytest.fixture(scope="module")
 def reg():
-    return TorsoRegression.load()
+    return TorsoRegression.load(RobotModel().spec.torso_regression)
 
 
 @pytest.fixture(scope="module")
@@ -25,7 +25,7 @@ def ws():
 
 
 def test_shipped_model_small_with_table1_parameters(reg):
-    npz = config_path(DEFAULT_MODEL + ".npz")
+    npz = config_path(RobotModel().spec.torso_regression + ".npz")
     assert npz.stat().st_size < 2_000_000
     m = reg.meta
     assert m["kernel_width_m"] == pytest.approx(0.1)

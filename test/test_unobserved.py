@@ -47,10 +47,10 @@ def scanned(planner: ReachPlanner, scene, poses_deg) -> VoxelMap:
     m = VoxelMap(FusionParams(resolution_m=0.02))
     robot = planner.robot
     j = robot.half_sitting_joints.copy()
-    head = [robot.joint_index[n] for n in robot.semantic["head_joints"]]
+    head = [robot.joint_index[n] for n in robot.spec.head_joints]
     for yaw, pitch in poses_deg:
         j[head] = np.radians([yaw, pitch])
-        T = camera_pose(robot, j, robot.semantic["head_camera_frame"])
+        T = camera_pose(robot, j, robot.camera_frame)
         m.integrate(depth_scan(scene, CAM, T), T)
     p0, p1, radii = planner.collision_model.world_shapes(planner.start_config(j))   # as voxel_mapper does
     m.mark_swept(p0, p1, radii + CLEARANCE)

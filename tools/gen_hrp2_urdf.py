@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Generate ``config/robots/hrp2.urdf``: an HRP-2-class humanoid with 30 DOF.
+"""Generate ``config/robots/hrp2/hrp2.urdf``: an HRP-2-class humanoid with 30 DOF.
 
 Run ``python tools/gen_hrp2_urdf.py`` after editing the tables below; the URDF is
 committed, this script is how it is made and why its numbers are what they are.
@@ -225,7 +225,7 @@ def build() -> str:
 
 def main() -> None:
     root = Path(__file__).resolve().parents[1]
-    path = root / "config" / "robots" / "hrp2.urdf"
+    path = root / "config" / "robots" / "hrp2" / "hrp2.urdf"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(build())
     print(f"wrote {path}")

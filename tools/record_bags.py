@@ -183,16 +183,18 @@ def postprocess(raw: Path, out: Path, joint_states_hz: float) -> dict[str, Any]:
 def command_head(op, pub, yaw_deg: float, pitch_deg: float, timeout: float) -> None:
     """The head to (yaw, pitch) straight through the driver's /joint_command (``pub``; head joints
     only, the driver holds them). Recording needs no executor: only joint_driver and scene_sim run."""
-    from humanoid_reach_ros.demo import HEAD_JOINTS
     from humanoid_reach_ros.io import msgs
+    from humanoid_reach_ros.robot.spec import load_robot_spec
+
+    head_joints = load_robot_spec()[0].head_joints
 
     goal = np.radians([yaw_deg, pitch_deg])
-    cmd = msgs.joint_state(list(HEAD_JOINTS), goal)
+    cmd = msgs.joint_state(list(head_joints), goal)
 
     def there() -> bool:
         pub.publish(cmd)
         js = op.joint_states
-        pos = np.array([js.position[list(js.name).index(n)] for n in HEAD_JOINTS])
+        pos = np.array([js.position[list(js.name).index(n)] for n in head_joints])
         return bool(np.all(np.abs(pos - goal) < 0.01))
     op.spin_until(there, timeout, f"the head at yaw {yaw_deg:g}, pitch {pitch_deg:g} deg")
 

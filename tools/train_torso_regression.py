@@ -13,23 +13,32 @@ import argparse
 import sys
 import time
 
-from humanoid_reach_ros.reach.torso_regression import DEFAULT_MODEL, ReachWorkspace, TorsoRegression, generate_dataset
+from humanoid_reach_ros.reach.torso_regression import ReachWorkspace, TorsoRegression, generate_dataset
 from humanoid_reach_ros.reach.whole_body_ik import lowered_initial_posture
 from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=None, help="target pairs tried (default: workspace.yaml)")
     ap.add_argument("--seed", type=int, default=None)
-    ap.add_argument("--out", default=DEFAULT_MODEL, help="output stem under config/")
+    ap.add_argument("--robot", default=DEFAULT_ROBOT, help=f"robot (config/robots/<name>; default {DEFAULT_ROBOT})")
+    ap.add_argument("--out", default=None, help="output stem under config/ (default: the robot description's "
+                                                "torso_regression)")
     a = ap.parse_args(argv)
+    try:
+        robot = RobotModel(a.robot)
+    except ValueError as e:
+        ap.error(str(e))
+    out = a.out or robot.spec.torso_regression
+    if not out:
+        ap.error(f"robot {a.robot!r} names no torso_regression in its description: give --out")
     ws = ReachWorkspace.load()
     n = int(ws.dataset["n_samples"]) if a.samples is None else a.samples
     seed = int(ws.dataset["seed"]) if a.seed is None else a.seed
     if n < 10:
         ap.error("--samples must be >= 10")
-    robot = RobotModel()
     q0 = lowered_initial_posture(robot, ws.initial_com_drop_m)
     t = time.perf_counter()
     X, Y, tried = generate_dataset(robot, ws, q0, n, seed)
@@ -39,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     reg = TorsoRegression.fit(X, Y, **{k: float(ws.svr[k]) for k in ("kernel_width_m", "C", "epsilon")})
     reg.meta.update({"n_tried": tried, "seed": seed, "dataset_seconds": round(t_data, 1)})
-    npz, yml = reg.save(a.out)
+    npz, yml = reg.save(out)
     print(f"{len(X)}/{tried} pairs solvable ({t_data:.1f} s); wrote {npz} and {yml}; "
           f"train RMSE {reg.meta['train_rmse_rad']}")
     return 0

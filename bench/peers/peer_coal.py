@@ -2,7 +2,7 @@
 
 Usage: ``python peer_coal.py WORKDIR``; last stdout line: JSON.
 
-The robot's own shapes (config/robots/hrp2_collision.yaml: ``coal.Capsule`` /
+The robot's own shapes (config/robots/hrp2/collision.yaml: ``coal.Capsule`` /
 ``coal.Sphere`` with the padded radii) against the scene's primitives (no floor, no
 valve: ``coal.Box`` / ``coal.Cylinder`` / ``coal.Sphere``), exact geometry, and the
 project's 120 self-collision pairs. Per configuration: pinocchio frame kinematics, the

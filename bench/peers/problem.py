@@ -8,8 +8,8 @@ needs as files in a work directory (the peers may live in venvs without the proj
   support polygon, the WGR samples (hand target poses) and random seed configurations
   for the numerical projections (goal peers), the goals of this project for the path
   peers (added by :func:`add_goals`);
-* ``hrp2_capsules.urdf``: config/robots/hrp2.urdf with the project's collision shapes
-  (config/robots/hrp2_collision.yaml) as URDF ``<collision>`` elements (a capsule =
+* ``hrp2_capsules.urdf``: config/robots/hrp2/hrp2.urdf with the project's collision shapes
+  (config/robots/hrp2/collision.yaml) as URDF ``<collision>`` elements (a capsule =
   a cylinder + two end spheres: URDF has no capsule) -- for HPP;
 * ``hrp2_capsules.srdf``: every link pair whose shapes are NOT a self-collision pair
   of the project's model is disabled, so HPP checks the same self pairs;

@@ -69,8 +69,6 @@ from humanoid_reach_ros.geometry.trajectory import SplineTrajectory
 from humanoid_reach_ros.robot.model import N_BASE_Q, N_BASE_V, RobotModel
 from humanoid_reach_ros.robot.shapes import CollisionModel
 
-HAND_FRAMES = {"right": "r_hand_ee", "left": "l_hand_ee"}
-SOLE_FRAMES = ("r_sole", "l_sole")
 SOLVERS = ("nullspace", "osqp")
 
 
@@ -195,10 +193,10 @@ class WholeBodyExecutor:
         self._stance_r_inv = robot.stance_soles[0].inverse()
         # nominal COG: that of half-sitting, in the right-sole frame (where a balanced stance has it)
         self._com_nominal_in_sole = self._stance_r_inv.act(robot.com(robot.half_sitting()))
-        self._sole_ids = tuple(robot.frame_id(f) for f in SOLE_FRAMES)
-        self._hand_ids = {a: robot.frame_id(f) for a, f in HAND_FRAMES.items()}
+        self._sole_ids = tuple(robot.frame_id(f) for f in robot.sole_frames)
+        self._hand_ids = {a: robot.frame_id(f) for a, f in robot.hand_frames.items()}
         # joint rows: the selected joints (grippers excluded)
-        grip = {robot.joint_index[j] for j in robot.semantic.get("gripper_joints", [])}
+        grip = {robot.joint_index[j] for j in robot.spec.gripper_joints}
         self._joint_sel = np.array([j for j in range(robot.n_joints) if j not in grip], dtype=np.intp)
         self._joint_cols = np.searchsorted(self.sel.index, N_BASE_V + self._joint_sel)
         self._joint_groups = np.full(2 * len(self._joint_sel), -1, dtype=np.int64)
@@ -292,7 +290,7 @@ class WholeBodyExecutor:
 
         Fixes both sole poses and the exact COG xy at their values in ``q``.
         """
-        if arm not in HAND_FRAMES:
+        if arm not in self._hand_ids:
             raise ValueError(f"unknown arm {arm!r}: expected 'right' or 'left'")
         q = self._check_q(q)
         reference = self._check_reference(reference)
@@ -557,7 +555,7 @@ class WholeBodyExecutor:
                  self._com_blend_s)
         try:
             q = self.robot.half_sitting()
-            hand = self.robot.frame_pose(q, HAND_FRAMES["right"]).translation
+            hand = self.robot.frame_pose(q, self.robot.hand_frames["right"]).translation
             self._tree = SphereTree.build((hand + [0.05, 0.0, 0.0])[None], 0.01)
             self.start(q, SplineTrajectory(q[N_BASE_Q:][None], np.zeros(1)), "right")
             for _ in range(3):
@@ -572,4 +570,4 @@ class WholeBodyExecutor:
         return replace(self.params, **changes)
 
 
-__all__ = ["ExecutorParams", "StepMetrics", "StepResult", "WholeBodyExecutor", "HAND_FRAMES"]
+__all__ = ["ExecutorParams", "StepMetrics", "StepResult", "WholeBodyExecutor"]

@@ -56,7 +56,7 @@ class DofSelection:
 
     @classmethod
     def without_grippers(cls, robot: RobotModel) -> "DofSelection":
-        fixed = {N_BASE_V + robot.joint_index[j] for j in robot.semantic.get("gripper_joints", [])}
+        fixed = {N_BASE_V + robot.joint_index[j] for j in robot.spec.gripper_joints}
         keep = np.array([i for i in range(robot.model.nv) if i not in fixed], dtype=np.intp)
         return cls(robot.model.nv, keep)
 

@@ -288,11 +288,8 @@ class ExecutionRequests:
 
     @property
     def head_joints(self) -> list[str]:
-        names = list(self.robot.semantic.get("head_joints", ()))
-        if len(names) != 2:
-            raise RequestError(C.INVALID_GOAL, f"the robot description names {len(names)} head joints; the look "
-                                               "action needs two (yaw, pitch)")
-        return names
+        """Head yaw and pitch joints of the robot description."""
+        return list(self.robot.spec.head_joints)
 
     def look(self, mid: int, label: str, pose: np.ndarray, joints: np.ndarray | None, reason: str):
         """A whole-body motion that turns the head to ``pose`` (yaw, pitch [rad]) from the measured
@@ -338,7 +335,8 @@ class ExecutionRequests:
                 from humanoid_reach_ros.reach.controller import ControllerConfig, DualArmReachController
                 from humanoid_reach_ros.reach.torso_regression import ReachWorkspace, TorsoRegression
                 self._sampler = DualArmReachController(
-                    RobotModel(self.p["robot_config"]), TorsoRegression.load(self.p["dual_arm_regression"]),
+                    RobotModel(self.p["robot_config"]),
+                    TorsoRegression.load(self.p["dual_arm_regression"] or self.robot.spec.torso_regression),
                     ReachWorkspace.load(self.p["dual_arm_workspace"]),
                     ControllerConfig(period_s=self.p["period_s"], max_speed_mps=self.p["dual_arm_max_speed_mps"]))
             pairs = self._sampler.sample_reachable(np.random.default_rng(seed), count)

@@ -39,6 +39,7 @@ from humanoid_reach_ros.execution.realtime import (REALTIME_SWITCH_INTERVAL_S, m
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes.common import LATCHED, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 from humanoid_reach_ros.sim.joint_sim import JointSimulator
 
 NODE_NAME = "joint_driver"
@@ -49,7 +50,8 @@ POSTURES = ("half_sitting", "zero")
 PARAMETERS: dict[str, ParamSpec] = {
     "period_s": ParamSpec(0.005, "control loop period [s] (200 Hz)", (0.0005, 1.0)),
     "initial_posture": ParamSpec("half_sitting", "posture at start", constraints=f"one of {', '.join(POSTURES)}"),
-    "robot_config": ParamSpec("robots/hrp2.yaml", "robot semantic YAML, relative to config/ or absolute"),
+    "robot_config": ParamSpec(DEFAULT_ROBOT, "robot: a name (config/robots/<name>/robot.yaml) or the path of "
+                                          "a robot description (relative to config/, or absolute)"),
     "velocity_scale": ParamSpec(1.0, "fraction of each joint's velocity limit used as the hard bound",
                                 (0.01, 1.0), read_only=False),
     "tracking_time_constant_s": ParamSpec(0.01, "first-order position tracking time constant [s]; "
@@ -97,7 +99,7 @@ class JointDriver(Node):
         else:
             raise ValueError(f"initial_posture must be one of {POSTURES}, got {posture!r}")
         self.sim = JointSimulator(self.model, initial, p["velocity_scale"], p["tracking_time_constant_s"])
-        self.hardware_id = str(self.model.semantic.get("robot_name", "robot"))
+        self.hardware_id = self.model.name
 
         reliable10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.joint_states_pub = self.create_publisher(JointState, "joint_states", reliable10)

@@ -56,6 +56,7 @@ from humanoid_reach_ros.nodes.common import LatestOnDemand, ParamSpec, declare_p
 from humanoid_reach_ros.perception.markers import (JointStateBuffer, MarkerDetector, camera_pose,
                                                    marker_table, object_pose)
 from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 
 NODE_NAME = "marker_localizer"
 
@@ -73,8 +74,10 @@ PARAMETERS: dict[str, ParamSpec] = {
                                   "marker (the object frame)"),
     "dual_arm_workspace": ParamSpec("torso_regression/workspace.yaml", "dual-arm workspace YAML (orientation rule), "
                                     "relative to config/ or absolute"),
-    "robot_config": ParamSpec("robots/hrp2.yaml", "robot semantic YAML, relative to config/ or absolute"),
-    "camera_frame_id": ParamSpec("head_camera_optical_frame", "URDF frame of the camera (R_T_C by FK)"),
+    "robot_config": ParamSpec(DEFAULT_ROBOT, "robot: a name (config/robots/<name>/robot.yaml) or the path of "
+                                          "a robot description (relative to config/, or absolute)"),
+    "camera_frame_id": ParamSpec("", "URDF frame of the camera (R_T_C by FK); empty: the robot description's "
+                                 "head camera frame"),
     "world_frame_id": ParamSpec("world", "frame of /target_pose and /markers"),
     "max_reprojection_error_px": ParamSpec(1.0, "reject detections with a larger RMS reprojection error [px]",
                                            (1e-3, 100.0)),
@@ -168,8 +171,9 @@ class MarkerLocalizer(Node):
         self.detector = MarkerDetector(self.table, p["max_reprojection_error_px"], p["corner_refine_window_px"],
                                        p["edge_refinement"])
         self.model = RobotModel(p["robot_config"])
+        p["camera_frame_id"] = p["camera_frame_id"] or self.model.camera_frame
         self.model.frame_id(p["camera_frame_id"])  # KeyError for a frame the URDF lacks
-        self.hardware_id = str(self.model.semantic.get("robot_name", "robot")) + " head camera"
+        self.hardware_id = self.model.name + " head camera"
         self.joints = JointStateBuffer(p["joint_buffer_s"])
         self.intrinsics: Intrinsics | None = None
         self._info_stamp_s = -math.inf

@@ -93,7 +93,7 @@ class ReachExecutorNode(Node):
         self.params = executor_params(p)
         self.period_s = self.params.period_s
         self.robot = RobotModel(p["robot_config"])
-        self.hardware_id = str(self.robot.semantic.get("robot_name", "robot"))
+        self.hardware_id = self.robot.name
         self.requests = ExecutionRequests(self.robot, p)
         self.counters = self.requests.counters
         self._ids = itertools.count(1)
@@ -108,7 +108,8 @@ class ReachExecutorNode(Node):
         t0 = time.perf_counter()
         self.loop = LoopProcess(LoopConfig(
             robot_config=p["robot_config"], executor_params=self.params, supervisor=supervisor_config(p),
-            dual_arm={"regression": p["dual_arm_regression"], "workspace": p["dual_arm_workspace"],
+            dual_arm={"regression": p["dual_arm_regression"] or self.robot.spec.torso_regression,
+                      "workspace": p["dual_arm_workspace"],
                       "max_speed_mps": p["dual_arm_max_speed_mps"]},
             node_name=f"{self.get_name()}_loop", namespace=self.get_namespace(),
             command_topic=self.resolve_topic_name("joint_command"),

@@ -8,6 +8,7 @@ from typing import Any
 from humanoid_reach_ros.control.executor import ExecutorParams
 from humanoid_reach_ros.execution.supervisor import SupervisorConfig
 from humanoid_reach_ros.nodes.common import ParamSpec
+from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 
 SOLVERS = ("nullspace", "osqp")
 
@@ -45,7 +46,8 @@ EXECUTOR_PARAMETERS: dict[str, ParamSpec] = {
 }
 
 NODE_PARAMETERS: dict[str, ParamSpec] = {
-    "robot_config": ParamSpec("robots/hrp2.yaml", "robot semantic YAML, relative to config/ or absolute"),
+    "robot_config": ParamSpec(DEFAULT_ROBOT, "robot: a name (config/robots/<name>/robot.yaml) or the path of "
+                                          "a robot description (relative to config/, or absolute)"),
     "resolution_m": ParamSpec(0.02, "voxel size of the environment map [m] (sphere radius = resolution / 2)",
                               (0.001, 1.0)),
     "safety_margin_m": ParamSpec(0.0, "extra radius added to every environment sphere [m]", (0.0, 0.5)),
@@ -84,8 +86,8 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "head_speed_rad_s": ParamSpec(0.5, "peak head joint speed of the look action [rad/s]", (0.01, 10.0)),
     "warn_throttle_s": ParamSpec(1.0, "minimum interval between repeated warnings [s]", (0.0, 3600.0)),
     # ---- dual-arm mode (MODE_DUAL_ARM goals, /dual_arm/targets)
-    "dual_arm_regression": ParamSpec("torso_regression/hrp2_torso_svr", "torso regression model stem (.npz + "
-                                     ".yaml), relative to config/ or absolute"),
+    "dual_arm_regression": ParamSpec("", "torso regression model stem (.npz + .yaml), relative to config/ or "
+                                     "absolute; empty: the robot description's torso_regression"),
     "dual_arm_workspace": ParamSpec("torso_regression/workspace.yaml", "workspace / eq. 6 YAML of the dual-arm "
                                     "controller, relative to config/ or absolute"),
     "dual_arm_max_speed_mps": ParamSpec(0.38, "speed limit of the hands and the CoM in dual-arm mode [m/s]",

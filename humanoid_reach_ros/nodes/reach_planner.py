@@ -69,6 +69,7 @@ from humanoid_reach_ros.nodes.common import (LATCHED, RELIABLE_LATEST, LatestOnD
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner
 from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 
 NODE_NAME = "reach_planner"
 E = PlanReach.Response
@@ -98,7 +99,8 @@ PLANNER_PARAMETERS: dict[str, ParamSpec] = {
 }
 
 NODE_PARAMETERS: dict[str, ParamSpec] = {
-    "robot_config": ParamSpec("robots/hrp2.yaml", "robot semantic YAML, relative to config/ or absolute"),
+    "robot_config": ParamSpec(DEFAULT_ROBOT, "robot: a name (config/robots/<name>/robot.yaml) or the path of "
+                                          "a robot description (relative to config/, or absolute)"),
     "scene_file": ParamSpec("scenes/plant.yaml", "scene whose voxels are the map until /voxel_map arrives, "
                             "relative to config/ or absolute; empty = wait for /voxel_map"),
     "scene_exclude_groups": ParamSpec(["valve"], "scene primitive groups left out of the scene-file map "
@@ -178,7 +180,7 @@ class ReachPlannerNode(Node):
         self.planner.warm_up()  # compiled kernels before the first request (cache: tools/setup.sh)
         self.get_logger().info(f"planning kernels warmed up in {1e3 * (time.perf_counter() - t0):.0f} ms; goal "
                                f"search: {self.planner.trunk_region.describe()}")
-        self.hardware_id = str(self.model.semantic.get("robot_name", "robot"))
+        self.hardware_id = self.model.name
 
         self._plan_lock = threading.Lock()   # one request at a time; a second one gets BUSY
         self._state_lock = threading.Lock()  # latest joint state / target

@@ -53,6 +53,7 @@ from humanoid_reach_ros.nodes.common import LatestOnDemand, ParamSpec, declare_p
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.perception.markers import camera_pose
 from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 from humanoid_reach_ros.sim import camera as cam
 from humanoid_reach_ros.sim.scene import load_scene
 
@@ -61,9 +62,11 @@ POINTS_FRAMES = ("optical", "world")
 
 # Defaults match config/scene_sim.yaml (checked by test_scene_sim_node).
 PARAMETERS: dict[str, ParamSpec] = {
-    "robot_config": ParamSpec("robots/hrp2.yaml", "robot semantic YAML, relative to config/ or absolute"),
+    "robot_config": ParamSpec(DEFAULT_ROBOT, "robot: a name (config/robots/<name>/robot.yaml) or the path of "
+                                          "a robot description (relative to config/, or absolute)"),
     "scene_file": ParamSpec("scenes/plant.yaml", "scene to render, relative to config/ or absolute"),
-    "camera_frame_id": ParamSpec("head_camera_optical_frame", "URDF frame of the head camera (optical: z forward)"),
+    "camera_frame_id": ParamSpec("", "URDF frame of the head camera (optical: z forward); empty: the robot "
+                                 "description's head camera frame"),
     "world_frame_id": ParamSpec("world", "the stance frame (frame of world-frame point clouds)"),
     "period_s": ParamSpec(0.1, "sensor period [s] (images, clouds)", (0.01, 60.0)),
     "width": ParamSpec(640, "image width [px]"),
@@ -84,8 +87,8 @@ PARAMETERS: dict[str, ParamSpec] = {
     "stereo_enabled": ParamSpec(False, "publish the stereo pair /stereo/{left,right}/image_raw + camera_info"),
     "stereo_baseline_m": ParamSpec(0.07, "stereo baseline along +x of the left optical frame [m]", (0.001, 2.0)),
     "stereo_texture_amplitude": ParamSpec(0.3, "procedural texture amplitude of the stereo images", (0.0, 1.0)),
-    "stereo_right_frame_id": ParamSpec("head_camera_right_optical_frame",
-                                       "frame of the right stereo camera (left frame + baseline along x)"),
+    "stereo_right_frame_id": ParamSpec("", "frame of the right stereo camera (left frame + baseline along x); "
+                                       "empty: the camera frame's name + '_right'"),
     "disabled_primitives": ParamSpec([""], "scene primitives left out of the rendering (names; empty "
                                      "strings ignored)", read_only=False),
     "render_threads": ParamSpec(1, "threads of the ray cast (the numba kernel runs without the GIL)"),
@@ -126,6 +129,8 @@ class SceneSim(Node):
             raise ValueError("width and height must be in 1..8192 px, points_stride in 1..64 and render_threads "
                              "in 1..64")
         self.model = RobotModel(p["robot_config"])
+        p["camera_frame_id"] = p["camera_frame_id"] or self.model.camera_frame
+        p["stereo_right_frame_id"] = p["stereo_right_frame_id"] or p["camera_frame_id"] + "_right"
         self.model.frame_id(p["camera_frame_id"])  # KeyError for a frame the URDF lacks
         self.scene_full = load_scene(config_path(p["scene_file"]))
         self.camera = cam.PinholeCamera.from_fov(p["width"], p["height"], p["horizontal_fov_rad"])
@@ -136,7 +141,7 @@ class SceneSim(Node):
         self.marker = cam.marker_print_from_scene(self.scene_full)
         self.rng = np.random.default_rng(p["seed"])
         self.scene = self._scene_without(p["disabled_primitives"])
-        self.hardware_id = str(self.model.semantic.get("robot_name", "robot")) + " head sensors"
+        self.hardware_id = self.model.name + " head sensors"
 
         self._frame_cache: tuple | None = None     # (camera pose + scene key, hits, Image) of the last frame
         self._stereo_cache: dict[str, tuple] = {}

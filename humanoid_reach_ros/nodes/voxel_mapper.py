@@ -78,6 +78,7 @@ from humanoid_reach_ros.perception.markers import JointStateBuffer, camera_pose
 from humanoid_reach_ros.perception.stereo import StereoCalibration, StereoMatcher, StereoParams
 from humanoid_reach_ros.perception.voxel_map import FusionParams, VoxelMap
 from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 from humanoid_reach_ros.robot.shapes import load_collision_model
 
 NODE_NAME = "voxel_mapper"
@@ -118,9 +119,10 @@ STEREO_PARAMETERS: dict[str, ParamSpec] = {
 }
 NODE_PARAMETERS: dict[str, ParamSpec] = {
     "map_frame": ParamSpec("world", "frame of the map, /voxel_map and the markers (the stance frame)"),
-    "sensor_frame": ParamSpec("head_camera_optical_frame", "URDF frame whose origin is the rays' origin for "
-                              "world-frame clouds"),
-    "robot_config": ParamSpec("robots/hrp2.yaml", "robot semantic YAML, relative to config/ or absolute"),
+    "sensor_frame": ParamSpec("", "URDF frame whose origin is the rays' origin for world-frame clouds; empty: "
+                              "the robot description's head camera frame"),
+    "robot_config": ParamSpec(DEFAULT_ROBOT, "robot: a name (config/robots/<name>/robot.yaml) or the path of "
+                                          "a robot description (relative to config/, or absolute)"),
     "joint_states_window_s": ParamSpec(2.0, "how long joint states are kept for look-up at a cloud stamp [s]",
                                        (0.05, 60.0)),
     "joint_states_max_gap_s": ParamSpec(0.1, "a cloud stamp may lie this far outside the buffered joint states [s]",
@@ -235,6 +237,7 @@ class VoxelMapperNode(Node):
         self.map = VoxelMap(fusion_params(p))   # ValueError for bad fusion parameters
         self.map_frame: str = p["map_frame"]
         self.model = RobotModel(p["robot_config"])
+        p["sensor_frame"] = p["sensor_frame"] or self.model.camera_frame
         self.model.frame_id(p["sensor_frame"])  # KeyError for a frame the URDF lacks
         self.joint_buffer = JointStateBuffer(p["joint_states_window_s"])
         self.stereo: StereoMatcher | None = None

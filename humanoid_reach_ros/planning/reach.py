@@ -499,7 +499,7 @@ class ReachPlanner:
         Q = q_start + s * (q_proj - q_start)
         # orientation: both have the same rpy_t (plan_config_of keeps it): keep the start quaternion
         Q[:, 3:7] = q_start[3:7]
-        left_sole = self.robot.frame_pose(q_start, "l_sole")
+        left_sole = self.robot.frame_pose(q_start, self.robot.sole_frames[1])
         feet_ok = (np.linalg.norm(left_sole.translation - self._left_sole.translation) < 5e-3
                    and np.linalg.norm(pin.log3(left_sole.rotation.T @ self._left_sole.rotation)) < 5e-3)
         if feet_ok:

@@ -63,7 +63,6 @@ from humanoid_reach_ros.robot.model import N_BASE_Q, N_BASE_V, RobotModel
 from humanoid_reach_ros.robot.shapes import CollisionModel
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-HAND_FRAMES = {"right": "r_hand_ee", "left": "l_hand_ee"}
 
 
 @dataclass(frozen=True)
@@ -134,10 +133,10 @@ class SmoothReshaper:
         self.model = robot.model
         self.data = self.model.createData()
         self.sel = DofSelection.without_grippers(robot)
-        grip = {robot.joint_index[j] for j in robot.semantic.get("gripper_joints", [])}
+        grip = {robot.joint_index[j] for j in robot.spec.gripper_joints}
         self._jsel = np.array([j for j in range(robot.n_joints) if j not in grip], dtype=np.intp)
         self._jcols = np.searchsorted(self.sel.index, N_BASE_V + self._jsel)
-        self._sole_ids = (robot.frame_id("r_sole"), robot.frame_id("l_sole"))
+        self._sole_ids = tuple(robot.frame_id(f) for f in robot.sole_frames)
         self._soles = robot.stance_soles
         self._solver = SaturatedNullSpaceHQP()
         self.com_xy = np.zeros(2)
@@ -158,7 +157,7 @@ class SmoothReshaper:
 
     def hand_pose(self, q: np.ndarray, arm: str) -> pin.SE3:
         pin.framesForwardKinematics(self.model, self.data, q)
-        return self.data.oMf[self.robot.frame_id(HAND_FRAMES[arm])].copy()
+        return self.data.oMf[self.robot.frame_id(self.robot.hand_frames[arm])].copy()
 
     def ik_step(self, q: np.ndarray, hand: pin.SE3, arm: str, posture: np.ndarray, gain: float = 1.0) -> np.ndarray:
         """One prioritized IK step: joint limits > both soles at the stance + exact COG xy at
@@ -176,7 +175,7 @@ class SmoothReshaper:
         h = np.concatenate([self.robot.upper[js] - 1e-9 - qj, qj - self.robot.lower[js] - 1e-9])
         rows = []
         for fid, target, g in ((self._sole_ids[0], self._soles[0], 1.0), (self._sole_ids[1], self._soles[1], 1.0),
-                               (self.robot.frame_id(HAND_FRAMES[arm]), hand, gain)):
+                               (self.robot.frame_id(self.robot.hand_frames[arm]), hand, gain)):
             J = pin.getFrameJacobian(model, data, fid, LWA)
             M = data.oMf[fid]
             Rt = target.rotation
@@ -228,7 +227,7 @@ class SmoothReshaper:
     # ------------------------------------------------------------ main
     def reshape(self, reference: SplineTrajectory, tree: SphereTree, arm: str) -> ReshapeResult:
         """Reshape ``reference`` (30 joints, times from 0) against ``tree`` for the ``arm`` hand."""
-        if arm not in HAND_FRAMES:
+        if arm not in self.robot.hand_frames:
             raise ValueError(f"unknown arm {arm!r}: expected 'right' or 'left'")
         if not isinstance(tree, SphereTree):
             raise ValueError("reshape needs a SphereTree environment")

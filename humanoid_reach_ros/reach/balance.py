@@ -9,10 +9,9 @@ Moved to the world frame, ``(f, n)`` about the world origin, the ZMP on the floo
 
     p_x = -n_y / f_z,    p_y = n_x / f_z.
 
-Support polygon: the convex hull of both soles (rectangles of the foot plate, from
-``config/robots/hrp2_collision.yaml``'s foot box: x in [-0.105, 0.125] m, y in
-[-0.07, 0.07] m about each sole frame); a point is inside with margin ``m`` if its signed
-distance to every hull edge is at least ``m``.
+Support polygon: the convex hull of both soles (the robot description's
+``sole_rectangle_m`` about each sole frame); a point is inside with margin ``m`` if its
+signed distance to every hull edge is at least ``m``.
 """
 from __future__ import annotations
 
@@ -21,14 +20,11 @@ import pinocchio as pin
 
 from humanoid_reach_ros.robot.model import N_BASE_V, RobotModel
 
-#: sole rectangle about the sole frame [m] (x_min, x_max, y_min, y_max)
-SOLE_RECT = (-0.105, 0.125, -0.07, 0.07)
-
 
 def support_polygon(robot: RobotModel, soles: tuple[pin.SE3, pin.SE3] | None = None) -> np.ndarray:
     """Counter-clockwise convex hull (k, 2) of both sole rectangles."""
     soles = robot.stance_soles if soles is None else soles
-    x0, x1, y0, y1 = SOLE_RECT
+    x0, x1, y0, y1 = robot.spec.sole_rectangle
     corners = np.array([[x0, y0, 0], [x1, y0, 0], [x1, y1, 0], [x0, y1, 0]], float)
     pts = np.vstack([(s.rotation @ corners.T).T + s.translation for s in soles])[:, :2]
     return _hull(pts)

@@ -119,7 +119,7 @@ class DualArmReachController:
                  workspace: ReachWorkspace | None = None, config: ControllerConfig = ControllerConfig()) -> None:
         self.robot = RobotModel() if robot is None else robot
         self.ws = ReachWorkspace.load() if workspace is None else workspace
-        self.regression = TorsoRegression.load() if regression is None else regression
+        self.regression = TorsoRegression.load(self.robot.spec.torso_regression) if regression is None else regression
         self.config = config
         self.q_init = lowered_initial_posture(self.robot, self.ws.initial_com_drop_m)
         self.ik = ProposedWholeBodyIK(self.robot, config.support)
@@ -130,8 +130,8 @@ class DualArmReachController:
         #: R*_torso of Algorithm 3: the waist keeps its initial (upright) orientation
         self.R_torso = RobotModel.base_pose(self.q_init).rotation.copy()
         self._fid = {s: self.robot.frame_id(self.robot.limbs[f"{s}_arm"].tip) for s in ("right", "left")}
-        self._chest_cols = (N_BASE_Q + self.robot.joint_index["CHEST_JOINT1"],
-                            N_BASE_Q + self.robot.joint_index["CHEST_JOINT0"])
+        self._chest_cols = (N_BASE_Q + self.robot.joint_index[self.robot.spec.chest_pitch],
+                            N_BASE_Q + self.robot.joint_index[self.robot.spec.chest_yaw])
         self._seq: tuple[np.ndarray, np.ndarray] | None = None     # sequential mode's target pairs
         self._remaining = 0
         self.reset()

@@ -33,7 +33,6 @@ from humanoid_reach_ros.reach.kinematics import HandTargets
 from humanoid_reach_ros.reach.upper_body_ik import UpperBodyIK
 from humanoid_reach_ros.robot.model import RobotModel
 
-DEFAULT_MODEL = "torso_regression/hrp2_torso_svr"
 WORKSPACE_YAML = "torso_regression/workspace.yaml"
 
 
@@ -164,7 +163,7 @@ class TorsoRegression:
         meta = {"kernel_width_m": float(kernel_width_m), "gamma": gamma, "C": float(C),
                 "epsilon": float(epsilon), "n_train": int(len(X)),
                 "train_rmse_rad": {"pitch": rmse[0], "yaw": rmse[1]},
-                "train_max_abs_rad": None, "outputs": ["CHEST_JOINT1 (pitch)", "CHEST_JOINT0 (yaw)"]}
+                "train_max_abs_rad": None, "outputs": ["chest pitch", "chest yaw"]}
         reg = cls(gamma, (sup[0], sup[1]), (coef[0], coef[1]), (icpt[0], icpt[1]), meta)
         meta["train_max_abs_rad"] = float(np.abs(reg.predict_batch(X) - Y).max())
         return reg
@@ -187,7 +186,7 @@ class TorsoRegression:
         return self.predict_batch(x[None])[0]
 
     # ------------------------------------------------------------ files
-    def save(self, stem: str | Path = DEFAULT_MODEL) -> tuple[Path, Path]:
+    def save(self, stem: str | Path) -> tuple[Path, Path]:
         base = config_path(str(stem))
         base.parent.mkdir(parents=True, exist_ok=True)
         npz, yml = base.with_suffix(".npz"), base.with_suffix(".yaml")
@@ -200,7 +199,7 @@ class TorsoRegression:
         return npz, yml
 
     @classmethod
-    def load(cls, stem: str | Path = DEFAULT_MODEL) -> "TorsoRegression":
+    def load(cls, stem: str | Path) -> "TorsoRegression":
         base = config_path(str(stem))
         npz, yml = base.with_suffix(".npz"), base.with_suffix(".yaml")
         if not npz.is_file() or not yml.is_file():

@@ -63,7 +63,7 @@ class UpperBodyIK:
         self.robot = robot
         self.model = robot.model
         self.data = self.model.createData()
-        chest = [robot.joint_index[j] for j in robot.semantic["chest_joints"]]
+        chest = [robot.joint_index[j] for j in robot.spec.chest_joints]
         self.chest_index = np.array(chest, dtype=np.intp)
         self.right_index = np.array(robot.limbs["right_arm"].joint_index, dtype=np.intp)
         self.left_index = np.array(robot.limbs["left_arm"].joint_index, dtype=np.intp)
@@ -77,8 +77,8 @@ class UpperBodyIK:
         self.mobility[: len(chest)] = chest_weight
         self.fid_right = robot.frame_id(robot.limbs["right_arm"].tip)
         self.fid_left = robot.frame_id(robot.limbs["left_arm"].tip)
-        self.chest_pitch_col = int(np.flatnonzero(self.index == robot.joint_index["CHEST_JOINT1"])[0])
-        self.chest_yaw_col = int(np.flatnonzero(self.index == robot.joint_index["CHEST_JOINT0"])[0])
+        self.chest_pitch_col = int(np.flatnonzero(self.index == robot.joint_index[robot.spec.chest_pitch])[0])
+        self.chest_yaw_col = int(np.flatnonzero(self.index == robot.joint_index[robot.spec.chest_yaw])[0])
 
     # ------------------------------------------------------------ kinematics
     def error_jacobian(self, q: np.ndarray, targets: HandTargets) -> tuple[np.ndarray, np.ndarray]:

@@ -60,8 +60,8 @@ class ProposedWholeBodyIK:
             self.lower = ClosedFormLowerBodyIK(robot, support, tol=self.lower.tol, max_iter=self.lower.max_iter,
                                                reference=self.lower)
         self.limb_ik = LimbIKSet(robot)
-        self.chest_pitch = N_BASE_Q + robot.joint_index["CHEST_JOINT1"]
-        self.chest_yaw = N_BASE_Q + robot.joint_index["CHEST_JOINT0"]
+        self.chest_pitch = N_BASE_Q + robot.joint_index[robot.spec.chest_pitch]
+        self.chest_yaw = N_BASE_Q + robot.joint_index[robot.spec.chest_yaw]
         self.arm_cols = {s: N_BASE_Q + np.array(robot.limbs[f"{s}_arm"].joint_index) for s in ("right", "left")}
         self.fid_chest = robot.frame_id(robot.limbs["right_arm"].root)
         self.fid_hand = {s: robot.frame_id(robot.limbs[f"{s}_arm"].tip) for s in ("right", "left")}
@@ -91,8 +91,8 @@ class ProposedWholeBodyIK:
         so that timing covers the method only (:func:`measure_errors` afterwards)."""
         q = np.array(q_prev, dtype=float)
         q[self.chest_pitch], q[self.chest_yaw] = chest_pitch_yaw
-        q[self.chest_pitch] = np.clip(q[self.chest_pitch], *self._lim("CHEST_JOINT1"))
-        q[self.chest_yaw] = np.clip(q[self.chest_yaw], *self._lim("CHEST_JOINT0"))
+        q[self.chest_pitch] = np.clip(q[self.chest_pitch], *self._lim(self.robot.spec.chest_pitch))
+        q[self.chest_yaw] = np.clip(q[self.chest_yaw], *self._lim(self.robot.spec.chest_yaw))
         low = self.lower.solve(q, legs, sole_world)
         q = low.q
         C = self.lower.data.oMf[self.fid_chest]          # FK of low.q (LowerBodyIK.solve)
@@ -124,7 +124,7 @@ class FullBodyLMIK(_FloatingKinematics):
     def __init__(self, robot: RobotModel, support: str = "right", tol: float = 1e-7,
                  max_iter: int = 100, omega: float = 1.0, w_bar: float = 1e-3) -> None:
         super().__init__(robot, support)
-        chest = [robot.joint_index[j] for j in robot.semantic["chest_joints"]]
+        chest = [robot.joint_index[j] for j in robot.spec.chest_joints]
         arms = list(robot.limbs["right_arm"].joint_index) + list(robot.limbs["left_arm"].joint_index)
         self.index = np.concatenate([self.leg_index, np.array(chest + arms, dtype=np.intp)])
         self.qcols = N_BASE_Q + self.index

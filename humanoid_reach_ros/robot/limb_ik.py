@@ -1,6 +1,6 @@
 """Closed-form, numpy-batched inverse (and forward) kinematics of the 6-DOF limbs.
 
-Each limb of the HRP-2-class model (``config/robots/hrp2.urdf``) is a 6R chain with
+Each limb of the HRP-2-class model (``config/robots/hrp2/hrp2.urdf``) is a 6R chain with
 three intersecting axes at one end and two intersecting axes at the other, which
 makes its IK solvable in closed form (Pieper). Every number used here -- joint
 placements, link lengths, tip offsets, joint limits -- is read from the pinocchio

@@ -1,4 +1,4 @@
-"""The HRP-2-class robot model: pinocchio model from the URDF plus the semantic YAML.
+"""The robot model: pinocchio model from the URDF plus the robot description (robot/spec.py).
 
 Conventions used throughout the package:
 
@@ -20,7 +20,7 @@ import numpy as np
 import pinocchio as pin
 import yaml
 
-from humanoid_reach_ros.paths import config_path
+from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT, check_against_model, load_robot_spec
 
 N_BASE_Q = 7
 N_BASE_V = 6
@@ -40,13 +40,13 @@ class LimbSpec:
 class RobotModel:
     """Pinocchio model of the robot with the groups and postures the planner needs."""
 
-    def __init__(self, semantic_yaml: str | Path = "robots/hrp2.yaml") -> None:
-        self.semantic_path = config_path(str(semantic_yaml))
-        with open(self.semantic_path) as f:
-            self.semantic = yaml.safe_load(f)
-        base = self.semantic_path.parent
-        self.urdf_path = (base / self.semantic["urdf"]).resolve()
-        self.collision_path = (base / self.semantic["collision_model"]).resolve()
+    def __init__(self, robot: str | Path = DEFAULT_ROBOT) -> None:
+        """``robot``: a robot name (``config/robots/<name>/robot.yaml``) or the path of a
+        robot description (absolute, or relative to ``config/``)."""
+        self.spec, self.semantic = load_robot_spec(robot)
+        self.semantic_path = self.spec.path
+        self.urdf_path = self.spec.urdf_path
+        self.collision_path = self.spec.collision_path
         self.urdf_xml = self.urdf_path.read_text()
         self.model: pin.Model = pin.buildModelFromXML(self.urdf_xml, pin.JointModelFreeFlyer())
         self.data: pin.Data = self.model.createData()
@@ -54,17 +54,20 @@ class RobotModel:
         self.joint_names: tuple[str, ...] = tuple(self.model.names[2:])
         self.n_joints = len(self.joint_names)
         self.joint_index = {n: i for i, n in enumerate(self.joint_names)}
+        check_against_model(self.spec, self.joint_names, self.model.existFrame)
         self.lower = np.array(self.model.lowerPositionLimit[N_BASE_Q:])
         self.upper = np.array(self.model.upperPositionLimit[N_BASE_Q:])
         self.velocity_limit = np.array(self.model.velocityLimit[N_BASE_V:])
         self.mass = float(pin.computeTotalMass(self.model))
-        self.limbs: dict[str, LimbSpec] = {}
-        for name, spec in self.semantic["limbs"].items():
-            joints = tuple(spec["joints"])
-            self.limbs[name] = LimbSpec(
-                name, spec["root"], spec["tip"], joints, tuple(self.joint_index[j] for j in joints)
-            )
-        self.base_link = self.semantic["base_link"]
+        self.limbs: dict[str, LimbSpec] = {
+            name: LimbSpec(name, d.root, d.tip, d.joints, tuple(self.joint_index[j] for j in d.joints))
+            for name, d in self.spec.limbs.items()}
+        self.name = self.spec.name
+        self.base_link = self.spec.base_link
+        #: arm name -> hand frame; (right, left) sole frames; the head camera's optical frame
+        self.hand_frames = self.spec.hand_frames
+        self.sole_frames = self.spec.sole_frames
+        self.camera_frame = self.spec.camera_frame
 
     # ------------------------------------------------------------ conversions
     def frame_id(self, name: str) -> int:
@@ -113,7 +116,7 @@ class RobotModel:
     # ------------------------------------------------------------ postures
     @cached_property
     def half_sitting_joints(self) -> np.ndarray:
-        deg = {k: np.radians(v) for k, v in self.semantic["half_sitting"].items()}
+        deg = {k: np.radians(v) for k, v in self.spec.half_sitting_deg.items()}
         return self.joints_from_dict(deg)
 
     def base_on_feet(self, joints: np.ndarray) -> pin.SE3:
@@ -124,14 +127,14 @@ class RobotModel:
         """
         right = self._stance_soles[0]
         q0 = self.config(joints)
-        sole_in_base = self.frame_pose(q0, "r_sole")
+        sole_in_base = self.frame_pose(q0, self.sole_frames[0])
         return right * sole_in_base.inverse()
 
     @cached_property
     def _stance_soles(self) -> tuple[pin.SE3, pin.SE3]:
         q0 = self.config(self.half_sitting_joints)
-        r = self.frame_pose(q0, "r_sole")
-        l_ = self.frame_pose(q0, "l_sole")
+        r = self.frame_pose(q0, self.sole_frames[0])
+        l_ = self.frame_pose(q0, self.sole_frames[1])
         mid = 0.5 * (r.translation + l_.translation)
         shift = pin.SE3(np.eye(3), -mid)
         return shift * r, shift * l_

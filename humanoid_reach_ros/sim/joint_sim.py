@@ -247,7 +247,7 @@ class JointSimulator:
         if self._odom is None or key != self._odom_key:
             joints = self.q.copy()
             base = self.model.base_on_feet(joints)
-            left = self.model.frame_pose(self.model.config(joints, base), "l_sole")
+            left = self.model.frame_pose(self.model.config(joints, base), self.model.sole_frames[1])
             slip = float(np.linalg.norm(left.translation - self.model.stance_soles[1].translation))
             self._odom_key = key
             self._odom = OdometryResult(base, slip)

@@ -843,7 +843,7 @@ def plot_scene(scene: Scene, out: str | Path, resolution_m: float | None = None)
     pin.forwardKinematics(m, d, q)
     pin.updateFramePlacements(m, d)
     segs = [(d.oMi[m.parents[j]].translation, d.oMi[j].translation) for j in range(2, m.njoints)]
-    for frame in ("r_sole", "l_sole", "r_hand_ee", "l_hand_ee", "head_camera_link"):
+    for frame in (*robot.sole_frames, *robot.hand_frames.values(), robot.camera_frame):
         f = m.frames[m.getFrameId(frame)]
         segs.append((d.oMi[f.parentJoint].translation, d.oMf[m.getFrameId(frame)].translation))
     origins = np.array([d.oMi[j].translation for j in range(1, m.njoints)])

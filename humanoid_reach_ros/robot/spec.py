@@ -1,0 +1,176 @@
+"""The robot description: ``config/robots/<name>/robot.yaml`` read into one object.
+
+A :class:`RobotSpec` names everything the package needs to know about a robot beyond
+its URDF: the four limbs (root link, tip frame, six joints each: the hands are the arm
+limbs' tips, the soles the leg limbs' tips), the floating-base link, the chest and
+head joints by role, the head camera frame, the grippers, the half-sitting posture,
+the sole rectangle (the support polygon is the hull of both soles), the collision model
+file and the dual-arm torso regression model. :class:`~humanoid_reach_ros.robot.model.RobotModel`
+loads it and every layer receives it from there: no robot-specific name or number is
+written anywhere else in the package (``test/test_robot_spec.py`` checks).
+
+No ROS here.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from humanoid_reach_ros.paths import config_path
+
+#: the robot the nodes, demo and benches use unless told otherwise
+DEFAULT_ROBOT = "hrp2"
+LIMB_NAMES = ("right_leg", "left_leg", "right_arm", "left_arm")
+_KEYS = {"robot_name", "urdf", "collision_model", "base_link", "limbs", "chest", "head", "gripper_joints",
+         "sole_rectangle_m", "torso_regression", "half_sitting"}
+_REQUIRED = _KEYS - {"gripper_joints", "torso_regression"}
+
+
+@dataclass(frozen=True)
+class LimbDef:
+    """A 6-DOF limb of the description: joints from the ``root`` link to the ``tip`` frame."""
+
+    root: str
+    tip: str
+    joints: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """One robot's description (module doc). Paths are absolute."""
+
+    name: str
+    path: Path
+    urdf_path: Path
+    collision_path: Path
+    base_link: str
+    limbs: dict
+    chest_yaw: str
+    chest_pitch: str
+    head_yaw: str
+    head_pitch: str
+    camera_frame: str
+    gripper_joints: tuple[str, ...]
+    sole_rectangle: tuple[float, float, float, float]
+    half_sitting_deg: dict
+    torso_regression: str | None
+
+    @property
+    def hand_frames(self) -> dict[str, str]:
+        """Arm name ("right", "left") -> hand frame (the arm limb's tip)."""
+        return {"right": self.limbs["right_arm"].tip, "left": self.limbs["left_arm"].tip}
+
+    @property
+    def sole_frames(self) -> tuple[str, str]:
+        """Right and left sole frames (the leg limbs' tips)."""
+        return self.limbs["right_leg"].tip, self.limbs["left_leg"].tip
+
+    @property
+    def chest_link(self) -> str:
+        """The link both arms hang from."""
+        return self.limbs["right_arm"].root
+
+    @property
+    def chest_joints(self) -> tuple[str, str]:
+        return self.chest_yaw, self.chest_pitch
+
+    @property
+    def head_joints(self) -> tuple[str, str]:
+        """Head yaw, then pitch (pitch > 0 looks down)."""
+        return self.head_yaw, self.head_pitch
+
+    def names(self) -> set[str]:
+        """Every joint and frame name the description gives (robot-specific by nature)."""
+        out = {self.camera_frame, *self.chest_joints, *self.head_joints, *self.gripper_joints}
+        for limb in self.limbs.values():
+            out |= {limb.root, limb.tip, *limb.joints}
+        return out - {self.base_link}
+
+
+def robot_config_path(robot: str | Path) -> Path:
+    """``hrp2`` -> ``config/robots/hrp2/robot.yaml``; a path (absolute, or relative to
+    ``config/``) to a robot YAML is taken as it is."""
+    s = str(robot)
+    if "/" not in s and not s.endswith((".yaml", ".yml")):
+        return config_path("robots", s, "robot.yaml")
+    p = Path(s)
+    return p if p.is_absolute() else config_path(s)
+
+
+def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]:
+    """Read and validate a robot description; returns the spec and the raw document.
+
+    ValueError naming the key for: unknown or missing keys, a limb without root, tip or
+    six joints, a chest/head without both roles, a sole rectangle that is not four finite
+    numbers with min < max, a half-sitting entry that is not a finite angle. Names are
+    checked against the URDF by :class:`~humanoid_reach_ros.robot.model.RobotModel`."""
+    path = robot_config_path(robot)
+    if not path.exists():
+        raise ValueError(f"robot description {path} does not exist (robots: "
+                         f"{sorted(p.name for p in config_path('robots').iterdir() if p.is_dir())})")
+    with open(path) as f:
+        doc = yaml.safe_load(f)
+    where = f"robot description {path}"
+    if not isinstance(doc, dict):
+        raise ValueError(f"{where}: expected a mapping")
+    extra, missing = set(doc) - _KEYS, _REQUIRED - set(doc)
+    if extra or missing:
+        raise ValueError(f"{where}: unknown key(s) {sorted(extra)}, missing key(s) {sorted(missing)}")
+    limbs = {}
+    if not isinstance(doc["limbs"], dict) or set(doc["limbs"]) != set(LIMB_NAMES):
+        raise ValueError(f"{where}: limbs must be exactly {LIMB_NAMES}")
+    for name in LIMB_NAMES:
+        d = doc["limbs"][name]
+        if not isinstance(d, dict) or set(d) != {"root", "tip", "joints"} or not isinstance(d["joints"], list) \
+                or len(d["joints"]) != 6 or not all(isinstance(x, str) for x in [d["root"], d["tip"], *d["joints"]]):
+            raise ValueError(f"{where}: limbs.{name} must be {{root, tip, joints: [6 joint names]}}")
+        limbs[name] = LimbDef(d["root"], d["tip"], tuple(d["joints"]))
+    if limbs["right_arm"].root != limbs["left_arm"].root:
+        raise ValueError(f"{where}: both arms must hang from the same (chest) link")
+    roles = {}
+    for part, keys in (("chest", ("yaw", "pitch")), ("head", ("yaw", "pitch", "camera_frame"))):
+        d = doc[part]
+        if not isinstance(d, dict) or set(d) != set(keys) or not all(isinstance(d[k], str) for k in keys):
+            raise ValueError(f"{where}: {part} must be {{{', '.join(keys)}}} (names)")
+        roles[part] = d
+    rect = doc["sole_rectangle_m"]
+    if not (isinstance(rect, list) and len(rect) == 4 and all(isinstance(x, (int, float)) and math.isfinite(x)
+                                                              for x in rect) and rect[0] < rect[1] and rect[2] < rect[3]):
+        raise ValueError(f"{where}: sole_rectangle_m must be [x_min, x_max, y_min, y_max] [m], min < max")
+    hs = doc["half_sitting"]
+    if not isinstance(hs, dict) or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in hs.values()):
+        raise ValueError(f"{where}: half_sitting must map joint names to finite angles [deg]")
+    grippers = doc.get("gripper_joints", [])
+    if not isinstance(grippers, list) or not all(isinstance(g, str) for g in grippers):
+        raise ValueError(f"{where}: gripper_joints must be a list of joint names")
+    reg = doc.get("torso_regression")
+    if reg is not None and not isinstance(reg, str):
+        raise ValueError(f"{where}: torso_regression must be a model path (config/, no extension)")
+    spec = RobotSpec(
+        name=str(doc["robot_name"]), path=path, urdf_path=(path.parent / doc["urdf"]).resolve(),
+        collision_path=(path.parent / doc["collision_model"]).resolve(), base_link=str(doc["base_link"]),
+        limbs=limbs, chest_yaw=roles["chest"]["yaw"], chest_pitch=roles["chest"]["pitch"],
+        head_yaw=roles["head"]["yaw"], head_pitch=roles["head"]["pitch"], camera_frame=roles["head"]["camera_frame"],
+        gripper_joints=tuple(grippers), sole_rectangle=tuple(float(x) for x in rect),
+        half_sitting_deg={str(k): float(v) for k, v in hs.items()}, torso_regression=reg)
+    return spec, doc
+
+
+def check_against_model(spec: RobotSpec, joint_names, has_frame) -> None:
+    """ValueError naming every joint or frame of ``spec`` the URDF does not have."""
+    joints = set(joint_names)
+    bad = [j for j in (*spec.chest_joints, *spec.head_joints, *spec.gripper_joints, *spec.half_sitting_deg)
+           if j not in joints]
+    for name, limb in spec.limbs.items():
+        bad += [f"{name}.{j}" for j in limb.joints if j not in joints]
+        bad += [f"{name} frame {f}" for f in (limb.root, limb.tip) if not has_frame(f)]
+    bad += [f"frame {f}" for f in (spec.base_link, spec.camera_frame) if not has_frame(f)]
+    if bad:
+        raise ValueError(f"robot description {spec.path}: not in {spec.urdf_path.name}: {', '.join(bad)}")
+
+
+__all__ = ["RobotSpec", "LimbDef", "load_robot_spec", "robot_config_path", "check_against_model", "DEFAULT_ROBOT",
+           "LIMB_NAMES"]

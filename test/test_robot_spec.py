@@ -1,0 +1,98 @@
+"""The robot description (robot/spec.py): one file per robot, validated, and the only place
+robot-specific names live: no string in the package's code names a joint or frame of a
+robot description (or a robot), outside the loader."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+import yaml
+
+from humanoid_reach_ros.paths import config_path
+from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.robot.spec import load_robot_spec, robot_config_path
+
+PKG_DIR = Path(__file__).resolve().parents[1] / "humanoid_reach_ros"
+LOADER = {PKG_DIR / "robot" / "spec.py", PKG_DIR / "robot" / "model.py"}
+ROBOTS = sorted(p.name for p in config_path("robots").iterdir() if (p / "robot.yaml").exists())
+
+
+def _code_strings(path: Path):
+    """(line, text) of every string constant of a module that is not a docstring."""
+    tree = ast.parse(path.read_text())
+    docstrings = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body:
+            first = node.body[0]
+            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant):
+                docstrings.add(id(first.value))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings:
+            yield node.lineno, node.value
+
+
+def test_every_robot_loads_and_matches_its_urdf():
+    assert "hrp2" in ROBOTS
+    for name in ROBOTS:
+        robot = RobotModel(name)
+        assert robot.name and set(robot.hand_frames) == {"right", "left"} and len(robot.sole_frames) == 2
+        for frame in (*robot.hand_frames.values(), *robot.sole_frames, robot.camera_frame, robot.base_link):
+            robot.frame_id(frame)
+        assert robot.spec.chest_link == robot.limbs["right_arm"].root
+    assert RobotModel("robots/hrp2/robot.yaml").spec == RobotModel().spec
+
+
+def test_no_robot_specific_name_outside_the_description_and_its_loader():
+    names = set()
+    for name in ROBOTS:
+        names |= load_robot_spec(name)[0].names() | {name}
+    hits = []
+    for path in sorted(PKG_DIR.rglob("*.py")):
+        if path in LOADER:
+            continue
+        for line, text in _code_strings(path):
+            for n in names:
+                if n in text:
+                    hits.append(f"{path.relative_to(PKG_DIR.parent)}:{line}: {n!r} in {text[:60]!r}")
+    assert not hits, "robot-specific names in code (take them from RobotModel / RobotSpec):\n" + "\n".join(hits)
+
+
+def _write(tmp_path, edit) -> Path:
+    doc = yaml.safe_load(robot_config_path("hrp2").read_text())
+    edit(doc)
+    d = tmp_path / "bot"
+    d.mkdir(exist_ok=True)
+    for f in ("hrp2.urdf", "collision.yaml"):
+        (d / f).write_text((robot_config_path("hrp2").parent / f).read_text())
+    (d / "robot.yaml").write_text(yaml.safe_dump(doc))
+    return d / "robot.yaml"
+
+
+@pytest.mark.parametrize("edit, text", [
+    (lambda d: d.pop("head"), "missing key"),
+    (lambda d: d.update(colour="red"), "unknown key"),
+    (lambda d: d["limbs"].pop("left_arm"), "limbs must be exactly"),
+    (lambda d: d["limbs"]["right_arm"]["joints"].pop(), "six|6 joint"),
+    (lambda d: d["limbs"]["left_arm"].update(root="base_link"), "same \\(chest\\) link"),
+    (lambda d: d.update(chest={"yaw": "CHEST_JOINT0"}), "chest must be"),
+    (lambda d: d.update(sole_rectangle_m=[0.1, -0.1, -0.07, 0.07]), "sole_rectangle_m"),
+    (lambda d: d["half_sitting"].update(RLEG_JOINT2=float("nan")), "half_sitting"),
+])
+def test_bad_descriptions_are_refused(tmp_path, edit, text):
+    with pytest.raises(ValueError, match=text):
+        load_robot_spec(_write(tmp_path, edit))
+
+
+@pytest.mark.parametrize("edit, text", [
+    (lambda d: d["head"].update(yaw="NECK_YAW"), "NECK_YAW"),
+    (lambda d: d["limbs"]["right_arm"].update(tip="r_gripper_tip"), "r_gripper_tip"),
+])
+def test_names_the_urdf_lacks_are_refused(tmp_path, edit, text):
+    with pytest.raises(ValueError, match=text):
+        RobotModel(_write(tmp_path, edit))
+
+
+def test_unknown_robot_names_the_robots_there_are():
+    with pytest.raises(ValueError, match="hrp2"):
+        RobotModel("nao")
