@@ -137,8 +137,8 @@ def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]
             raise ValueError(f"{where}: {part} must be {{{', '.join(keys)}}} (names)")
         roles[part] = d
     rect = doc["sole_rectangle_m"]
-    if not (isinstance(rect, list) and len(rect) == 4 and all(isinstance(x, (int, float)) and math.isfinite(x)
-                                                              for x in rect) and rect[0] < rect[1] and rect[2] < rect[3]):
+    finite = isinstance(rect, list) and all(isinstance(x, (int, float)) and math.isfinite(x) for x in rect)
+    if not (finite and len(rect) == 4 and rect[0] < rect[1] and rect[2] < rect[3]):
         raise ValueError(f"{where}: sole_rectangle_m must be [x_min, x_max, y_min, y_max] [m], min < max")
     hs = doc["half_sitting"]
     if not isinstance(hs, dict) or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in hs.values()):

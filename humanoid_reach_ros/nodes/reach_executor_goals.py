@@ -1,0 +1,252 @@
+"""The ``reach_executor`` node's side of its motions (``nodes/reach_executor.py``).
+
+* :class:`MotionTracker`: the motions handed to the control loop process and their ends
+  (the loop's ``started`` / ``finished`` / ``status`` / ``log`` / ``exited`` events), and
+  :meth:`MotionTracker.follow`, which waits for a motion while forwarding feedback and a
+  client's cancel;
+* :func:`execute_goal` and :func:`look_goal`: the ``/execute_reach`` and ``/look`` actions
+  built on it (inputs validated by ``execution/requests.py``; a bad goal is answered, never
+  raised).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import threading
+import time
+import traceback
+from typing import Callable
+
+from humanoid_reach_interfaces.action import ExecuteReach, Look
+
+from humanoid_reach_ros.codes import ExecuteCode as C, RequestError
+from humanoid_reach_ros.execution.supervisor import Motion
+from humanoid_reach_ros.io import exec_msgs
+
+RESULT_NAMES = {int(c): c.name for c in C}
+
+
+@dataclasses.dataclass(eq=False)
+class Pending:
+    """A motion handed to the loop, as the node follows it."""
+
+    label: str
+    finished: threading.Event = dataclasses.field(default_factory=threading.Event)
+    code: int | None = None
+    message: str = ""
+    summary: dict = dataclasses.field(default_factory=dict)
+
+
+class MotionTracker:
+    """Motions in the control loop process, as the node sees them (module doc).
+
+    ``send``: puts a command to the loop process; ``logger``: the node's; ``counters``: the
+    node's ``ExecutionCounters``; ``params``: the node's parameter dict (``warn_throttle_s``,
+    ``feedback_period_s``); ``ok``: false once the node shuts down."""
+
+    def __init__(self, send: Callable, logger, counters, params: dict, ok: Callable[[], bool]) -> None:
+        self.send, self.log, self.counters, self.p, self.ok = send, logger, counters, params, ok
+        self.status: dict = {}
+        self.last_result: Pending | None = None
+        self._pending: dict[int, Pending] = {}
+        self._lock = threading.Lock()
+
+    def submit(self, motion: Motion) -> Pending:
+        pend = Pending(motion.label)
+        with self._lock:
+            self._pending[motion.id] = pend
+        self.send(("start", motion))
+        return pend
+
+    def on_event(self, event: tuple) -> None:
+        kind, log = event[0], self.log
+        if kind == "status":
+            self.status = event[1]
+        elif kind == "started":
+            _, mid, note, source = event
+            with self._lock:
+                pend = self._pending.get(mid)
+            line = f"{pend.label}: started from {source}" + (f": {note}" if note else "") if pend else ""
+            if pend is not None and pend.label.startswith("/dual_arm"):   # followed targets: throttled
+                log.info(line, throttle_duration_sec=self.p["warn_throttle_s"])
+            elif pend is not None:
+                log.info(line)
+        elif kind == "finished":
+            self._finished(*event[1:5])
+        elif kind == "log" and event[1] == "error":
+            log.error(event[2])
+        elif kind == "log" and event[1] == "warning":
+            log.warning(event[2])
+        elif kind == "log":
+            log.info(event[2])
+        elif kind == "exited":
+            if self.ok():
+                log.error(f"the control loop process exited ({event[1]}): no more commands")
+            with self._lock:
+                pending, self._pending = list(self._pending.values()), {}
+            for pend in pending:
+                pend.code, pend.message = C.ABORTED, "the control loop process exited"
+                pend.finished.set()
+
+    def _finished(self, mid: int, code: int, message: str, summary: dict) -> None:
+        with self._lock:
+            pend = self._pending.pop(mid, None)
+        if pend is None:
+            return
+        pend.code, pend.message, pend.summary = code, message, summary
+        self.last_result = pend
+        c = self.counters
+        c.last_result = f"{pend.label}: {RESULT_NAMES.get(code, code)}"
+        c.successes += int(code == C.SUCCESS)
+        if code == C.INVALID_GOAL and message.startswith("infeasible"):
+            c.dual_arm_infeasible += 1
+            c.last_infeasible = f"{pend.label}: {message}"
+        line = (f"{pend.label}: {RESULT_NAMES.get(code, code)} at progress {summary.pop('progress', 0.0):.2f}: "
+                f"{message} [{summary['duration_s']:.2f} s, "
+                f"{summary['steps']} steps, {summary['overruns']} overruns, max COG error "
+                f"{summary['max_com_error_m'] * 1e3:.2f} mm, min distance {summary['min_distance_m']:.4f} m, "
+                f"final hand error {summary['final_hand_error_m'] * 1e3:.2f} mm]")
+        if code in (C.SUCCESS, C.PREEMPTED, C.CANCELED):
+            self.log.info(line)
+        else:
+            self.log.warning(line)
+        pend.finished.set()
+
+    def follow(self, goal_handle, motion: Motion, feedback) -> Pending:
+        """Submit ``motion`` and wait for its end, sending ``feedback(status)`` while it runs and
+        the stop to the loop when the client cancels."""
+        pend = self.submit(motion)
+        cancel_sent = False
+        while not pend.finished.wait(self.p["feedback_period_s"]):
+            if not self.ok():
+                break
+            if goal_handle.is_cancel_requested and not cancel_sent:
+                cancel_sent = True
+                self.send(("stop", motion.id, int(C.CANCELED), "canceled by the client"))
+            st = self.status
+            if st.get("motion_id") == motion.id and st.get("last") is not None and goal_handle.is_active:
+                feedback(st)
+        if pend.code is None:
+            pend.code, pend.message = C.ABORTED, "the reach_executor node is shutting down"
+        return pend
+
+
+def close_goal(goal_handle, code: int) -> None:
+    if code == C.SUCCESS:
+        goal_handle.succeed()
+    elif code == C.CANCELED and goal_handle.is_cancel_requested:
+        goal_handle.canceled()
+    else:
+        goal_handle.abort()
+
+
+def reject(node, counter: str, label: str, exc: Exception) -> None:
+    """Count and log a refused input (goals at WARN, topics throttled, internal errors at ERROR)."""
+    code = exc.code if isinstance(exc, RequestError) else C.ABORTED
+    what = RESULT_NAMES.get(code, code) if isinstance(exc, RequestError) else "internal error"
+    c = node.counters
+    setattr(c, counter, getattr(c, counter) + 1)
+    c.last_rejection = f"{label}: {what}: {exc}"
+    log = node.get_logger()
+    if isinstance(exc, RequestError) and counter == "goals_rejected":
+        log.warning(f"{label} rejected ({what}): {exc}")
+    elif isinstance(exc, RequestError):   # topics: throttled (a flood must not flood the log)
+        log.warning(f"rejected {label} ({what}): {exc}", throttle_duration_sec=node.p["warn_throttle_s"])
+    else:
+        log.error(f"{label}: internal error: {exc}\n{traceback.format_exc()}")
+
+
+def execute_goal(node, goal_handle) -> ExecuteReach.Result:
+    """``/execute_reach``: a trajectory (``MODE_TRAJECTORY``) or dual-arm targets, followed to its end."""
+    node.counters.goals = max(node.counters.goals, n := next(node.goal_ids))
+    label, req = f"goal #{n}", goal_handle.request
+    try:
+        joints = node.current_joints()
+        if req.mode == ExecuteReach.Goal.MODE_DUAL_ARM:
+            try:
+                targets = exec_msgs.goal_hand_targets(req.right_hand_target, req.left_hand_target)
+                motion = node.requests.dual(next(node.motion_ids), label, targets, *joints)
+            except RequestError as exc:
+                raise RequestError(exc.code, f"MODE_DUAL_ARM goal: {exc}") from None
+            node.counters.dual_arm_goals += 1
+        elif req.mode != ExecuteReach.Goal.MODE_TRAJECTORY:
+            raise RequestError(C.INVALID_GOAL, f"mode {req.mode} is unknown; use 0 (TRAJECTORY) or 1 (DUAL_ARM)")
+        else:
+            ref = exec_msgs.reference_from_trajectory(req.trajectory, node.robot)
+            motion = node.requests.trajectory(next(node.motion_ids), label, ref, req.trajectory.header.frame_id,
+                                              req.arm, req.disable_collision_avoidance, req.disable_com_compensation,
+                                              req.smooth_reshaping, *joints, log=node.get_logger().info)
+    except Exception as exc:  # never die on a goal
+        reject(node, "goals_rejected", label, exc)
+        goal_handle.abort()
+        code = exc.code if isinstance(exc, RequestError) else C.ABORTED
+        return exec_msgs.result_message(code, str(exc) if isinstance(exc, RequestError)
+                                        else f"internal error: {type(exc).__name__}: {exc}")
+    if goal_handle.is_cancel_requested:  # while it was being validated / reshaped
+        node.get_logger().info(f"{label}: CANCELED before execution started")
+        goal_handle.canceled()
+        return exec_msgs.result_message(C.CANCELED, "canceled before execution started")
+    node.get_logger().info(f"{label}: accepted: {node.requests.describe(motion)}")
+    pend = node.tracker.follow(goal_handle, motion, lambda st: goal_handle.publish_feedback(
+        exec_msgs.execute_feedback(st["last"])))
+    result = exec_msgs.result_message(pend.code, pend.message, pend.summary)
+    close_goal(goal_handle, pend.code)
+    return result
+
+
+def look_goal(node, goal_handle) -> Look.Result:
+    """``/look``: one whole-body motion per head pose, each followed by ``dwell_s`` of holding
+    (the loop holds after a motion); feedback names the pose."""
+    node.counters.goals = max(node.counters.goals, n := next(node.goal_ids))
+    label, req, t0 = f"look #{n}", goal_handle.request, time.monotonic()
+    result = Look.Result(error_code=int(C.SUCCESS))
+    try:
+        poses = node.requests.head_poses(list(req.yaw_rad), list(req.pitch_rad))
+        dwell = float(req.dwell_s) if math.isfinite(req.dwell_s) and req.dwell_s > 0 else node.p["scan_dwell_s"]
+        if dwell > 60.0:
+            raise RequestError(C.INVALID_GOAL, f"dwell_s {dwell:g} s is longer than 60 s")
+    except RequestError as exc:
+        reject(node, "goals_rejected", label, exc)
+        goal_handle.abort()
+        return Look.Result(error_code=exc.code, message=str(exc))
+    log = node.get_logger()
+    log.info(f"{label}: accepted: {len(poses)} head poses, {dwell:g} s each")
+    fb = Look.Feedback(pose_count=len(poses))
+    for k, (yaw, pitch) in enumerate(poses):
+        fb.pose_index, fb.yaw_rad, fb.pitch_rad, fb.holding = k, float(yaw), float(pitch), False
+        goal_handle.publish_feedback(fb)
+        try:
+            motion = node.requests.look(next(node.motion_ids), f"{label} pose {k}", (yaw, pitch),
+                                        *node.current_joints())
+        except RequestError as exc:
+            result.error_code, result.message = exc.code, f"pose {k}: {exc}"
+            break
+        pend = node.tracker.follow(goal_handle, motion, lambda st: None)
+        result.max_com_error_m = max(result.max_com_error_m, float(pend.summary.get("max_com_error_m", 0.0)))
+        if pend.code != C.SUCCESS:
+            result.error_code, result.message = pend.code, f"pose {k}: {pend.message}"
+            break
+        fb.holding = True
+        goal_handle.publish_feedback(fb)
+        end = time.monotonic() + dwell
+        while time.monotonic() < end and not goal_handle.is_cancel_requested and node.context.ok():
+            time.sleep(min(0.05, max(0.0, end - time.monotonic())))
+        if goal_handle.is_cancel_requested:
+            result.error_code, result.message = int(C.CANCELED), f"canceled at pose {k} (holding there)"
+            break
+        result.poses_done = k + 1
+    result.success = result.error_code == C.SUCCESS
+    result.duration_s = time.monotonic() - t0
+    if result.success:
+        result.message = f"{len(poses)} head poses reached and held {dwell:g} s each"
+    line = (f"{label}: {RESULT_NAMES.get(result.error_code, result.error_code)}: {result.message} "
+            f"[{result.duration_s:.1f} s, max COG error {result.max_com_error_m * 1e3:.2f} mm]")
+    if result.error_code in (C.SUCCESS, C.CANCELED):   # one severity per call site (rclpy's rule)
+        log.info(line)
+    else:
+        log.warning(line)
+    close_goal(goal_handle, result.error_code)
+    return result
+
+
+__all__ = ["Pending", "MotionTracker", "RESULT_NAMES", "close_goal", "reject", "execute_goal", "look_goal"]
