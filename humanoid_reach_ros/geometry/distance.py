@@ -63,6 +63,15 @@ def quaternion_rotation(x: float, y: float, z: float, w: float, out: np.ndarray)
 _AXES = {"JointModelRX": 0, "JointModelRY": 1, "JointModelRZ": 2}
 
 
+def _z_to(axis: np.ndarray) -> np.ndarray:
+    """A rotation B with B e_z = ``axis`` (unit)."""
+    a = axis / np.linalg.norm(axis)
+    e = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(e, a)
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(a, x), a])
+
+
 # =================================================================== kernels
 @nb.njit(**_JIT)
 def _fk_shapes_kernel(Q, jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l, P0, P1):
@@ -288,11 +297,16 @@ class RobotCollision:
         jR = np.empty((J, 3, 3))
         jt = np.empty((J, 3))
         jq = np.empty(J, np.int64)
+        tilt = {}   # joint index k -> B with B e_z = its axis (a revolute joint about any fixed axis)
         for k in range(J):
             j = k + 2
             short = m.joints[j].shortname()
+            if short == "JointModelRevoluteUnaligned":
+                tilt[k] = _z_to(np.asarray(m.joints[j].extract().axis, float))
+                short = "JointModelRZ"
             if short not in _AXES:
-                raise ValueError(f"RobotCollision: joint {m.names[j]!r} is {short}, expected a revolute x/y/z joint")
+                raise ValueError(f"RobotCollision: joint {m.names[j]!r} is {short}, expected a revolute joint about "
+                                 "a fixed axis")
             par = m.parents[j]
             if par < 1 or par >= j:
                 raise ValueError(f"RobotCollision: joint {m.names[j]!r} has parent {par}; expected the base or an "
@@ -313,6 +327,14 @@ class RobotCollision:
             lj[k] = fr.parentJoint - 2
             lR[k] = fr.placement.rotation
             lt[k] = fr.placement.translation
+        # a joint about any axis a is R(a, q) = B Rz(q) B^T: its frame is turned by B (placement
+        # M B), and what hangs from it (child joints, shape links) by B^T -- the kernels stay z-only
+        for k, B in tilt.items():
+            jR[k] = jR[k] @ B
+            for c in np.flatnonzero(jparent == k):
+                jR[c], jt[c] = B.T @ jR[c], B.T @ jt[c]
+            for c in np.flatnonzero(lj == k):
+                lR[c], lt[c] = B.T @ lR[c], B.T @ lt[c]
         self._fk_args = (jparent, jaxis, jR, jt, jq, lj, lR, lt,
                          np.ascontiguousarray(collision_model.shape_link, dtype=np.int64),
                          np.ascontiguousarray(collision_model.p0_local), np.ascontiguousarray(collision_model.p1_local))

@@ -98,7 +98,6 @@ on-disk cache by :func:`warm_up` (called from ``humanoid_reach_ros.warmup`` thro
 """
 from __future__ import annotations
 
-import enum
 import math
 from dataclasses import dataclass, field
 from typing import Iterator, Mapping
@@ -107,6 +106,8 @@ import numba as nb
 import numpy as np
 import pinocchio as pin
 
+from humanoid_reach_ros.robot.general_ik import GeneralLimb
+from humanoid_reach_ros.robot.ik_types import IKReason, IKResult
 from humanoid_reach_ros.robot.model import RobotModel
 
 TWO_PI = 2.0 * np.pi
@@ -140,45 +141,8 @@ _AXIS_OF_JOINT = {"JointModelRX": "x", "JointModelRY": "y", "JointModelRZ": "z"}
 _KINDS = {"zxyyyx": "leg", "yxzyzy": "arm"}
 
 
-class IKReason(enum.IntEnum):
-    """Per-pose outcome of :meth:`LimbIK.solve`."""
-
-    OK = 0
-    UNREACHABLE = 1      # no real solution: beyond reach or impossible orientation
-    JOINT_LIMITS = 2     # real solutions exist, none within the joint limits
-    INVALID_INPUT = 3    # non-finite input or a rotation that is not a rotation
-
-
 class LimbStructureError(ValueError):
     """The pinocchio model does not have the structure the closed form assumes."""
-
-
-@dataclass(frozen=True, eq=False)
-class IKResult:
-    """Batched IK outcome.
-
-    ``q``: (N, 6) joint angles in limb order (``LimbSpec.joints``), NaN where failed;
-    ``ok``: (N,) bool; ``reason``: (N,) int8 :class:`IKReason` codes;
-    ``branch``: (N,) index of the chosen closed-form branch (-1 where failed):
-    ``4 * knee_or_elbow + 2 * ankle_roll_or_wrist_pitch + hip_or_shoulder_euler``
-    (0 = first/``+`` branch of each).
-    """
-
-    q: np.ndarray
-    ok: np.ndarray
-    reason: np.ndarray
-    branch: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.ok.shape[0])
-
-    @property
-    def n_failed(self) -> int:
-        return int(np.count_nonzero(~self.ok))
-
-    def failure_counts(self) -> dict[str, int]:
-        """Number of poses per failure reason, e.g. ``{"UNREACHABLE": 3, ...}``."""
-        return {r.name: int(np.count_nonzero(self.reason == r)) for r in IKReason if r != IKReason.OK}
 
 
 # ----------------------------------------------------------------- helpers
@@ -1031,16 +995,32 @@ def warm_up() -> None:
                    np.full(6, -3.0), np.full(6, 3.0), *out)
 
 
+def _limb_solver(model: RobotModel, name: str, compiled: bool):
+    """The limb's closed form: :class:`LimbIK` (the two hand-derived patterns, legs compiled)
+    where the chain has them, else the general closed form of ``robot/general_ik.py`` (any
+    axis directions and offsets with three intersecting axes at one end and two at the
+    other; numpy). ValueError naming both reasons when neither applies."""
+    try:
+        return LimbIK(model, name, compiled)
+    except LimbStructureError as specific:
+        try:
+            return GeneralLimb(model, name)
+        except ValueError as general:
+            raise LimbStructureError(f"{specific}; and the general closed form: {general}") from None
+
+
 @dataclass(frozen=True, eq=False)
 class LimbIKSet:
-    """The closed-form IK of every limb of ``model`` (``model.limbs``), by name."""
+    """The closed-form IK of every limb of ``model`` (``model.limbs``), by name: one protocol
+    (``solve`` / ``fk`` / ``maybe_reachable`` and the reach geometry ``t0``, ``l1``, ``l2``,
+    ``te``, ``Re``) whichever solver a limb gets (:func:`_limb_solver`)."""
 
     model: RobotModel
     compiled: bool = True
     limbs: Mapping[str, LimbIK] = field(init=False)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "limbs", {n: LimbIK(self.model, n, self.compiled) for n in self.model.limbs})
+        object.__setattr__(self, "limbs", {n: _limb_solver(self.model, n, self.compiled) for n in self.model.limbs})
 
     def __getitem__(self, limb: str) -> LimbIK:
         return self.limbs[limb]

@@ -1,0 +1,338 @@
+"""Closed-form IK of a 6R chain from its geometry alone, whatever the axis directions and
+link offsets, batched in numpy: the general counterpart of ``robot/limb_ik.py``'s two
+hand-derived patterns (issue 13 part 2).
+
+Solvable class (Pieper): three consecutive intersecting axes at one end of the chain (a
+spherical wrist, or a hip) and two intersecting axes at the other (a shoulder with two
+axes, or an ankle). Every humanoid limb we know is of this class (HRP-2's arms and legs,
+Talos's legs, Talos's 7-DOF arms once one shoulder joint is fixed). A chain with the three
+intersecting axes at its root is solved reversed (its inverse is a chain of the same form).
+Other 6R chains (Pieper's general case needs a quartic) are refused with a ValueError.
+
+Chain form (products of placements and rotations, the URDF's)::
+
+    T(q) = M1 R(a1, q1) M2 R(a2, q2) ... M6 R(a6, q6) Me
+
+with placements ``Mk = (Rk, tk)`` at q = 0 and unit axes ``ak`` in the joint frames. With
+joints 1-2 intersecting (t2 = 0) and 4-5-6 intersecting (t5 = t6 = 0), the wrist centre
+``w`` is the origin of joint 4's frame, and with ``c`` the centre of joints 1-2:
+
+* elbow (Paden-Kahan subproblem 3): ``|w - c| = |t3 + R3 R(a3, q3) t4|`` depends on q3 alone:
+  ``K0 + K1 cos q3 + K2 sin q3 = |w - c|^2``, two branches;
+* shoulder (subproblem 2): ``R(a1, q1) R(R2 a2, q2) R2 v = R_c^T (w - c)``, two branches;
+* wrist (subproblem 2 on the last axis, then subproblem 1):
+  ``R(a4, q4) R(w5, q5) R(w6, q6) = rot(F4)^T R_tip Re^T (R5 R6)^T`` with ``w5 = R5 a5``,
+  ``w6 = R5 R6 a6``, two branches.
+
+That is 2 x 2 x 2 = 8 candidates per pose. Each angle is wrapped into ``[lower, lower + 2 pi)``;
+a candidate is kept when it is within the joint limits and its forward kinematics reaches
+the pose (``FK_TOL``: this check also settles singular configurations, where an angle the
+pose leaves free is taken from ``q_ref``); the kept candidate nearest ``q_ref`` is returned.
+
+No ROS here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from humanoid_reach_ros.robot.ik_types import IKReason, IKResult
+
+TWO_PI = 2.0 * np.pi
+ZERO_TOL = 1e-12     # a placement translation below this [m] is zero (axes intersect)
+FK_TOL = 1e-8        # a candidate must reach the pose to this [m / rad]
+LIMIT_TOL = 1e-10
+_AXES = {"RX": (1.0, 0.0, 0.0), "RY": (0.0, 1.0, 0.0), "RZ": (0.0, 0.0, 1.0)}
+
+
+def rotations(axis: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (N, 3, 3) about unit ``axis`` (3,) or (N, 3) by angles ``q`` (N,)."""
+    a = np.broadcast_to(np.asarray(axis, float), (len(q), 3))
+    c, s = np.cos(q), np.sin(q)
+    x, y, z = a[:, 0], a[:, 1], a[:, 2]
+    C = 1.0 - c
+    R = np.empty((len(q), 3, 3))
+    R[:, 0, 0] = c + x * x * C
+    R[:, 0, 1] = x * y * C - z * s
+    R[:, 0, 2] = x * z * C + y * s
+    R[:, 1, 0] = y * x * C + z * s
+    R[:, 1, 1] = c + y * y * C
+    R[:, 1, 2] = y * z * C - x * s
+    R[:, 2, 0] = z * x * C - y * s
+    R[:, 2, 1] = z * y * C + x * s
+    R[:, 2, 2] = c + z * z * C
+    return R
+
+
+@dataclass(frozen=True, eq=False)
+class Chain6:
+    """A 6R chain (module doc): ``R`` (6, 3, 3) / ``t`` (6, 3) the placements M1..M6,
+    ``axes`` (6, 3), ``Re`` / ``te`` the tip placement, ``lower`` / ``upper`` (6,)."""
+
+    R: np.ndarray
+    t: np.ndarray
+    axes: np.ndarray
+    Re: np.ndarray
+    te: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+
+    @classmethod
+    def from_model(cls, robot, root: str, joints, tip: str) -> "Chain6":
+        """The chain of ``joints`` (6 names, root to tip) between frame ``root`` and frame
+        ``tip`` of a :class:`~humanoid_reach_ros.robot.model.RobotModel`. ValueError if a
+        joint is not revolute about a fixed axis or the joints are not one serial chain."""
+        m = robot.model
+        ids = [m.getJointId(j) for j in joints]
+        if len(ids) != 6 or any(i >= m.njoints for i in ids):
+            raise ValueError(f"need 6 joints of the model, got {list(joints)}")
+        for prev, j in zip(ids, ids[1:]):
+            if m.parents[j] != prev:
+                raise ValueError(f"{m.names[j]} does not follow {m.names[prev]} directly: not a serial 6R chain")
+        axes = []
+        for j in ids:
+            kind = m.joints[j].shortname().replace("JointModel", "")
+            if kind in _AXES:
+                axes.append(_AXES[kind])
+            elif kind == "RevoluteUnaligned":
+                axes.append(np.asarray(m.joints[j].extract().axis, float))
+            else:
+                raise ValueError(f"{m.names[j]} is a {kind} joint: only revolute joints about a fixed axis")
+        data = m.createData()
+        q0 = pin.neutral(m)
+        pin.forwardKinematics(m, data, q0)
+        pin.updateFramePlacements(m, data)
+        root_pose = data.oMf[m.getFrameId(root)]
+        if m.frames[m.getFrameId(root)].parentJoint != m.parents[ids[0]]:
+            raise ValueError(f"frame {root} is not on the link joint {m.names[ids[0]]} hangs from")
+        tip_frame = m.frames[m.getFrameId(tip)]
+        if tip_frame.parentJoint != ids[-1]:
+            raise ValueError(f"frame {tip} does not hang from {m.names[ids[-1]]}")
+        M = [root_pose.inverse() * data.oMi[ids[0]]] + [m.jointPlacements[j] for j in ids[1:]]
+        idx = [robot.joint_index[j] for j in joints]
+        return cls(np.array([p.rotation for p in M]), np.array([p.translation for p in M]), np.array(axes, float),
+                   np.array(tip_frame.placement.rotation), np.array(tip_frame.placement.translation),
+                   np.array(robot.lower[idx]), np.array(robot.upper[idx]))
+
+    # ------------------------------------------------------------ structure
+    def wrist_at_tip(self) -> bool:
+        """Joints 1-2 and 4-5-6 intersect (the form solved directly)."""
+        return bool(np.linalg.norm(self.t[1]) < ZERO_TOL and np.linalg.norm(self.t[4]) < ZERO_TOL
+                    and np.linalg.norm(self.t[5]) < ZERO_TOL)
+
+    def reversed(self) -> "Chain6":
+        """The chain of T(q)^-1 in the joints ``-q[::-1]`` (module doc)."""
+        inv = [(R.T, -R.T @ t) for R, t in [(self.Re, self.te)] + [(self.R[k], self.t[k]) for k in range(5, 0, -1)]]
+        last = (self.R[0].T, -self.R[0].T @ self.t[0])
+        return Chain6(np.array([R for R, _ in inv]), np.array([t for _, t in inv]), self.axes[::-1].copy(),
+                      last[0], last[1], -self.upper[::-1], -self.lower[::-1])
+
+    # ------------------------------------------------------------ kinematics
+    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tip poses (N, 3), (N, 3, 3) relative to the root for joints ``q`` (N, 6)."""
+        q = np.atleast_2d(q)
+        n = len(q)
+        p, R = np.zeros((n, 3)), np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+        for k in range(6):
+            p = p + R @ self.t[k]
+            R = R @ self.R[k] @ rotations(self.axes[k], q[:, k])
+        return p + R @ self.te, R @ self.Re
+
+
+@dataclass(frozen=True)
+class GeneralIKResult:
+    q: np.ndarray       # (N, 6), NaN where not ok
+    ok: np.ndarray      # (N,)
+
+
+class GeneralLimbIK:
+    """Closed-form IK of a :class:`Chain6` of the solvable class (module doc); ValueError
+    for another chain. ``q_default`` (6,): the preferred solution when no ``q_ref`` is given."""
+
+    def __init__(self, chain: Chain6, q_default: np.ndarray) -> None:
+        self.chain = chain
+        if chain.wrist_at_tip():
+            self._solver, self.reversed = chain, False
+        elif chain.reversed().wrist_at_tip():
+            self._solver, self.reversed = chain.reversed(), True
+        else:
+            raise ValueError("not solvable in closed form: needs three consecutive intersecting axes at one end of "
+                             "the chain and two at the other (placement offsets "
+                             f"{np.round(np.linalg.norm(chain.t, axis=1), 4).tolist()} m)")
+        self.q_default = np.asarray(q_default, float)
+
+    def solve(self, target_p: np.ndarray, target_R: np.ndarray, q_ref: np.ndarray | None = None) -> GeneralIKResult:
+        """Joints for tip poses relative to the chain's root: ``target_p`` (N, 3), ``target_R`` (N, 3, 3)."""
+        P = np.atleast_2d(np.asarray(target_p, float))
+        Rt = np.asarray(target_R, float).reshape(-1, 3, 3)
+        n = len(P)
+        ref = np.broadcast_to(self.q_default if q_ref is None else np.asarray(q_ref, float), (n, 6))
+        if self.reversed:   # the reversed chain reaches T^-1 in the joints -q[::-1]
+            Rs = np.transpose(Rt, (0, 2, 1))
+            cand = _candidates(self._solver, -np.einsum("nij,nj->ni", Rs, P), Rs, -ref[:, ::-1])
+            cand = -cand[:, :, ::-1]
+        else:
+            cand = _candidates(self._solver, P, Rt, ref)
+        return self._select(cand, P, Rt, ref)
+
+    def _select(self, cand, P, Rt, ref) -> GeneralIKResult:
+        c = self.chain
+        n = len(P)
+        lo = c.lower
+        wrapped = lo + np.mod(cand - lo, TWO_PI)
+        inside = np.all((wrapped >= lo - LIMIT_TOL) & (wrapped <= c.upper + LIMIT_TOL), axis=2) & np.all(
+            np.isfinite(cand), axis=2)
+        flat = np.nan_to_num(np.clip(wrapped, lo, c.upper)).reshape(-1, 6)
+        p, R = c.fk(flat)
+        err_p = np.linalg.norm(p.reshape(n, -1, 3) - P[:, None], axis=2)
+        err_R = np.linalg.norm((R.reshape(n, -1, 3, 3) - Rt[:, None]).reshape(n, -1, 9), axis=2)
+        good = inside & (err_p < FK_TOL) & (err_R < FK_TOL)
+        dist = np.where(good, np.linalg.norm(wrapped - ref[:, None], axis=2), np.inf)
+        best = np.argmin(dist, axis=1)
+        ok = np.isfinite(dist[np.arange(n), best])
+        q = np.where(ok[:, None], np.clip(wrapped[np.arange(n), best], lo, c.upper), np.nan)
+        return GeneralIKResult(q, ok)
+
+
+def _sp1(w: np.ndarray, a: np.ndarray, b: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """Angle rotating ``a`` onto ``b`` about unit ``w`` (rows); ``fallback`` where ``a`` lies on the axis."""
+    ap = a - np.einsum("ni,ni->n", w, a)[:, None] * w
+    bp = b - np.einsum("ni,ni->n", w, b)[:, None] * w
+    th = np.arctan2(np.einsum("ni,ni->n", w, np.cross(ap, bp)), np.einsum("ni,ni->n", ap, bp))
+    return np.where(np.linalg.norm(ap, axis=1) < 1e-12, fallback, th)
+
+
+def _sp2(w1: np.ndarray, w2: np.ndarray, p: np.ndarray, q: np.ndarray, ref1, ref2):
+    """R(w1, t1) R(w2, t2) p = q for intersecting unit axes w1, w2 (3,): two (t1, t2) pairs,
+    NaN where none exists."""
+    n = len(p)
+    w1n, w2n = np.broadcast_to(w1, (n, 3)), np.broadcast_to(w2, (n, 3))
+    c12 = float(w1 @ w2)
+    cr = np.cross(w1, w2)
+    den = c12 * c12 - 1.0
+    alpha = (c12 * (p @ w2) - q @ w1) / den
+    beta = (c12 * (q @ w1) - p @ w2) / den
+    g2 = (np.einsum("ni,ni->n", p, p) - alpha ** 2 - beta ** 2 - 2 * alpha * beta * c12) / float(cr @ cr)
+    g2 = np.where((g2 < 0) & (g2 > -1e-10), 0.0, g2)
+    out = []
+    for sign in (1.0, -1.0):
+        g = sign * np.sqrt(np.where(g2 >= 0, g2, np.nan))
+        z = alpha[:, None] * w1 + beta[:, None] * w2 + g[:, None] * cr
+        t2 = _sp1(w2n, p, z, ref2)
+        t1 = _sp1(w1n, z, q, ref1)
+        out.append((t1, t2))
+    return out
+
+
+def _candidates(c: Chain6, P: np.ndarray, Rt: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """(N, 8, 6) candidate joints of a wrist-at-tip chain for tip poses (P, Rt) relative to its root."""
+    n = len(P)
+    out = np.full((n, 8, 6), np.nan)
+    w = P - Rt @ (c.Re.T @ c.te)                    # wrist centre: the origin of joint 4's frame
+    cen = c.t[0]                                    # centre of joints 1-2
+    Rc = c.R[0]
+    u = (w - cen) @ Rc                              # R_c^T (w - c)
+    d2 = np.einsum("ni,ni->n", u, u)
+    # elbow: |t3 + R3 R(a3, q3) t4|^2 = K0 + K1 cos + K2 sin
+    a3, t3, R3, t4 = c.axes[2], c.t[2], c.R[2], c.t[3]
+    upar = (a3 @ t4) * a3
+    uperp = t4 - upar
+    t3p = R3.T @ t3
+    K0 = t3 @ t3 + t4 @ t4 + 2 * (t3p @ upar)
+    K1, K2 = 2 * (t3p @ uperp), 2 * (t3p @ np.cross(a3, uperp))
+    rho, phi = np.hypot(K1, K2), np.arctan2(K2, K1)
+    cosx = (d2 - K0) / rho if rho > 1e-12 else np.full(n, np.nan)
+    cosx = np.where(np.abs(cosx) <= 1 + 1e-10, np.clip(cosx, -1, 1), np.nan)
+    k = 0
+    for s3 in (1.0, -1.0):
+        q3 = phi + s3 * np.arccos(cosx)
+        v = t3 + (R3 @ rotations(a3, np.nan_to_num(q3)) @ t4)                 # (n, 3) in joint-2's rotated frame
+        w2 = c.R[1] @ c.axes[1]
+        for q1, q2 in _sp2(c.axes[0], w2, v @ c.R[1].T, u, ref[:, 0], ref[:, 1]):
+            R1 = rotations(c.axes[0], np.nan_to_num(q1))
+            R2 = rotations(c.axes[1], np.nan_to_num(q2))
+            F4 = Rc @ R1 @ c.R[1] @ R2 @ R3 @ rotations(a3, np.nan_to_num(q3)) @ c.R[3]
+            W = np.transpose(F4, (0, 2, 1)) @ Rt @ c.Re.T @ (c.R[4] @ c.R[5]).T
+            w4, w5, w6 = c.axes[3], c.R[4] @ c.axes[4], c.R[4] @ c.R[5] @ c.axes[5]
+            for q4, q5 in _sp2(w4, w5, np.broadcast_to(w6, (n, 3)), W @ w6, ref[:, 3], ref[:, 4]):
+                X = np.transpose(rotations(w4, np.nan_to_num(q4)) @ rotations(w5, np.nan_to_num(q5)), (0, 2, 1)) @ W
+                e = np.cross(w6, [1.0, 0.0, 0.0] if abs(w6[0]) < 0.9 else [0.0, 1.0, 0.0])
+                e = np.broadcast_to(e / np.linalg.norm(e), (n, 3))
+                q6 = _sp1(np.broadcast_to(w6, (n, 3)), e, X @ e[0], ref[:, 5])
+                out[:, k] = np.stack([q1, q2, q3, q4, q5, q6], axis=1)
+                k += 1
+    return out
+
+
+
+
+class GeneralLimb:
+    """:class:`GeneralLimbIK` behind the interface of ``limb_ik.LimbIK`` (one protocol for
+    every limb): ``solve`` / ``fk`` / ``maybe_reachable`` on world root and tip poses, and
+    the reach geometry the planner's bounds use -- ``t0`` (the root-end axes' centre in
+    the root link), ``te`` / ``Re`` (the tip in the frame whose origin is the tip-end
+    centre), ``l1 + l2`` the longest and ``|l1 - l2|`` the shortest centre distance."""
+
+    kind = "general"
+    compiled = False
+
+    def __init__(self, robot, limb_name: str) -> None:
+        spec = robot.limbs[limb_name]
+        self.limb_name, self.joint_names = limb_name, tuple(spec.joints)
+        self.chain = Chain6.from_model(robot, spec.root, spec.joints, spec.tip)
+        q_hs = np.asarray(robot.half_sitting_joints)[list(spec.joint_index)]
+        self.lower, self.upper = self.chain.lower, self.chain.upper
+        self.q_default = np.clip(q_hs, self.lower, self.upper)
+        self.ik = GeneralLimbIK(self.chain, self.q_default)
+        c = self.chain
+        solver = self.ik._solver
+        # centres of the two ends and the distance range between them (elbow / knee swing)
+        a3, t3, R3, t4 = solver.axes[2], solver.t[2], solver.R[2], solver.t[3]
+        upar = (a3 @ t4) * a3
+        uperp = t4 - upar
+        t3p = R3.T @ t3
+        K0 = t3 @ t3 + t4 @ t4 + 2 * (t3p @ upar)
+        rho = np.hypot(2 * (t3p @ uperp), 2 * (t3p @ np.cross(a3, uperp)))
+        d_max, d_min = np.sqrt(K0 + rho), np.sqrt(max(K0 - rho, 0.0))
+        self.l1, self.l2 = float((d_max + d_min) / 2), float((d_max - d_min) / 2)
+        # the root-end centre is joint 1's origin and the tip-end centre joint 6's (their
+        # translations t2 (, t3) and t6 (, t5) are zero), whichever end has three axes
+        self.t0 = c.t[0].copy()
+        self.te, self.Re = c.te.copy(), c.Re.copy()
+
+    def fk(self, root_p, root_R, q):
+        root_p = np.atleast_2d(np.asarray(root_p, float))
+        root_R = np.asarray(root_R, float).reshape(-1, 3, 3)
+        p, R = self.chain.fk(np.atleast_2d(q))
+        return root_p + np.einsum("nij,nj->ni", np.broadcast_to(root_R, (len(p), 3, 3)), p), root_R @ R
+
+    def _relative(self, root_p, root_R, tip_p, tip_R):
+        root_p = np.atleast_2d(np.asarray(root_p, float))
+        root_R = np.asarray(root_R, float).reshape(-1, 3, 3)
+        tip_p = np.atleast_2d(np.asarray(tip_p, float))
+        tip_R = np.asarray(tip_R, float).reshape(-1, 3, 3)
+        n = max(len(root_p), len(root_R), len(tip_p), len(tip_R))
+        rR = np.broadcast_to(root_R, (n, 3, 3))
+        P = np.einsum("nji,nj->ni", rR, np.broadcast_to(tip_p, (n, 3)) - np.broadcast_to(root_p, (n, 3)))
+        return P, np.transpose(rR, (0, 2, 1)) @ np.broadcast_to(tip_R, (n, 3, 3))
+
+    def solve(self, root_p, root_R, tip_p, tip_R, q_ref=None):
+        P, R = self._relative(root_p, root_R, tip_p, tip_R)
+        finite = np.isfinite(P).all(axis=1) & np.isfinite(R).all(axis=(1, 2))
+        res = self.ik.solve(np.nan_to_num(P), np.where(finite[:, None, None], R, np.eye(3)), q_ref)
+        ok = res.ok & finite
+        reason = np.where(ok, IKReason.OK, np.where(finite, IKReason.UNREACHABLE, IKReason.INVALID_INPUT))
+        return IKResult(np.where(ok[:, None], res.q, np.nan), ok, reason.astype(np.int8),
+                        np.where(ok, 0, -1).astype(np.int8))
+
+    def maybe_reachable(self, root_p, root_R, tip_p, tip_R) -> np.ndarray:
+        """Conservative: False only where the centre distance is outside [|l1 - l2|, l1 + l2]."""
+        P, R = self._relative(root_p, root_R, tip_p, tip_R)
+        d = np.linalg.norm(P - R @ (self.Re.T @ self.te) - self.t0, axis=1)
+        with np.errstate(invalid="ignore"):
+            return (d <= self.l1 + self.l2 + 1e-9) & (d >= abs(self.l1 - self.l2) - 1e-9)
+
+
+__all__ = ["Chain6", "GeneralLimbIK", "GeneralIKResult", "GeneralLimb", "rotations"]
