@@ -138,3 +138,33 @@ def test_a_limb_off_the_hand_derived_patterns_gets_the_general_closed_form(tmp_p
             pose = robot.frame_pose(q_full, cm.links[link])
             np.testing.assert_allclose(P0[s], pose.act(cm.p0_local[s]), atol=1e-9)
             np.testing.assert_allclose(P1[s], pose.act(cm.p1_local[s]), atol=1e-9)
+
+
+def test_seven_dof_arm_closed_form_on_a_subchain_with_the_first_joint_sampled():
+    """A random 7R arm of Talos's form (shoulder joints 2-3 intersecting, spherical wrist
+    5-6-7, offsets elsewhere): poses of random joints are reached; with the drawn joints as
+    reference the drawn solution comes back."""
+    from humanoid_reach_ros.robot.general_ik import Chain7, RedundantLimbIK
+
+    rng = np.random.default_rng(11)
+    R = Rotation.random(7, random_state=5).as_matrix()
+    t = rng.uniform(-0.25, 0.25, size=(7, 3))
+    t[2] = t[5] = t[6] = 0.0
+    axes = rng.normal(size=(7, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    lim = np.full(7, np.pi)
+    chain = Chain7(R, t, axes, np.eye(3), np.array([0.0, 0.0, 0.1]), -lim, lim)
+    ik = RedundantLimbIK(chain, np.zeros(7), samples=64)   # random axes: narrow self-motion ranges
+    q = rng.uniform(-np.pi, np.pi, size=(300, 7))
+    p, Rt = chain.fk(q)
+    res = ik.solve(p, Rt)
+    assert res.ok.mean() > 0.9
+    p2, R2 = chain.fk(res.q[res.ok])
+    assert np.abs(p2 - p[res.ok]).max() < 1e-8 and np.abs(R2 - Rt[res.ok]).max() < 1e-8
+    exact = ik.solve(p, Rt, q_ref=q)
+    assert exact.ok.all()
+    np.testing.assert_allclose(np.angle(np.exp(1j * (exact.q - q))), 0.0, atol=1e-6)
+    t_bad = t.copy()
+    t_bad[6] = [0.03, 0.0, 0.0]
+    with pytest.raises(ValueError, match="not solvable in closed form"):
+        RedundantLimbIK(Chain7(R, t_bad, axes, np.eye(3), np.zeros(3), -lim, lim), np.zeros(7))

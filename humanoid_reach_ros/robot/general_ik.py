@@ -335,4 +335,65 @@ class GeneralLimb:
             return (d <= self.l1 + self.l2 + 1e-9) & (d >= abs(self.l1 - self.l2) - 1e-9)
 
 
-__all__ = ["Chain6", "GeneralLimbIK", "GeneralIKResult", "GeneralLimb", "rotations"]
+
+
+@dataclass(frozen=True, eq=False)
+class Chain7:
+    """A 7R chain ``M1 R(a1, q1) M2 R(a2, q2) ... M7 R(a7, q7) Me`` (the fields as :class:`Chain6`'s, 7 rows)."""
+
+    R: np.ndarray
+    t: np.ndarray
+    axes: np.ndarray
+    Re: np.ndarray
+    te: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+
+    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        q = np.atleast_2d(q)
+        n = len(q)
+        p, R = np.zeros((n, 3)), np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+        for k in range(7):
+            p = p + R @ self.t[k]
+            R = R @ self.R[k] @ rotations(self.axes[k], q[:, k])
+        return p + R @ self.te, R @ self.Re
+
+
+class RedundantLimbIK:
+    """IK of a 7R arm in closed form on a 6-DOF subchain, the redundant joint sampled (our
+    choice for 7-DOF arms, issue 13 part 2): the FIRST joint is held at ``samples`` values
+    -- the reference's value first, then an even grid over its limits -- and joints 2..7,
+    a chain of :class:`GeneralLimbIK`'s class (e.g. Talos: shoulder 2-3 intersecting,
+    spherical wrist 5-6-7), are solved for each; per pose, the solution nearest ``q_ref``
+    among those that reach it is kept. Simplification, named: the self-motion is searched
+    on a grid, not parametrized continuously (a pose reachable only in a gap between grid
+    values is reported unreachable)."""
+
+    def __init__(self, chain: Chain7, q_default: np.ndarray, samples: int = 16) -> None:
+        self.chain = chain
+        self.q_default = np.asarray(q_default, float)
+        self.samples = int(samples)
+        sub = Chain6(chain.R[1:], chain.t[1:], chain.axes[1:], chain.Re, chain.te, chain.lower[1:], chain.upper[1:])
+        self.sub = GeneralLimbIK(sub, self.q_default[1:])   # ValueError outside the class
+
+    def solve(self, target_p: np.ndarray, target_R: np.ndarray, q_ref: np.ndarray | None = None) -> GeneralIKResult:
+        c = self.chain
+        P = np.atleast_2d(np.asarray(target_p, float))
+        Rt = np.asarray(target_R, float).reshape(-1, 3, 3)
+        n = len(P)
+        ref = np.broadcast_to(self.q_default if q_ref is None else np.asarray(q_ref, float), (n, 7))
+        grid = np.linspace(c.lower[0], c.upper[0], max(self.samples - 1, 1))
+        values = [ref[:, 0]] + [np.full(n, g) for g in grid]
+        best_q, best_d = np.full((n, 7), np.nan), np.full(n, np.inf)
+        for q1 in values:
+            R1 = c.R[0] @ rotations(c.axes[0], q1)                    # (n, 3, 3): joint 1's rotated frame
+            R1T = np.transpose(R1, (0, 2, 1))
+            sub = self.sub.solve(np.einsum("nij,nj->ni", R1T, P - c.t[0]), R1T @ Rt, ref[:, 1:])
+            q = np.column_stack([np.clip(q1, c.lower[0], c.upper[0]), sub.q])
+            d = np.where(sub.ok, np.linalg.norm(q - ref, axis=1), np.inf)
+            better = d < best_d
+            best_q[better], best_d[better] = q[better], d[better]
+        return GeneralIKResult(best_q, np.isfinite(best_d))
+
+
+__all__ = ["Chain6", "Chain7", "GeneralLimbIK", "RedundantLimbIK", "GeneralIKResult", "GeneralLimb", "rotations"]
