@@ -280,9 +280,6 @@ class RobotCollision:
     positions are read from ``q`` (no limits check here).
     """
 
-    #: shapes tested first against the environment (the likeliest to hit: hands and arms)
-    ENV_ORDER_FIRST = ("r_hand", "l_hand", "r_forearm", "l_forearm", "r_upper_arm", "l_upper_arm")
-
     def __init__(self, robot: RobotModel, collision_model: CollisionModel, tree: SphereTree,
                  self_margin_m: float = 0.0) -> None:
         self.robot = robot
@@ -339,8 +336,13 @@ class RobotCollision:
                          np.ascontiguousarray(collision_model.shape_link, dtype=np.int64),
                          np.ascontiguousarray(collision_model.p0_local), np.ascontiguousarray(collision_model.p1_local))
         self.radii = np.ascontiguousarray(collision_model.radii, dtype=float)
-        first = [collision_model.index(n) for n in self.ENV_ORDER_FIRST if n in collision_model.names]
-        self.env_order = np.array(first + [s for s in range(collision_model.n_shapes) if s not in first], np.int64)
+        # shapes tested first against the environment: the likeliest to hit, those farthest down
+        # the kinematic tree (hands, forearms, ...); the verdict does not depend on the order
+        depth = np.zeros(J + 1, np.int64)        # depth[k + 1]: joints from the base to joint k
+        for k in range(J):
+            depth[k + 1] = depth[jparent[k] + 1] + 1
+        shape_depth = depth[lj[np.asarray(collision_model.shape_link)] + 1]
+        self.env_order = np.argsort(-shape_depth, kind="stable").astype(np.int64)
         self._pi = np.ascontiguousarray(collision_model.pair_index[:, 0], dtype=np.int64)
         self._pj = np.ascontiguousarray(collision_model.pair_index[:, 1], dtype=np.int64)
         self.counters = CollisionCounters()
