@@ -436,3 +436,31 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
     st, res = Run(ros_probe, client, goal(forward)).result()
     assert res.error_code == R.NO_JOINT_STATES and "stale" in res.message, res.message
     assert ex.alive()
+
+
+def test_dual_arm_requests_need_a_torso_model(model, tmp_path) -> None:
+    """A robot whose description names no torso regression model: dual-arm goals and the
+    sequential service are refused with INVALID_GOAL naming what to do (the node starts its
+    loop without a dual-arm engine)."""
+    import yaml
+
+    from humanoid_reach_ros.codes import ExecuteCode, RequestError
+    from humanoid_reach_ros.execution.requests import ExecutionRequests
+    from humanoid_reach_ros.robot.spec import robot_config_path
+
+    src = robot_config_path("hrp2").parent
+    doc = yaml.safe_load((src / "robot.yaml").read_text())
+    doc.pop("torso_regression")
+    for f in ("hrp2.urdf", "collision.yaml"):
+        (tmp_path / f).write_text((src / f).read_text())
+    (tmp_path / "robot.yaml").write_text(yaml.safe_dump(doc))
+    p = {k: spec.default for k, spec in reach_executor_params.PARAMETERS.items()}
+    p["scene_file"] = ""
+    req = ExecutionRequests(RobotModel(tmp_path / "robot.yaml"), p)
+    assert req.dual_arm_model() is None
+    for call in (lambda: req.dual(1, "goal", None, model.half_sitting_joints, ""),
+                 lambda: req.sequential(2, "seq", 3, 0, model.half_sitting_joints, "")):
+        with pytest.raises(RequestError, match="no dual-arm torso regression model") as e:
+            call()
+        assert e.value.code == ExecuteCode.INVALID_GOAL
+    assert ExecutionRequests(model, p).dual_arm_model() == model.spec.torso_regression

@@ -314,9 +314,20 @@ class ExecutionRequests:
         known = {f.name for f in dataclasses.fields(ExecutorParams)}
         return ExecutorParams(**{k: v for k, v in self.p.items() if k in known})
 
+    def dual_arm_model(self) -> str | None:
+        """The torso regression model of the dual-arm mode: the parameter, else the robot's."""
+        return self.p["dual_arm_regression"] or self.robot.spec.torso_regression
+
+    def _need_dual_arm(self) -> None:
+        if not self.dual_arm_model():
+            raise RequestError(C.INVALID_GOAL, f"robot {self.robot.name!r} has no dual-arm torso regression model "
+                                               "(robot.yaml torso_regression: tools/train_torso_regression.py "
+                                               f"--robot {self.robot.name}; or the dual_arm_regression parameter)")
+
     def dual(self, mid: int, label: str, targets, joints: np.ndarray | None, reason: str, follow: bool = False):
         """A dual-arm motion to validated hand targets; feasibility is the controller's, at the start."""
         from humanoid_reach_ros.execution.supervisor import Motion
+        self._need_dual_arm()
         waist = None
         if needs_waist(targets) and joints is not None:
             with self._fk_lock:
@@ -328,6 +339,7 @@ class ExecutionRequests:
     def sequential(self, mid: int, label: str, count: int, seed: int, joints: np.ndarray | None, reason: str):
         """Sequential random targets (Sec. 5.4): ``count`` pairs the method reaches, drawn here
         (~30 ms a pair) by a controller of its own, built on the first call."""
+        self._need_dual_arm()
         from humanoid_reach_ros.execution.supervisor import Motion
         q0 = self.measured_start(joints, reason)
         with self._sampler_lock:
@@ -335,8 +347,7 @@ class ExecutionRequests:
                 from humanoid_reach_ros.reach.controller import ControllerConfig, DualArmReachController
                 from humanoid_reach_ros.reach.torso_regression import ReachWorkspace, TorsoRegression
                 self._sampler = DualArmReachController(
-                    RobotModel(self.p["robot_config"]),
-                    TorsoRegression.load(self.p["dual_arm_regression"] or self.robot.spec.torso_regression),
+                    RobotModel(self.p["robot_config"]), TorsoRegression.load(self.dual_arm_model()),
                     ReachWorkspace.load(self.p["dual_arm_workspace"]),
                     ControllerConfig(period_s=self.p["period_s"], max_speed_mps=self.p["dual_arm_max_speed_mps"]))
             pairs = self._sampler.sample_reachable(np.random.default_rng(seed), count)
