@@ -144,7 +144,7 @@ def test_seven_dof_arm_closed_form_on_a_subchain_with_the_first_joint_sampled():
     """A random 7R arm of Talos's form (shoulder joints 2-3 intersecting, spherical wrist
     5-6-7, offsets elsewhere): poses of random joints are reached; with the drawn joints as
     reference the drawn solution comes back."""
-    from humanoid_reach_ros.robot.general_ik import Chain7, RedundantLimbIK
+    from humanoid_reach_ros.robot.general_ik import RedundantLimbIK
 
     rng = np.random.default_rng(11)
     R = Rotation.random(7, random_state=5).as_matrix()
@@ -153,7 +153,7 @@ def test_seven_dof_arm_closed_form_on_a_subchain_with_the_first_joint_sampled():
     axes = rng.normal(size=(7, 3))
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
     lim = np.full(7, np.pi)
-    chain = Chain7(R, t, axes, np.eye(3), np.array([0.0, 0.0, 0.1]), -lim, lim)
+    chain = Chain6(R, t, axes, np.eye(3), np.array([0.0, 0.0, 0.1]), -lim, lim)   # seven rows
     ik = RedundantLimbIK(chain, np.zeros(7), samples=64)   # random axes: narrow self-motion ranges
     q = rng.uniform(-np.pi, np.pi, size=(300, 7))
     p, Rt = chain.fk(q)
@@ -167,4 +167,4 @@ def test_seven_dof_arm_closed_form_on_a_subchain_with_the_first_joint_sampled():
     t_bad = t.copy()
     t_bad[6] = [0.03, 0.0, 0.0]
     with pytest.raises(ValueError, match="not solvable in closed form"):
-        RedundantLimbIK(Chain7(R, t_bad, axes, np.eye(3), np.zeros(3), -lim, lim), np.zeros(7))
+        RedundantLimbIK(Chain6(R, t_bad, axes, np.eye(3), np.zeros(3), -lim, lim), np.zeros(7))

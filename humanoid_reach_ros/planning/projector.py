@@ -83,6 +83,23 @@ def quat_xyzw_matrix(quat: np.ndarray) -> np.ndarray:
 
 
 @nb.njit(**_JIT)
+def rpy_into(R, roll, pitch, yaw) -> None:
+    """``R`` (3, 3) = ``Rz(yaw) Ry(pitch) Rx(roll)`` (compiled; :func:`~humanoid_reach_ros.planning.wgr.rpy_matrix`'s)."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    R[0, 0] = cy * cp
+    R[0, 1] = cy * sp * sr - sy * cr
+    R[0, 2] = cy * sp * cr + sy * sr
+    R[1, 0] = sy * cp
+    R[1, 1] = sy * sp * sr + cy * cr
+    R[1, 2] = sy * sp * cr - cy * sr
+    R[2, 0] = -sp
+    R[2, 1] = cp * sr
+    R[2, 2] = cp * cr
+
+
+@nb.njit(**_JIT)
 def _project_plan_kernel(q_plan, v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, leg_cols, feet_p, feet_R, leg_ref,
                          R0, t0, Re, te, l1, l2, leg_lo, leg_hi, Q, ok, trunk_p, trunk_R, fails):
     """:meth:`Projector.project_plan_config` for N rows in one compiled call (same
@@ -97,18 +114,7 @@ def _project_plan_kernel(q_plan, v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, leg
     work = np.empty(LEG_WORK_SIZE)
     for k in range(n):
         roll, pitch, yaw = q_plan[k, 7], q_plan[k, 8], q_plan[k, 9]
-        cr, sr = math.cos(roll), math.sin(roll)
-        cp, sp = math.cos(pitch), math.sin(pitch)
-        cy, sy = math.cos(yaw), math.sin(yaw)
-        Rt[0, 0] = cy * cp
-        Rt[0, 1] = cy * sp * sr - sy * cr
-        Rt[0, 2] = cy * sp * cr + sy * sr
-        Rt[1, 0] = sy * cp
-        Rt[1, 1] = sy * sp * sr + cy * cr
-        Rt[1, 2] = sy * sp * cr - cy * sr
-        Rt[2, 0] = -sp
-        Rt[2, 1] = cp * sr
-        Rt[2, 2] = cp * cr
+        rpy_into(Rt, roll, pitch, yaw)
         for a in range(3):
             pt[a] = Rt[a, 0] * v[0] + Rt[a, 1] * v[1] + Rt[a, 2] * v[2]
         pt[0] += cog_xy[0]

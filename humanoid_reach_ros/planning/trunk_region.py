@@ -42,6 +42,7 @@ import numba as nb
 import numpy as np
 
 from humanoid_reach_ros.codes import ARMS
+from humanoid_reach_ros.planning.projector import rpy_into
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion, rpy_matrix
 
 BAND_SLACK_M = 0.02     # vertical slack of the target band (roll, cell size)
@@ -306,18 +307,7 @@ def _first_reaching(z, rpy, p_e, R_e, v, cog_xy, shoulder, Re, te, reach2, k, pi
         pick[i] = i
         for j in range(k):
             c_ = j * n + i
-            cr, sr = math.cos(rpy[c_, 0]), math.sin(rpy[c_, 0])
-            cp, sp = math.cos(rpy[c_, 1]), math.sin(rpy[c_, 1])
-            cy, sy = math.cos(rpy[c_, 2]), math.sin(rpy[c_, 2])
-            R[0, 0] = cy * cp
-            R[0, 1] = cy * sp * sr - sy * cr
-            R[0, 2] = cy * sp * cr + sy * sr
-            R[1, 0] = sy * cp
-            R[1, 1] = sy * sp * sr + cy * cr
-            R[1, 2] = sy * sp * cr - cy * sr
-            R[2, 0] = -sp
-            R[2, 1] = cp * sr
-            R[2, 2] = cp * cr
+            rpy_into(R, rpy[c_, 0], rpy[c_, 1], rpy[c_, 2])
             found = False
             for a in range(n_arms):
                 d2 = 0.0

@@ -68,8 +68,9 @@ def rotations(axis: np.ndarray, q: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class Chain6:
-    """A 6R chain (module doc): ``R`` (6, 3, 3) / ``t`` (6, 3) the placements M1..M6,
-    ``axes`` (6, 3), ``Re`` / ``te`` the tip placement, ``lower`` / ``upper`` (6,)."""
+    """A chain of n revolute joints (module doc; six for :class:`GeneralLimbIK`, seven for
+    :class:`RedundantLimbIK`): ``R`` (n, 3, 3) / ``t`` (n, 3) the placements M1..Mn,
+    ``axes`` (n, 3), ``Re`` / ``te`` the tip placement, ``lower`` / ``upper`` (n,)."""
 
     R: np.ndarray
     t: np.ndarray
@@ -81,13 +82,13 @@ class Chain6:
 
     @classmethod
     def from_model(cls, robot, root: str, joints, tip: str) -> "Chain6":
-        """The chain of ``joints`` (6 names, root to tip) between frame ``root`` and frame
+        """The chain of ``joints`` (6 or 7 names, root to tip) between frame ``root`` and frame
         ``tip`` of a :class:`~humanoid_reach_ros.robot.model.RobotModel`. ValueError if a
         joint is not revolute about a fixed axis or the joints are not one serial chain."""
         m = robot.model
         ids = [m.getJointId(j) for j in joints]
-        if len(ids) != 6 or any(i >= m.njoints for i in ids):
-            raise ValueError(f"need 6 joints of the model, got {list(joints)}")
+        if len(ids) not in (6, 7) or any(i >= m.njoints for i in ids):
+            raise ValueError(f"need 6 joints (or 7) of the model, got {list(joints)}")
         for prev, j in zip(ids, ids[1:]):
             if m.parents[j] != prev:
                 raise ValueError(f"{m.names[j]} does not follow {m.names[prev]} directly: not a serial 6R chain")
@@ -124,18 +125,19 @@ class Chain6:
 
     def reversed(self) -> "Chain6":
         """The chain of T(q)^-1 in the joints ``-q[::-1]`` (module doc)."""
-        inv = [(R.T, -R.T @ t) for R, t in [(self.Re, self.te)] + [(self.R[k], self.t[k]) for k in range(5, 0, -1)]]
+        n = len(self.axes)
+        inv = [(R.T, -R.T @ t) for R, t in [(self.Re, self.te)] + [(self.R[k], self.t[k]) for k in range(n - 1, 0, -1)]]
         last = (self.R[0].T, -self.R[0].T @ self.t[0])
         return Chain6(np.array([R for R, _ in inv]), np.array([t for _, t in inv]), self.axes[::-1].copy(),
                       last[0], last[1], -self.upper[::-1], -self.lower[::-1])
 
     # ------------------------------------------------------------ kinematics
     def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Tip poses (N, 3), (N, 3, 3) relative to the root for joints ``q`` (N, 6)."""
+        """Tip poses (N, 3), (N, 3, 3) relative to the root for joints ``q`` (N, n)."""
         q = np.atleast_2d(q)
         n = len(q)
         p, R = np.zeros((n, 3)), np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-        for k in range(6):
+        for k in range(len(self.axes)):
             p = p + R @ self.t[k]
             R = R @ self.R[k] @ rotations(self.axes[k], q[:, k])
         return p + R @ self.te, R @ self.Re
@@ -152,6 +154,8 @@ class GeneralLimbIK:
     for another chain. ``q_default`` (6,): the preferred solution when no ``q_ref`` is given."""
 
     def __init__(self, chain: Chain6, q_default: np.ndarray) -> None:
+        if len(chain.axes) != 6:
+            raise ValueError(f"GeneralLimbIK: a 6-joint chain, got {len(chain.axes)} (7: RedundantLimbIK)")
         self.chain = chain
         if chain.wrist_at_tip():
             self._solver, self.reversed = chain, False
@@ -337,28 +341,6 @@ class GeneralLimb:
 
 
 
-@dataclass(frozen=True, eq=False)
-class Chain7:
-    """A 7R chain ``M1 R(a1, q1) M2 R(a2, q2) ... M7 R(a7, q7) Me`` (the fields as :class:`Chain6`'s, 7 rows)."""
-
-    R: np.ndarray
-    t: np.ndarray
-    axes: np.ndarray
-    Re: np.ndarray
-    te: np.ndarray
-    lower: np.ndarray
-    upper: np.ndarray
-
-    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        q = np.atleast_2d(q)
-        n = len(q)
-        p, R = np.zeros((n, 3)), np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-        for k in range(7):
-            p = p + R @ self.t[k]
-            R = R @ self.R[k] @ rotations(self.axes[k], q[:, k])
-        return p + R @ self.te, R @ self.Re
-
-
 class RedundantLimbIK:
     """IK of a 7R arm in closed form on a 6-DOF subchain, the redundant joint sampled (our
     choice for 7-DOF arms, issue 13 part 2): the FIRST joint is held at ``samples`` values
@@ -369,7 +351,9 @@ class RedundantLimbIK:
     on a grid, not parametrized continuously (a pose reachable only in a gap between grid
     values is reported unreachable)."""
 
-    def __init__(self, chain: Chain7, q_default: np.ndarray, samples: int = 16) -> None:
+    def __init__(self, chain: Chain6, q_default: np.ndarray, samples: int = 16) -> None:
+        if len(chain.axes) != 7:
+            raise ValueError(f"RedundantLimbIK: a 7-joint chain, got {len(chain.axes)}")
         self.chain = chain
         self.q_default = np.asarray(q_default, float)
         self.samples = int(samples)
@@ -396,4 +380,4 @@ class RedundantLimbIK:
         return GeneralIKResult(best_q, np.isfinite(best_d))
 
 
-__all__ = ["Chain6", "Chain7", "GeneralLimbIK", "RedundantLimbIK", "GeneralIKResult", "GeneralLimb", "rotations"]
+__all__ = ["Chain6", "GeneralLimbIK", "RedundantLimbIK", "GeneralIKResult", "GeneralLimb", "rotations"]
