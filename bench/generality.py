@@ -36,6 +36,7 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 
 from humanoid_reach_ros.machine import describe as describe_machine  # noqa: E402
+from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT, robots  # noqa: E402
 
 PLANNER_PARAMS = REPO / "config" / "reach_planner.yaml"
 DRIVER_PARAMS = REPO / "config" / "joint_driver.yaml"
@@ -60,10 +61,11 @@ def ms_stats(values_ms: list[float]) -> dict:
             "mean": float(a.mean())}
 
 
-def library_runs(cases, seeds: int, budget_s: float) -> list[dict]:
+def library_runs(cases, seeds: int, budget_s: float, robot: str) -> list[dict]:
     from humanoid_reach_ros.planning.reach import PlanRequest, ReachPlanner
+    from humanoid_reach_ros.robot.model import RobotModel
 
-    rp = ReachPlanner(params=planner_params())
+    rp = ReachPlanner(RobotModel(robot), params=planner_params())
     rp.warm_up()
     hs = rp.robot.half_sitting_joints
     runs = []
@@ -115,7 +117,7 @@ def summarize(runs: list[dict]) -> dict:
     return out
 
 
-def node_runs(cases, budget_s: float, timeout_s: float) -> list[dict]:
+def node_runs(cases, budget_s: float, timeout_s: float, robot: str) -> list[dict]:
     """One case per class through /plan_reach (the planner restarted on each scene)."""
     from operator_wait import Client
 
@@ -129,14 +131,14 @@ def node_runs(cases, budget_s: float, timeout_s: float) -> list[dict]:
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env["ROS_AUTOMATIC_DISCOVERY_RANGE"]
     out, client, procs = [], None, []
     try:
-        driver = NodeProcess.start("joint_driver", log_dir, env, DRIVER_PARAMS)
+        driver = NodeProcess.start("joint_driver", log_dir, env, DRIVER_PARAMS, params={"robot_config": robot})
         procs.append(driver)
-        driver.wait_for_log(r"simulated hrp2", 60.0)
+        driver.wait_for_log(r"simulated ", 60.0)
         client = Client(lease.domain_id, None)
         for case in cases:
             arm = next(a for a in ("right", "left") if case.expect[a] == case.scene_class)
             planner = NodeProcess.start("reach_planner", log_dir, env, PLANNER_PARAMS,
-                                        params={"scene_file": str(case.scene_path),
+                                        params={"scene_file": str(case.scene_path), "robot_config": robot,
                                                 "scene_exclude_groups": list(case.exclude_groups)})
             procs.append(planner)
             planner.wait_for_log(r"reach planner ready", 120.0)
@@ -183,8 +185,8 @@ def main() -> int:
     ap.add_argument("--budget-s", type=float, default=2.0, help="planning budget per request [s] (default 2)")
     ap.add_argument("--cases", nargs="*", default=None, help="only these suite cases (default: all)")
     ap.add_argument("--no-node", action="store_true", help="skip the /plan_reach subset")
-    ap.add_argument("--robot", default="hrp2", choices=("hrp2",),
-                    help="robot (hrp2; further robots once they have a description in config/robots)")
+    ap.add_argument("--robot", default=DEFAULT_ROBOT, choices=robots(),
+                    help=f"robot of config/robots (default {DEFAULT_ROBOT})")
     args = ap.parse_args()
     if args.seeds < 1 or not args.budget_s > 0:
         ap.error("--seeds must be >= 1 and --budget-s > 0")
@@ -198,12 +200,12 @@ def main() -> int:
             ap.error(f"unknown case(s) {sorted(unknown)}; the suite has {[c.name for c in cases]}")
         cases = [c for c in cases if c.name in args.cases]
     t0 = time.perf_counter()
-    runs = library_runs(cases, args.seeds, args.budget_s)
+    runs = library_runs(cases, args.seeds, args.budget_s, args.robot)
     result = {"bench": "generality", "machine": describe_machine(), "seeds": args.seeds, "budget_s": args.budget_s,
               "cases": [c.name for c in cases], "library_s": time.perf_counter() - t0}
     robot = summarize(runs)
     if not args.no_node:
-        node = node_runs([c for c in cases if c.name in NODE_CASES], args.budget_s, 60.0)
+        node = node_runs([c for c in cases if c.name in NODE_CASES], args.budget_s, 60.0, args.robot)
         robot["node"] = {"runs": node, "correct_rate": sum(r["correct"] for r in node) / len(node) if node else None}
     robot["targets"] = {
         "feasible_success_rate>=0.95": (robot["feasible_success_rate"] or 0) >= 0.95,

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from humanoid_reach_ros.codes import ARM_NAMES
 from humanoid_reach_ros.demo import GRAPH_NODES, SIM_JOINT_STATES_ABORT_S, SIM_JOINT_STATES_TIMEOUT_S, Graph, \
     Operator, scan_plant, wait_marker
 from humanoid_reach_ros.graph import allocate_domain, graph_env

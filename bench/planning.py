@@ -38,11 +38,14 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from humanoid_reach_ros.machine import describe as describe_machine  # noqa: E402
+from humanoid_reach_ros.codes import ARM_NAMES  # noqa: E402
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree  # noqa: E402
 from humanoid_reach_ros.planning.goal_sampler import cog_errors, sample_goals  # noqa: E402
 from humanoid_reach_ros.planning.path import ShortcutOptions, plan as run_planner, shortcut_path  # noqa: E402
 from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner  # noqa: E402
 from humanoid_reach_ros.planning.wgr import valve_region  # noqa: E402
+from humanoid_reach_ros.robot.model import RobotModel  # noqa: E402
+from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT, robots  # noqa: E402
 from humanoid_reach_ros.sim.scene import load_scene  # noqa: E402
 
 SEED = 20120514
@@ -157,8 +160,9 @@ def operator_wait(rp: ReachPlanner, region, n: int) -> dict:
             "wait_ms_max": 1e3 * float(t.max())}
 
 
-def run(params: PlannerParams, voxels, region, n_goals: int, n_wait: int, baseline: bool = False) -> dict:
-    rp = ReachPlanner(params=params)
+def run(params: PlannerParams, voxels, region, n_goals: int, n_wait: int, baseline: bool = False,
+        robot: str = DEFAULT_ROBOT) -> dict:
+    rp = ReachPlanner(RobotModel(robot), params=params)
     rp.set_map(voxels)
     rp.plan(rp.robot.half_sitting_joints, PlanRequest(region, seed=0))  # JIT warm-up
     base = None
@@ -181,6 +185,7 @@ def main() -> None:
     ap.add_argument("--baseline", action="store_true",
                     help="also run every Table II plan on the numpy reference leg IK (same seed, interleaved)")
     ap.add_argument("--no-narrow", action="store_true", help="skip the second run with the narrower pitch range")
+    ap.add_argument("--robot", default=DEFAULT_ROBOT, choices=robots(), help="robot of config/robots")
     args = ap.parse_args()
     if args.goals < 1 or args.wait_requests < 1:
         ap.error("--goals and --wait-requests must be >= 1")
@@ -198,11 +203,13 @@ def main() -> None:
            "sphere_tree_build_ms": 1e3 * float(np.median(builds)), "params": {
                "goal_count": params.goal_count, "rrt_step": params.rrt_step, "edge_resolution": params.edge_resolution,
                "time_budget_s": params.time_budget_s, "trunk_pitch_rad": list(params.trunk_pitch_rad)}}
-    out["default"] = run(params, voxels, region, args.goals, args.wait_requests, args.baseline)
+    out["robot"] = args.robot
+    out["default"] = run(params, voxels, region, args.goals, args.wait_requests, args.baseline, args.robot)
     print(json.dumps({"default": out["default"]}, indent=1), flush=True)
     if not args.no_narrow:
         narrow = replace(params, trunk_pitch_rad=(params.trunk_pitch_rad[0], args.pitch_max))
-        out[f"pitch_max_{args.pitch_max}"] = run(narrow, voxels, region, args.goals, args.wait_requests)
+        out[f"pitch_max_{args.pitch_max}"] = run(narrow, voxels, region, args.goals, args.wait_requests,
+                                                 robot=args.robot)
     d = out["default"]
     out["targets"] = {
         "tree_ms<=20": out["sphere_tree_build_ms"] <= 20,

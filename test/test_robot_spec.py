@@ -11,11 +11,11 @@ import yaml
 
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.robot.model import RobotModel
-from humanoid_reach_ros.robot.spec import load_robot_spec, robot_config_path
+from humanoid_reach_ros.robot.spec import load_robot_spec, robot_config_path, robots
 
 PKG_DIR = Path(__file__).resolve().parents[1] / "humanoid_reach_ros"
 LOADER = {PKG_DIR / "robot" / "spec.py", PKG_DIR / "robot" / "model.py"}
-ROBOTS = sorted(p.name for p in config_path("robots").iterdir() if (p / "robot.yaml").exists())
+ROBOTS = robots()
 
 
 def _code_strings(path: Path):

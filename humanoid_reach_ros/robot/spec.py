@@ -90,6 +90,11 @@ class RobotSpec:
         return out - {self.base_link}
 
 
+def robots() -> list[str]:
+    """The robots of ``config/robots`` (directories with a ``robot.yaml``)."""
+    return sorted(p.name for p in config_path("robots").iterdir() if (p / "robot.yaml").is_file())
+
+
 def robot_config_path(robot: str | Path) -> Path:
     """``hrp2`` -> ``config/robots/hrp2/robot.yaml``; a path (absolute, or relative to
     ``config/``) to a robot YAML is taken as it is."""
@@ -109,8 +114,7 @@ def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]
     checked against the URDF by :class:`~humanoid_reach_ros.robot.model.RobotModel`."""
     path = robot_config_path(robot)
     if not path.exists():
-        raise ValueError(f"robot description {path} does not exist (robots: "
-                         f"{sorted(p.name for p in config_path('robots').iterdir() if p.is_dir())})")
+        raise ValueError(f"robot description {path} does not exist (robots: {robots()})")
     with open(path) as f:
         doc = yaml.safe_load(f)
     where = f"robot description {path}"
@@ -172,5 +176,5 @@ def check_against_model(spec: RobotSpec, joint_names, has_frame) -> None:
         raise ValueError(f"robot description {spec.path}: not in {spec.urdf_path.name}: {', '.join(bad)}")
 
 
-__all__ = ["RobotSpec", "LimbDef", "load_robot_spec", "robot_config_path", "check_against_model", "DEFAULT_ROBOT",
-           "LIMB_NAMES"]
+__all__ = ["RobotSpec", "LimbDef", "load_robot_spec", "robot_config_path", "robots", "check_against_model",
+           "DEFAULT_ROBOT", "LIMB_NAMES"]
