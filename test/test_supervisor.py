@@ -252,3 +252,57 @@ def test_maps_reach_the_engine_before_the_next_step() -> None:
     h.sup.set_map("tree-1")
     h.sup.work()
     assert h.engine.maps == ["tree-1"]
+
+
+def test_idle_tick_side_sleeps_and_a_later_start_takes_its_origin_from_its_start() -> None:
+    """Idle (nothing commanded, or the hold timed out): the tick side may sleep, and forgets the
+    next deadline, so a motion started long after the sleep begins at reference time one
+    period, not at the time elapsed since the last deadline."""
+    h = Harness(hold_timeout_s=0.02)
+    for _ in range(3):
+        h.cycle()
+    assert h.sup.mode == IDLE and h.sup.sleep_while_idle(0.0)
+    h.sup.submit(h.motion(1, duration=0.05))
+    assert not h.sup.sleep_while_idle(0.0)                 # a queued start: no sleep
+    h.k += 2000                                            # 10 s later
+    h.clock.now = h.deadline()
+    h.cycle()
+    assert h.engine.times[0] == pytest.approx(DT)          # the first step at t = one period
+    assert not h.sup.sleep_while_idle(0.0)                 # running
+    while h.sup.mode != IDLE:                              # the motion, the hold, its timeout
+        h.cycle()
+    assert h.finished[0].code == C.SUCCESS and h.sup.sleep_while_idle(0.0)
+
+
+def test_control_loop_sleeps_while_idle_and_runs_a_motion_promptly() -> None:
+    """The threaded loop on the real clock: no tick per period while idle; a motion submitted
+    then runs to its end and the loop goes back to sleep after the hold timeout."""
+    import time
+
+    from humanoid_reach_ros.execution.loop import ControlLoop
+
+    engine, sent, finished = FakeEngine(), [], []
+    sup = ExecutionSupervisor(engine, None, SupervisorConfig(period_s=DT, hold_timeout_s=0.1), time.monotonic,
+                              lambda j, m, o: sent.append(np.array(j)), finished.append, lambda m: None)
+    loop = ControlLoop(sup, DT)
+    loop.start()
+    try:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 0.5:
+            time.sleep(0.05)
+        assert sup.stats.ticks <= 3                         # asleep, not 100 ticks
+        sup.submit(Motion(1, "m1", "trajectory", spline=0.2, arm="right", q_measured=np.zeros(NQ)))
+        deadline = time.monotonic() + 30.0
+        while not finished and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert finished and finished[0].code == C.SUCCESS
+        while sup.mode != IDLE and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert sup.mode == IDLE and len(sent) >= 40          # 0.2 s of steps, then 0.1 s of hold
+        ticks = sup.stats.ticks
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 0.5:
+            time.sleep(0.05)
+        assert sup.stats.ticks - ticks <= 3                 # asleep again
+    finally:
+        loop.stop()

@@ -99,6 +99,32 @@ def test_dda_axis_aligned_and_degenerate() -> None:
 
 
 # ---------------------------------------------------------------- fusion (003)
+def test_version_follows_what_readers_see() -> None:
+    """The map's version changes with the occupied, observed or swept voxels, not with every
+    depth map (the same view again changes V and W only)."""
+    p = FusionParams(resolution_m=H, extent_min_m=(-1.0, -1.0, -1.0), extent_max_m=(1.0, 1.0, 1.0),
+                     hit_weight=1.0, free_weight=0.5, max_weight=2.5, floor_z_m=-10.0, clear_margin_m=0.0)
+    m = VoxelMap(p)
+    origin = np.array([-0.5, 0.01, 0.01])
+    target, beyond = np.array([0.31, 0.01, 0.01]), np.array([0.71, 0.01, 0.01])
+    v0 = m.version
+    m.integrate(target[None], origin=origin)
+    assert m.version > v0 and m.occupied_count() == 1 and m.observed_count == 41
+    v1 = m.version
+    m.integrate(target[None], origin=origin)            # the same view again: nothing a reader sees changes
+    assert m.version == v1
+    m.integrate(beyond[None], origin=origin)            # a new voxel observed (and hit)
+    assert m.version > v1
+    with pytest.raises(ValueError):
+        m.occupied_mask()[0, 0, 0] = True               # the readers' view is read-only
+    v2 = m.version
+    assert m.mark_swept(np.array([[0.0, 0.5, 0.5]]), np.array([[0.0, 0.5, 0.6]]), np.array([0.05])) > 0
+    assert m.version > v2
+    v3 = m.version
+    m.clear()
+    assert m.version > v3 and m.occupied_count() == 0 and m.observed_count == 0
+
+
 def test_weighted_fusion_follows_003() -> None:
     p = FusionParams(resolution_m=H, extent_min_m=(-1.0, -1.0, -1.0), extent_max_m=(1.0, 1.0, 1.0),
                      hit_weight=1.0, free_weight=0.5, max_weight=2.5, floor_z_m=-10.0, clear_margin_m=0.0)

@@ -312,6 +312,49 @@ def test_still_camera_integrates_once_per_period(start_node, ros_probe, model) -
     assert proc.alive()
 
 
+@pytest.mark.node
+def test_minor_changes_of_a_still_view_wait_a_moved_view_publishes_at_once(start_node, ros_probe, model) -> None:
+    """The depth noise of a still camera flips a few surface voxels per depth map: such a minor
+    change waits up to minor_change_period_s (the planner and the executor would rebuild their
+    trees for it), a depth map from a new camera pose is published at the next period."""
+    params = {**FAST, "still_integration_period_s": 0.0, "minor_change_period_s": 60.0}
+    proc = start_node("voxel_mapper", params_file=PARAMS_FILE, params=params, ready_log=READY)
+    f = Feeder(ros_probe, proc, model)
+    gx, gy = np.meshgrid(np.linspace(-0.3, 0.3, 25), np.linspace(-0.3, 0.3, 25))
+    wall = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, 1.0)], axis=1)      # camera frame, 1 m ahead
+    extra = np.array([[0.0, 0.0, 0.7]])                                           # one new voxel on the axis
+    k = [0]
+
+    def feed(joints: np.ndarray, points: np.ndarray) -> None:
+        k[0] += 1
+        t = T0 + 0.5 * k[0]
+        f.publish_joints(joints, t - 0.02)
+        f.publish_joints(joints, t + 0.02)
+        ros_probe.spin_for(0.05)
+        n = f.counter("clouds_integrated")
+        f.cloud_pub.publish(msgs.cloud_from_points(points, CAMERA_FRAME, msgs.time_from_seconds(t)))
+        f.wait_counter("clouds_integrated", n + 1)
+
+    still = f.joints(0.0, 0.5)
+    feed(still, wall)                                      # the first view: published at once
+    first = f.settle_map()
+    assert len(first) > 100
+    n_maps, deferred = len(f.maps), f.counter("minor_changes_deferred")
+    feed(still, np.vstack([wall, extra]))                  # the same pose, one voxel more: minor
+    f.wait_counter("minor_changes_deferred", deferred + 3)  # three publish periods passed over it
+    assert len(f.maps) == n_maps
+    T = camera_pose(model, still, CAMERA_FRAME)
+    key = tuple(np.floor((T[:3, :3] @ extra[0] + T[:3, 3]) / H).astype(int))      # the new voxel
+    assert key not in set(map(tuple, np.floor(first / H).astype(int)))
+    moved = f.joints(0.05, 0.5)                            # a new pose (seeing the new voxel too): published at once
+    Tm = camera_pose(model, moved, CAMERA_FRAME)
+    world_extra = T[:3, :3] @ extra[0] + T[:3, 3]
+    feed(moved, np.vstack([wall, Tm[:3, :3].T @ (world_extra - Tm[:3, 3])]))
+    occ = f.settle_map()
+    assert len(f.maps) > n_maps and key in set(map(tuple, np.floor(occ / H).astype(int)))
+    assert proc.alive()
+
+
 def _rss_kb(pid: int) -> int:
     with open(f"/proc/{pid}/status") as fh:
         for line in fh:

@@ -3,7 +3,9 @@
 * The **tick thread** wakes at ``t_0 + k period_s`` (no drift) and calls
   :meth:`ExecutionSupervisor.tick` (publish the finished step or the last safe command).
   When it falls more than one period behind, the missed deadlines are skipped and counted
-  (:meth:`ExecutionSupervisor.missed`), never burst.
+  (:meth:`ExecutionSupervisor.missed`), never burst. While the supervisor is idle (nothing
+  commanded yet, or the hold timed out) it sleeps until a command arrives
+  (:meth:`ExecutionSupervisor.sleep_while_idle`) and restarts its deadlines from then.
 * The **solver thread** calls :meth:`ExecutionSupervisor.work` whenever there is work: the
   queued commands and the next step, computed as soon as the previous one was consumed.
 
@@ -68,6 +70,9 @@ class ControlLoop:
         t0 = time.monotonic()
         k = 0
         while not self._stop:
+            if self.sup.sleep_while_idle(0.5):     # nothing to publish: no wake-up per period
+                t0, k = time.monotonic(), 0
+                continue
             deadline = t0 + k * period
             delay = deadline - time.monotonic()
             if delay > 0:

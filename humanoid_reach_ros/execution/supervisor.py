@@ -142,6 +142,7 @@ class ExecutionSupervisor:
         self._settle_until = 0.0
         self.hold_since = 0.0
         self._next_deadline = math.nan           # time of the next tick (set by the tick side)
+        self._applying = False                   # the solver side is applying queued commands
         self.stats = LoopStats(step_times=deque(maxlen=config.step_history),
                                hold_step_times=deque(maxlen=config.step_history))
         self.last_finished: Motion | None = None
@@ -215,13 +216,33 @@ class ExecutionSupervisor:
         with self._cond:
             self._cond.notify_all()
 
+    def sleep_while_idle(self, timeout: float) -> bool:
+        """Tick side: while idle with nothing queued (nothing to publish, no deadline to keep),
+        sleep until a command arrives or ``timeout`` passes; True if it slept. The next
+        deadline is forgotten meanwhile, so a motion started after the sleep takes its
+        reference origin from its own start, not from a deadline of before the sleep."""
+        with self._cond:
+            if not self._idle_now():
+                return False
+            self._next_deadline = math.nan
+            self._cond.wait(timeout)
+            return True
+
+    def _idle_now(self) -> bool:
+        return self.mode == IDLE and not self._pending and not self._applying and not self.closed
+
     def work(self) -> None:
         """Apply the queued commands, then compute the next step if one is due."""
         with self._cond:
             commands, self._pending = self._pending, []
+            self._applying = bool(commands)
         try:
             for cmd in commands:
                 self._apply(cmd)
+            if commands:
+                with self._cond:
+                    self._applying = False
+                    self._cond.notify_all()     # a tick side asleep while idle wakes to the new mode
             self._maybe_step()
         except Exception as exc:  # an engine error must not kill the loop: stop and hold
             self.log("error", f"executor step failed: {type(exc).__name__}: {exc}\n{traceback.format_exc()}")
@@ -233,6 +254,8 @@ class ExecutionSupervisor:
                 self.mode = HOLD if self.last_q is not None else IDLE
                 self.hold_since = self.clock()
                 self._starting = False
+                self._applying = False
+                self._cond.notify_all()
 
     def _apply(self, cmd: tuple) -> None:
         kind = cmd[0]

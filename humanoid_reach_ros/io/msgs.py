@@ -183,13 +183,16 @@ IMAGE_ENCODINGS: dict[str, tuple[int, str | None]] = {
 }
 
 
-def gray_from_image(msg: Image) -> np.ndarray:
-    """8-bit grey (H, W) array of a ``sensor_msgs/Image`` (the package's one image decoder).
+def byte_array(data) -> np.ndarray:
+    """A uint8 array over a message's byte sequence (``array.array``, ``bytes``: no copy)."""
+    if isinstance(data, (np.ndarray, list, tuple)):
+        return np.asarray(data, dtype=np.uint8)
+    return np.frombuffer(data, dtype=np.uint8)
 
-    Accepts :data:`IMAGE_ENCODINGS` (mono8 / 8UC1 as they are; rgb8, bgr8, rgba8, bgra8 through
-    OpenCV's ``Y = 0.299 R + 0.587 G + 0.114 B``); rows may be padded (``step > width *
-    channels``). ``ValueError`` for another encoding, an empty image, a step shorter than a row
-    or a data size other than ``height * step``."""
+
+def check_image(msg: Image) -> tuple[int, int, int, int, str | None]:
+    """Height, width, step, channels and OpenCV conversion of a ``sensor_msgs/Image`` from its
+    header fields alone (no pixel is read); ``ValueError`` as :func:`gray_from_image`."""
     enc = msg.encoding
     if enc not in IMAGE_ENCODINGS:
         raise ValueError(f"unsupported image encoding {enc!r}; accepted: {', '.join(IMAGE_ENCODINGS)}")
@@ -199,11 +202,20 @@ def gray_from_image(msg: Image) -> np.ndarray:
         raise ValueError(f"empty image ({w} x {h})")
     if step < w * ch:
         raise ValueError(f"image step {step} < width {w} * {ch} channel(s)")
-    data = np.frombuffer(bytes(msg.data), dtype=np.uint8) if not isinstance(msg.data, np.ndarray) \
-        else np.asarray(msg.data, dtype=np.uint8)
-    if data.size != h * step:
-        raise ValueError(f"image data has {data.size} bytes, expected height {h} * step {step} = {h * step}")
-    img = data.reshape(h, step)[:, :w * ch].reshape(h, w, ch)
+    if len(msg.data) != h * step:
+        raise ValueError(f"image data has {len(msg.data)} bytes, expected height {h} * step {step} = {h * step}")
+    return h, w, step, ch, code
+
+
+def gray_from_image(msg: Image) -> np.ndarray:
+    """8-bit grey (H, W) array of a ``sensor_msgs/Image`` (the package's one image decoder).
+
+    Accepts :data:`IMAGE_ENCODINGS` (mono8 / 8UC1 as they are; rgb8, bgr8, rgba8, bgra8 through
+    OpenCV's ``Y = 0.299 R + 0.587 G + 0.114 B``); rows may be padded (``step > width *
+    channels``). ``ValueError`` for another encoding, an empty image, a step shorter than a row
+    or a data size other than ``height * step``."""
+    h, w, step, ch, code = check_image(msg)
+    img = byte_array(msg.data).reshape(h, step)[:, :w * ch].reshape(h, w, ch)
     if code is None:
         return np.ascontiguousarray(img[:, :, 0])
     import cv2  # here: the decoder's only user of OpenCV, kept off the import of this module
@@ -346,13 +358,13 @@ class CloudPoints:
     stamp_s: float
 
 
-def points_from_cloud(msg: PointCloud2) -> CloudPoints:
-    """Finite x, y, z points of a ``PointCloud2`` (any layout with float x/y/z fields).
+def check_cloud(msg: PointCloud2) -> np.dtype:
+    """The record dtype of a ``PointCloud2``'s x, y, z (float fields at their offsets, one
+    record per ``point_step``), from its layout alone (no point is read).
 
     Raises ``ValueError`` for a malformed cloud: a missing or non-float ``x``/``y``/``z``
     field, a field outside ``point_step``, ``row_step < width * point_step``, or a data
-    size other than ``height * row_step``. Points with a non-finite coordinate are
-    dropped and counted (``dropped_nonfinite``), as in an unorganised cloud.
+    size other than ``height * row_step``.
     """
     fields = {f.name: f for f in msg.fields}
     missing = [n for n in "xyz" if n not in fields]
@@ -378,16 +390,25 @@ def points_from_cloud(msg: PointCloud2) -> CloudPoints:
         offsets.append(int(f.offset))
     if int(msg.row_step) < width * step:
         raise ValueError(f"PointCloud2 row_step {msg.row_step} < width {width} * point_step {step}")
-    data = np.frombuffer(bytes(msg.data), dtype=np.uint8) if not isinstance(msg.data, np.ndarray) \
-        else np.asarray(msg.data, dtype=np.uint8)
-    if data.size != height * int(msg.row_step):
-        raise ValueError(f"PointCloud2 data has {data.size} bytes, expected height {height} * row_step "
+    if len(msg.data) != height * int(msg.row_step):
+        raise ValueError(f"PointCloud2 data has {len(msg.data)} bytes, expected height {height} * row_step "
                          f"{msg.row_step} = {height * int(msg.row_step)}")
+    return np.dtype({"names": ["x", "y", "z"], "formats": formats, "offsets": offsets, "itemsize": max(step, 1)})
+
+
+def points_from_cloud(msg: PointCloud2) -> CloudPoints:
+    """Finite x, y, z points of a ``PointCloud2`` (any layout with float x/y/z fields).
+
+    Raises ``ValueError`` for a malformed cloud (:func:`check_cloud`). Points with a
+    non-finite coordinate are dropped and counted (``dropped_nonfinite``), as in an
+    unorganised cloud.
+    """
+    dtype = check_cloud(msg)
     stamp_s = seconds_from_time(msg.header.stamp)
+    width, height, step = int(msg.width), int(msg.height), int(msg.point_step)
     if width * height == 0:
         return CloudPoints(np.empty((0, 3)), 0, msg.header.frame_id, stamp_s)
-    rows = data.reshape(height, int(msg.row_step))[:, :width * step]
-    dtype = np.dtype({"names": ["x", "y", "z"], "formats": formats, "offsets": offsets, "itemsize": step})
+    rows = byte_array(msg.data).reshape(height, int(msg.row_step))[:, :width * step]
     rec = np.ascontiguousarray(rows).view(dtype).reshape(-1)
     pts = np.stack([rec["x"], rec["y"], rec["z"]], axis=1).astype(np.float64)
     finite = np.all(np.isfinite(pts), axis=1)

@@ -8,6 +8,7 @@
 """
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
@@ -113,8 +114,9 @@ class LatestOnDemand:
     spins: the middleware keeps the newest message and :meth:`latest` takes it. A node that
     needs the current joint state only now and then (a start posture, a staleness check)
     then costs nothing per message, instead of a wake-up per 200 Hz ``/joint_states``.
-    ``age_s()`` is the time since the newest message was *taken* (resolution: how often
-    :meth:`latest` is called).
+    ``age_s()`` is the time since the newest message was *received* by the middleware (its
+    reception timestamp), exact whenever it is asked: no periodic take is needed to keep
+    a staleness check honest. Thread-safe.
     """
 
     def __init__(self, node: Node, msg_type, topic: str, qos: QoSProfile | None = None) -> None:
@@ -124,46 +126,64 @@ class LatestOnDemand:
                                        start_parameter_services=False, enable_rosout=False)
         self._sub = self._node.create_subscription(msg_type, node.resolve_topic_name(topic), lambda _m: None, qos)
         self._msg_type = msg_type
+        self._lock = threading.Lock()
         self._msg = None
-        self._time = -float("inf")
+        self._time = -float("inf")        # monotonic time of the newest message's reception
         self.received = 0
 
-    def latest(self):
-        """The newest message (taken now if one arrived since the last call), or None."""
-        while True:   # depth 1: at most one waits; loop in case the middleware kept more
-            taken = self._sub.handle.take_message(self._msg_type, False)
-            if taken is None:
-                break
-            self._msg, self._time = taken[0], time.monotonic()
-            self.received += 1
-        return self._msg
-
-    def take_all(self) -> list:
-        """Every message queued since the last take, oldest first (up to the QoS depth: a node
-        that needs a history, e.g. the head pose at a sensor stamp, takes them in its worker)."""
-        out = []
+    def _take(self) -> list:
+        """Take what waits (caller holds the lock); stamps the newest with its reception time."""
+        out, info = [], None
         while True:
             taken = self._sub.handle.take_message(self._msg_type, False)
             if taken is None:
                 break
             out.append(taken[0])
+            info = taken[1]
         if out:
-            self._msg, self._time = out[-1], time.monotonic()
+            self._msg, self._time = out[-1], _reception_monotonic(info)
             self.received += len(out)
         return out
 
+    def latest(self):
+        """The newest message (taken now if one arrived since the last call), or None."""
+        with self._lock:
+            self._take()
+            return self._msg
+
+    def take_all(self) -> list:
+        """Every message queued since the last take, oldest first (up to the QoS depth: a node
+        that needs a history, e.g. the head pose at a sensor stamp, takes them in its worker)."""
+        with self._lock:
+            return self._take()
+
     def age_s(self) -> float:
-        """Seconds since the newest message was taken (inf: none yet)."""
-        self.latest()
-        return time.monotonic() - self._time
+        """Seconds since the newest message was received (inf: none yet)."""
+        with self._lock:
+            self._take()
+            return time.monotonic() - self._time
 
     def put(self, msg, taken_at: float | None = None) -> None:
-        """Use ``msg`` as the newest message, taken at ``taken_at`` (monotonic; default now):
+        """Use ``msg`` as the newest message, received at ``taken_at`` (monotonic; default now):
         for a node driven in process (tests), as if it had arrived."""
-        self._msg, self._time = msg, time.monotonic() if taken_at is None else float(taken_at)
+        with self._lock:
+            self._msg, self._time = msg, time.monotonic() if taken_at is None else float(taken_at)
 
     def destroy(self) -> None:
         self._node.destroy_node()
+
+
+def _reception_monotonic(info: Any) -> float:
+    """The monotonic time at which the middleware received a message (its ``received_timestamp``,
+    system clock ns), or now when the middleware gives none."""
+    now = time.monotonic()
+    try:
+        received_ns = int(info["received_timestamp"])
+    except (TypeError, KeyError, ValueError):
+        return now
+    if received_ns <= 0:
+        return now
+    return min(now, now - (time.time_ns() - received_ns) * 1e-9)
 
 
 def current_joints(joint_states: LatestOnDemand, timeout_s: float, robot) -> tuple[Any, str]:

@@ -90,6 +90,10 @@ PARAMETERS: dict[str, ParamSpec] = {
     "camera_info_timeout_s": ParamSpec(2.0, "images stamped this far from the last valid camera_info [s] "
                                        "are skipped (stale intrinsics)",
                                        (0.001, 3600.0)),
+    "still_period_s": ParamSpec(0.5, "while the camera has not moved (1 mm, 1 mrad) since the last detection, "
+                                "detect in at most one image per this period [s] (a marker moving before a still "
+                                "head is then seen at 1/still_period_s Hz); 0 = every image; not applied with "
+                                "hand_marker_ids (the hands follow moving markers)", (0.0, 60.0)),
     "diagnostics_period_s": ParamSpec(1.0, "period of /diagnostics [s]", (0.05, 60.0)),
     "warn_throttle_s": ParamSpec(1.0, "minimum interval between repeated warnings [s]", (0.0, 3600.0)),
 }
@@ -185,6 +189,7 @@ class MarkerLocalizer(Node):
         self.last_hands: np.ndarray | None = None
         self._skipped_reported = 0
         self._window = {"start": time.monotonic(), "images": 0, "localized": 0, "max_process_s": 0.0}
+        self._last_detection: tuple[np.ndarray, float] | None = None   # camera pose and time of the last detection
 
         sensor = qos_profile_sensor_data
         self.target_pub = self.create_publisher(PoseStamped, "target_pose", sensor)
@@ -254,20 +259,23 @@ class MarkerLocalizer(Node):
                                 f"from the image stamp (> {p['camera_info_timeout_s']:g} s)")
             return
         try:
-            gray = msgs.gray_from_image(msg)
+            height, width = msgs.check_image(msg)[:2]
         except ValueError as exc:
             self._skip("image", str(exc))
             return
-        if gray.shape != (cam.height, cam.width):
-            self._skip("image", f"image is {gray.shape[1]} x {gray.shape[0]} but camera_info says "
-                                f"{cam.width} x {cam.height}")
+        if (height, width) != (cam.height, cam.width):
+            self._skip("image", f"image is {width} x {height} but camera_info says {cam.width} x {cam.height}")
             return
         self._absorb_joint_states()
         joints, reason = self.joints.at(stamp_s, p["max_stamp_gap_s"])
         if joints is None:
             self._skip("image", f"no camera pose at the image stamp: {reason}")
             return
-        result = self.detector.detect(gray, cam.K, cam.D)
+        R_T_C = camera_pose(self.model, joints, p["camera_frame_id"])
+        if self._still(R_T_C):
+            self.counts["skipped_still"] += 1
+            return
+        result = self.detector.detect(msgs.gray_from_image(msg), cam.K, cam.D)
         for mid, why in result.rejected:
             self.counts["rejected"] += 1
             self.last_rejection = f"id {mid}: {why}"
@@ -276,7 +284,6 @@ class MarkerLocalizer(Node):
         if not result.detections:
             self.counts["no_marker"] += 1
             return
-        R_T_C = camera_pose(self.model, joints, p["camera_frame_id"])
         world, stamp = p["world_frame_id"], msg.header.stamp
         poses = PoseArray(header=msgs.header(world, stamp))
         hands: dict[int, np.ndarray] = {}
@@ -296,6 +303,18 @@ class MarkerLocalizer(Node):
         if self.hand_ids is not None:
             self._publish_hands(hands, world, stamp)
         self._window["max_process_s"] = max(self._window["max_process_s"], time.perf_counter() - t0)
+
+    def _still(self, R_T_C: np.ndarray) -> bool:
+        """The camera is where it was at the last detection (1 mm, 1 mrad) and that was less than
+        ``still_period_s`` ago: this image is skipped (else this pose becomes the last detection's)."""
+        period, now, last = self._p["still_period_s"], time.monotonic(), self._last_detection
+        if period > 0 and self.hand_ids is None and last is not None and now - last[1] < period:
+            cos = (np.trace(last[0][:3, :3].T @ R_T_C[:3, :3]) - 1.0) / 2.0
+            if float(np.linalg.norm(R_T_C[:3, 3] - last[0][:3, 3])) < 1e-3 \
+                    and math.acos(min(1.0, max(-1.0, cos))) < 1e-3:
+                return True
+        self._last_detection = (R_T_C.copy(), now)
+        return False
 
     def _publish_hands(self, hands: dict[int, np.ndarray], world: str, stamp) -> None:
         """``/dual_arm/targets`` [right, left] when both hand markers are in this image."""
@@ -323,6 +342,7 @@ class MarkerLocalizer(Node):
         skipped = c["image"] + c["camera_info"] + c["joint_states"]
         values = {"images_total": c["images"], "localized_total": c["localized"], "no_marker_total": c["no_marker"],
                   "rejected_total": c["rejected"], "skipped_images_total": c["image"],
+                  "still_skipped_images_total": c["skipped_still"],
                   "bad_camera_info_total": c["camera_info"], "bad_joint_states_total": c["joint_states"],
                   "image_rate_hz": w["images"] / dt, "localization_rate_hz": w["localized"] / dt,
                   "max_process_ms": 1e3 * w["max_process_s"], "last_reprojection_error_px": self.last_error_px,

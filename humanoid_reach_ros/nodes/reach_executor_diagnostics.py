@@ -49,6 +49,8 @@ def executor_statuses(node, window: LoopWindow) -> list:
               "max_step_ms": st.get("step_max_ms", 0.0), "hold_step_p99_ms": st.get("hold_step_p99_ms", 0.0),
               "loop_process_alive": node.loop.alive()}
     level, message = msgs.LEVEL_OK, f"{ticks / elapsed:.0f} Hz ticks, {steps} steps, {overruns} overruns"
+    if st.get("mode", IDLE) == IDLE and not steps:
+        message = "idle: the loop sleeps until the next motion (nothing to publish)"
     if not node.loop.alive():
         level, message = msgs.LEVEL_ERROR, "the control loop process is not running"
     elif steps and overruns / max(steps + overruns, 1) > node.p["max_overrun_fraction"]:

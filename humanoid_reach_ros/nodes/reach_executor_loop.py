@@ -14,7 +14,8 @@ The parent (the ``reach_executor`` node) talks to it through a pipe:
   ``("map", SphereTree | None)``, ``("close",)``;
 * child -> parent: ``("ready", info)``, ``("started", id, note, source)``,
   ``("finished", id, code, message, summary, note)``, ``("status", dict)`` every
-  ``status_period_s``, ``("log", level, text)``, ``("failed", text)`` (set-up error).
+  ``status_period_s`` while a motion runs or settles (every second while holding or idle,
+  and after each event), ``("log", level, text)``, ``("failed", text)`` (set-up error).
 
 The child asks for ``SCHED_FIFO`` for its loop threads and locks its memory where the OS
 allows (:mod:`humanoid_reach_ros.execution.realtime`; the parent logs the outcome once),
@@ -38,6 +39,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 PR_SET_PDEATHSIG = 1
+IDLE_STATUS_PERIOD_S = 1.0     # status to the node while nothing moves
 
 
 @dataclass
@@ -162,21 +164,28 @@ def child_main(conn, config: LoopConfig) -> None:
     # steps). They run SCHED_FIFO too, well below the loop's threads, where the OS allows; the
     # lock is handed over every 0.5 ms rather than every 5 ms.
     from humanoid_reach_ros.execution.realtime import REALTIME_SWITCH_INTERVAL_S, make_feeder_thread_realtime
+    from humanoid_reach_ros.execution.supervisor import RUN, SETTLE
     sys.setswitchinterval(REALTIME_SWITCH_INTERVAL_S)
 
     def sender() -> None:
+        # status every status_period_s while a motion runs or settles; while holding or idle (nothing
+        # changes but the hold's age) once per IDLE_STATUS_PERIOD_S, so a standing robot costs no
+        # wake-ups here (an outcome or a start wakes the thread at once through the queue)
         make_feeder_thread_realtime(config.rt_priority)
         next_status = time.monotonic()
         while not stop.is_set():
+            moving = sup.mode in (RUN, SETTLE)
+            period = config.status_period_s if moving else max(config.status_period_s, IDLE_STATUS_PERIOD_S)
             try:
-                event = out.get(timeout=config.status_period_s / 2)
+                event = out.get(timeout=max(0.0, min(period / 2, next_status - time.monotonic())) + 1e-3)
             except queue.Empty:
                 event = None
             try:
                 if event is not None:
                     conn.send(event)
-                if time.monotonic() >= next_status:
-                    next_status = time.monotonic() + config.status_period_s
+                now = time.monotonic()
+                if now >= next_status or event is not None:
+                    next_status = now + period
                     conn.send(("status", sup.status()))
             except (OSError, EOFError, BrokenPipeError):
                 stop.set()

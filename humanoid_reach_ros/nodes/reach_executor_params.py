@@ -65,8 +65,9 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
                                       "(ABORTED) and the last command held", (0.001, 3600.0), read_only=False),
     "hold_settle_s": ParamSpec(0.25, "after a cancel or abort the executor keeps solving in hold mode this long [s]",
                                (0.0, 10.0)),
-    "hold_timeout_s": ParamSpec(0.0, "republish the held command this long after a motion [s]; 0 = until the "
-                                "next motion", (0.0, 1e6)),
+    "hold_timeout_s": ParamSpec(1.0, "republish the held command this long after a motion [s], then stop "
+                                "publishing (the joint driver holds its last command; the loop sleeps until the "
+                                "next motion); 0 = republish until the next motion", (0.0, 1e6)),
     "rt_priority": ParamSpec(80, "SCHED_FIFO priority of the control loop's tick thread (solver: one below) where "
                              "the OS allows it; 0 = normal scheduling"),
     "lock_memory": ParamSpec(True, "mlockall the control loop process (with rt_priority > 0) where the OS allows it"),

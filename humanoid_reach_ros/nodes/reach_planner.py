@@ -188,8 +188,6 @@ class ReachPlannerNode(Node):
         self._frontier: np.ndarray | None = None     # the last /voxel_map/unobserved
         self._blocks: np.ndarray | None = None       # the last /voxel_map/unobserved_blocks
         self._carved_for: tuple | None = None          # (map, target, ...) the planner's map is prepared for
-        self._target_msg: PoseStamped | None = None
-        self._target_time = -math.inf
         self.map_info = MapInfo()
         self.requests = self.successes = self.busy_rejections = 0
         self.last: PlanResult | None = None
@@ -216,12 +214,10 @@ class ReachPlannerNode(Node):
         for topic, attr in (("voxel_map/unobserved", "_frontier"), ("voxel_map/unobserved_blocks", "_blocks")):
             self.create_subscription(PointCloud2, topic, lambda m, t=topic, a=attr: self._on_unobserved(t, a, m),
                                      LATCHED, callback_group=self._map_group)
-        # the start posture only: the latest joint state taken when needed (no 200 Hz callbacks); a 10 Hz
-        # take keeps its age (staleness) exact to 0.1 s
+        # the start posture and the marker target: the latest messages, taken when a request needs them
+        # (no callback per 200 Hz joint state or 10 Hz target; their ages come from the reception times)
         self.joint_states = LatestOnDemand(self, JointState, "joint_states", qos_profile_sensor_data)
-        self.create_timer(0.1, self.joint_states.latest, callback_group=self._state_group)
-        self.create_subscription(PoseStamped, "target_pose", self._on_target, qos_profile_sensor_data,
-                                 callback_group=self._state_group)
+        self.target_pose = LatestOnDemand(self, PoseStamped, "target_pose")
         self.create_service(PlanReach, "plan_reach", self._on_plan_reach, callback_group=self._service_group)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(p["diagnostics_period_s"], self._publish_diagnostics, clock=steady,
@@ -240,10 +236,6 @@ class ReachPlannerNode(Node):
                 f"seed {p['seed']}")
 
     # ------------------------------------------------------------ subscriptions
-    def _on_target(self, msg: PoseStamped) -> None:
-        with self._state_lock:
-            self._target_msg, self._target_time = msg, time.monotonic()
-
     def _on_map(self, msg: PointCloud2) -> None:
         log = self.get_logger()
         try:
@@ -346,11 +338,9 @@ class ReachPlannerNode(Node):
         return current_joints(self.joint_states, self._p["joint_states_timeout_s"], self.model)
 
     def current_target(self) -> tuple[PoseStamped | None, str]:
-        with self._state_lock:
-            msg, t = self._target_msg, self._target_time
+        msg, age = self.target_pose.latest(), self.target_pose.age_s()
         if msg is None:
             return None, "use_marker_target but no /target_pose received"
-        age = time.monotonic() - t
         if age > self._p["target_timeout_s"]:
             return None, f"use_marker_target but /target_pose is stale ({age:.2f} s > {self._p['target_timeout_s']:g} s)"
         return msg, ""
@@ -567,12 +557,9 @@ class ReachPlannerNode(Node):
         statuses.append(msgs.diagnostic_status(f"{name}: planning", level, message, values, self.hardware_id))
 
         joints, reason = self.current_joints()
-        with self._state_lock:
-            tt = self._target_time
-        now = time.monotonic()
-        js_age = self.joint_states.age_s()
+        js_age, target_age = self.joint_states.age_s(), self.target_pose.age_s()
         values = {"joint_states_age_s": js_age if math.isfinite(js_age) else "never",
-                  "target_pose_age_s": now - tt if math.isfinite(tt) else "never"}
+                  "target_pose_age_s": target_age if math.isfinite(target_age) else "never"}
         level, message = (msgs.LEVEL_OK, "joint_states current") if joints is not None else (msgs.LEVEL_WARN, reason)
         statuses.append(msgs.diagnostic_status(f"{name}: inputs", level, message, values, self.hardware_id))
         return statuses

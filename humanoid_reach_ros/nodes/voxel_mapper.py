@@ -143,6 +143,11 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
                                               "body; occupied voxels stay occupied) [m]", (0.0, 1.0)),
     "unobserved_block_voxels": ParamSpec(5, "edge of the coarse blocks of /voxel_map/unobserved_blocks [voxels]",
                                          (1, 50)),
+    "minor_change_voxels": ParamSpec(100, "a map change of fewer voxels than this (occupied ones that flipped, "
+                                     "plus newly observed or swept) from a still camera is published at most every "
+                                     "minor_change_period_s: the depth noise on the surfaces of a still view flips "
+                                     "10-30 voxels per depth map; 0 = publish every change", (0, 10**9)),
+    "minor_change_period_s": ParamSpec(5.0, "period of the publication of minor changes [s]", (0.0, 3600.0)),
     "publish_period_s": ParamSpec(0.5, "period of /voxel_map and /voxel_map/markers when the map changed [s]",
                                   (0.01, 60.0)),
     "markers_enabled": ParamSpec(True, "publish /voxel_map/markers (a CUBE_LIST of the occupied voxels)"),
@@ -206,6 +211,7 @@ class Counters:
     stereo_rejected: int = 0
     joint_states_rejected: int = 0
     clouds_skipped_still: int = 0
+    minor_changes_deferred: int = 0
     last_integration_s: float = 0.0
     integration_time_s: float = 0.0
     last_problem: str = ""
@@ -250,8 +256,12 @@ class VoxelMapperNode(Node):
         # PointCloud2s or stereo tuples not yet taken by the worker, oldest first
         self._mailbox: collections.deque[Any] = collections.deque()
         self._stop = False
-        self._version = 0                # map changes
-        self._published_version = -1
+        self._published_version = -1     # VoxelMap.version last published
+        self._published_mask: np.ndarray | None = None     # occupied voxels last published
+        self._published_counts = (0, 0)   # observed and swept voxels last published
+        self._published_time = -math.inf
+        self._moved_since_publish = False   # a depth map from a new camera pose was integrated since
+        self._view_moved = False            # (worker) the depth map being integrated is from a new pose
         self._last_warn: dict[str, float] = {}
         self._stereo_left: Image | None = None
         self._stereo_right: Image | None = None
@@ -465,15 +475,18 @@ class VoxelMapperNode(Node):
             with self._state_lock:
                 self.counters.clouds_skipped_still += 1
             return
+        if pose is None:
+            self._view_moved = True           # no pose to compare: publish at once
         t0 = time.perf_counter()
         with self._map_lock:
+            self._moved_since_publish |= self._view_moved
+            self._view_moved = False
             if world is None:
                 st = self.map.integrate(pts, pose)
             elif pose is None:
                 st = self.map.integrate(world, origin=None, mark_only=True)
             else:
                 st = self.map.integrate(world, origin=pose[:3, 3])
-            self._version += 1
         dt = time.perf_counter() - t0
         with self._state_lock:
             c = self.counters
@@ -487,29 +500,34 @@ class VoxelMapperNode(Node):
 
     def _still(self, pose: np.ndarray) -> bool:
         """The camera is where it was at the last integration (1 mm, 1 mrad) and that was less
-        than ``still_integration_period_s`` ago: skip this depth map."""
+        than ``still_integration_period_s`` ago: skip this depth map (else this pose becomes
+        the last integration's)."""
         period = self._p["still_integration_period_s"]
         now = time.monotonic()
         last = self._last_integrated
-        if period > 0 and last is not None and now - last[1] < period:
-            dp = float(np.linalg.norm(pose[:3, 3] - last[0][:3, 3]))
-            cos = (np.trace(last[0][:3, :3].T @ pose[:3, :3]) - 1.0) / 2.0
-            if dp < 1e-3 and math.acos(min(1.0, max(-1.0, cos))) < 1e-3:
-                return True
+        if period > 0 and last is not None and now - last[1] < period and self._same_pose(pose, last[0]):
+            return True
+        if last is None or not self._same_pose(pose, last[0]):
+            self._view_moved = True       # a new view: its changes are published at once
         self._last_integrated = (pose.copy(), now)
         return False
+
+    @staticmethod
+    def _same_pose(a: np.ndarray, b: np.ndarray) -> bool:
+        """Within 1 mm and 1 mrad."""
+        cos = (np.trace(b[:3, :3].T @ a[:3, :3]) - 1.0) / 2.0
+        return float(np.linalg.norm(a[:3, 3] - b[:3, 3])) < 1e-3 and math.acos(min(1.0, max(-1.0, cos))) < 1e-3
 
     # ------------------------------------------------------------ outputs
     def _on_clear(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
         with self._map_lock:
             n = self.map.occupied_count()
             self.map.clear()
-            self._version += 1
         with self._state_lock:
             self.counters.clears += 1
         resp.success, resp.message = True, f"voxel map cleared ({n} occupied voxels forgotten)"
         self.get_logger().info(resp.message)
-        self._publish_map()
+        self._publish_map(force=True)
         return resp
 
     def _sweep_robot(self) -> None:
@@ -523,16 +541,33 @@ class VoxelMapperNode(Node):
         q = self.model.config(joints, self.model.base_on_feet(joints))
         p0, p1, radii = self.collision_model.world_shapes(q)
         with self._map_lock:
-            if self.map.mark_swept(p0, p1, radii + self._p["unobserved_robot_clearance_m"]):
-                self._version += 1
+            self.map.mark_swept(p0, p1, radii + self._p["unobserved_robot_clearance_m"])   # bumps map.version
         self._swept_joints = joints
 
-    def _publish_map(self) -> None:
+    def _publish_map(self, force: bool = False) -> None:
+        """Publish the map's layers when what they show changed: at once after a depth map
+        from a new camera pose, a change of ``minor_change_voxels`` or more, or with ``force``;
+        a smaller change from a still camera (the depth noise flipping surface voxels) at most
+        every ``minor_change_period_s``, so that the readers (planner, executor) do not
+        rebuild their collision trees every second while nothing moves."""
         self._sweep_robot()
         with self._map_lock:
-            if self._version == self._published_version:
+            if self.map.version == self._published_version and not force:     # nothing a reader sees changed
                 return
-            version = self._version
+            now = time.monotonic()
+            occupied = self.map.occupied_mask()
+            counts = (self.map.observed_count, self.map.swept_count)
+            changed = (occupied.size if self._published_mask is None
+                       else int(np.count_nonzero(occupied != self._published_mask))) \
+                + sum(abs(a - b) for a, b in zip(counts, self._published_counts))
+            if not force and not self._moved_since_publish and changed < self._p["minor_change_voxels"] \
+                    and now - self._published_time < self._p["minor_change_period_s"]:
+                with self._state_lock:
+                    self.counters.minor_changes_deferred += 1
+                return
+            self._published_mask, self._published_counts, self._published_time = occupied.copy(), counts, now
+            self._moved_since_publish = False
+            version = self.map.version
             centres = self.map.occupied_centers()
             region = (self._p["unobserved_region_min_m"], self._p["unobserved_region_max_m"])
             frontier = self.map.frontier_centers(*region)
@@ -559,7 +594,7 @@ class VoxelMapperNode(Node):
         self._absorb_joint_states()
         with self._map_lock:
             occupied, depth_maps = self.map.occupied_count(), self.map.depth_maps
-            version, published = self._version, self._published_version
+            version, published = self.map.version, self._published_version
         with self._state_lock:
             c = Counters(**{k: (dict(v) if isinstance(v, dict) else v) for k, v in vars(self.counters).items()})
             buffered = len(self.joint_buffer)

@@ -344,6 +344,10 @@ class VoxelMap:
         self.W = np.zeros(self.shape, dtype=np.float32)   # accumulated weight W_M(v)
         self._stamp = np.zeros(self.shape, dtype=np.int32)   # 8 * depth map + flags (kernel)
         self.swept = np.zeros(self.shape, dtype=bool)   # space the robot's body has been in (mark_swept)
+        self._occupied = np.zeros(self.shape, dtype=bool)   # occupied voxels (_update_layers)
+        self.observed_count = 0     # voxels a ray has reached (W > 0): only grows until clear()
+        self.swept_count = 0        # voxels the robot's body has been in (mark_swept)
+        self.version = 0            # changes whenever the occupied, observed or swept voxels may have changed
         self._scan = 0
         max_steps = int(3 * (p.max_range_m / h + 2)) + 3
         self._buf = np.empty((max_steps, 3), dtype=np.int64)
@@ -370,9 +374,12 @@ class VoxelMap:
         self.V.fill(0.0)
         self.W.fill(0.0)
         self.swept.fill(False)
+        self._occupied.fill(False)
+        self.observed_count = self.swept_count = 0
         self._stamp.fill(0)
         self._scan = 0
         self.depth_maps = 0
+        self.version += 1
 
     def integrate(self, points: np.ndarray, sensor_pose: np.ndarray | None = None,
                   origin: Sequence[float] | None = None, mark_only: bool = False) -> IntegrationStats:
@@ -412,12 +419,26 @@ class VoxelMap:
                           np.inf if mark_only else float(p.clear_margin_m), bool(p.discretize_rays), self._buf,
                           counts)
         self.depth_maps += 1
+        self._update_layers()
         return IntegrationStats(len(P), *(int(c) for c in counts))
+
+    def _update_layers(self) -> None:
+        """The occupied voxels and the observed count after a depth map; bumps :attr:`version`
+        when either changed (a depth map that changes only V and W leaves it)."""
+        p = self.params
+        occupied = (self.V > p.occupied_threshold) & (self.W >= p.min_weight)
+        observed = int(np.count_nonzero(self.W))
+        if observed != self.observed_count or not np.array_equal(occupied, self._occupied):
+            self.version += 1
+        self._occupied, self.observed_count = occupied, observed
 
     # ------------------------------------------------------------ readers
     def occupied_mask(self) -> np.ndarray:
-        p = self.params
-        return (self.V > p.occupied_threshold) & (self.W >= p.min_weight)
+        """Occupied voxels (bool, the map's shape; read-only): ``V > occupied_threshold`` and
+        ``W >= min_weight``."""
+        m = self._occupied.view()
+        m.flags.writeable = False
+        return m
 
     def occupied_count(self) -> int:
         return int(np.count_nonzero(self.occupied_mask()))
@@ -449,7 +470,11 @@ class VoxelMap:
             inside = (np.linalg.norm(c - (a + t[:, None] * ab), axis=1) <= r).reshape([len(x) for x in axes])
             s = tuple(slice(int(lo[k] - self.index_lo[k]), int(hi[k] - self.index_lo[k] + 1)) for k in range(3))
             self.swept[s] |= inside
-        return int(np.count_nonzero(self.swept)) - before
+        self.swept_count = int(np.count_nonzero(self.swept))
+        added = self.swept_count - before
+        if added:
+            self.version += 1
+        return added
 
     def frontier_centers(self, region_min_m: Sequence[float], region_max_m: Sequence[float]) -> np.ndarray:
         """Centres (N, 3) [m, world] of the *unobserved frontier* inside a region: voxels no ray
