@@ -156,7 +156,9 @@ def test_dual_arm_goals_follow_and_bad_inputs(start_node, ros_probe, model, ws) 
     ex = start_node("reach_executor", params_file=PARAMS_FILE,
                     params={"diagnostics_period_s": 0.2, "scene_file": "",
                             # generous: a loaded machine may delay /joint_states (staleness: test_reach_executor_node)
-                            "joint_states_timeout_s": 5.0, "joint_states_abort_s": 10.0}, ready_log=READY, timeout=60.0)
+                            "joint_states_timeout_s": 5.0, "joint_states_abort_s": 10.0,
+                            "hold_timeout_s": 0.0},    # the held command is republished (counted below)
+                    ready_log=READY, timeout=60.0)
     start_node("joint_driver", params_file=DRIVER_PARAMS, params={"command_timeout_s": 60.0},
                ready_log=r"simulated hrp2")
     client = ActionClient(ros_probe.node, ExecuteReach, "/execute_reach")

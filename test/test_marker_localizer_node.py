@@ -177,6 +177,58 @@ def test_bad_images_and_camera_info_get_warnings_and_the_node_keeps_working(star
 
 
 @pytest.mark.node
+def test_a_still_camera_detects_once_per_still_period_a_moving_one_every_image(start_node, ros_probe) -> None:
+    """The robot standing: the same view is detected in one image per still_period_s (the rest
+    counted as still_skipped); a moving head has every image detected."""
+    model, scene = RobotModel(), load_scene("scenes/plant.yaml")
+    cam = C.PinholeCamera.from_fov(640, 480, math.radians(60.0))
+    pubs = {
+        "js": ros_probe.node.create_publisher(JointState, "/joint_states", qos_profile_sensor_data),
+        "img": ros_probe.node.create_publisher(Image, "/head_camera/image_raw", qos_profile_sensor_data),
+        "info": ros_probe.node.create_publisher(CameraInfo, "/head_camera/camera_info", qos_profile_sensor_data),
+    }
+    diags = ros_probe.collect(DiagnosticArray, "/diagnostics")
+    loc = start_node("marker_localizer", params_file=PARAMS_FILE,
+                     params={"diagnostics_period_s": 0.2, "still_period_s": 1.0}, ready_log=READY)
+    frames = {}
+    for pitch in (HEAD_PITCH_RAD, HEAD_PITCH_RAD + 0.01):
+        joints = model.half_sitting_joints.copy()
+        joints[model.joint_index["HEAD_JOINT1"]] = pitch
+        T_wc = camera_pose(model, joints, "head_camera_optical_frame")
+        frames[pitch] = (joints, C.render_image(scene, C.cast(scene, cam, T_wc), C.marker_print_from_scene(scene)))
+    t = [100.0]
+
+    def send(pitch: float) -> None:
+        t[0] += 0.05
+        s = msgs.time_from_seconds(t[0])
+        joints, frame = frames[pitch]
+        pubs["js"].publish(msgs.joint_state(model.joint_names, joints, stamp=s))
+        pubs["info"].publish(camera_info_msg(cam, "head_camera_optical_frame", s))
+        pubs["img"].publish(msgs.image_msg(frame, "rgb8", "head_camera_optical_frame", s))
+        ros_probe.spin_for(0.05)
+
+    def counts() -> dict:
+        st = status(diags, ": localization")
+        return {} if st is None else {k: int(v) for k, v in msgs.diagnostic_values(st).items() if k.endswith("_total")}
+
+    ros_probe.spin_until(lambda: send(HEAD_PITCH_RAD) or counts().get("still_skipped_images_total", 0) >= 10, 60.0,
+                         "ten images of a still camera skipped", on_timeout=loc.log_tail)
+    c = counts()
+    assert c["localized_total"] >= 1 and c["localized_total"] < c["images_total"] / 2, c
+    k = [0]
+
+    def moving() -> bool:
+        k[0] += 1
+        send(HEAD_PITCH_RAD + 0.01 * (k[0] % 2))              # the head nods between two poses
+        return counts().get("localized_total", 0) >= c["localized_total"] + 10
+    ros_probe.spin_until(moving, 60.0, "ten localizations of a moving camera", on_timeout=loc.log_tail)
+    c2 = counts()
+    # every image of the moving head detected (the still ones skipped before it, and at most one after)
+    assert c2["still_skipped_images_total"] <= c["still_skipped_images_total"] + 1, (c, c2)
+    assert loc.alive()
+
+
+@pytest.mark.node
 def test_bad_marker_table_stops_with_a_clear_error(start_node) -> None:
     proc = start_node("marker_localizer", params_file=PARAMS_FILE, params={"marker_sizes_m": [0.1, 0.2]})
     proc.ok_exit_codes = (2,)

@@ -172,20 +172,25 @@ def child_main(conn, config: LoopConfig) -> None:
         # changes but the hold's age) once per IDLE_STATUS_PERIOD_S, so a standing robot costs no
         # wake-ups here (an outcome or a start wakes the thread at once through the queue)
         make_feeder_thread_realtime(config.rt_priority)
-        next_status = time.monotonic()
-        while not stop.is_set():
+        last_status = -float("inf")
+
+        def period() -> float:
             moving = sup.mode in (RUN, SETTLE)
-            period = config.status_period_s if moving else max(config.status_period_s, IDLE_STATUS_PERIOD_S)
+            return config.status_period_s if moving else max(config.status_period_s, IDLE_STATUS_PERIOD_S)
+
+        while not stop.is_set():
+            p = period()
+            wait = min(p / 2, max(0.0, last_status + p - time.monotonic()))
             try:
-                event = out.get(timeout=max(0.0, min(period / 2, next_status - time.monotonic())) + 1e-3)
+                event = out.get(timeout=wait + 1e-3)
             except queue.Empty:
                 event = None
             try:
                 if event is not None:
                     conn.send(event)
                 now = time.monotonic()
-                if now >= next_status or event is not None:
-                    next_status = now + period
+                if event is not None or now >= last_status + period():
+                    last_status = now
                     conn.send(("status", sup.status()))
             except (OSError, EOFError, BrokenPipeError):
                 stop.set()

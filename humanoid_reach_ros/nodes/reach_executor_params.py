@@ -84,7 +84,7 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
                                 "down; the pitch-45 poses see the space in front of the chest the arms and the trunk move through); the "
                                 "last one looks at the workspace in front"),
     "scan_dwell_s": ParamSpec(1.0, "the look action holds each head pose this long by default [s]", (0.0, 60.0)),
-    "head_speed_rad_s": ParamSpec(0.5, "peak head joint speed of the look action [rad/s]", (0.01, 10.0)),
+    "head_speed_rad_s": ParamSpec(1.0, "peak head joint speed of the look action [rad/s]", (0.01, 10.0)),
     "warn_throttle_s": ParamSpec(1.0, "minimum interval between repeated warnings [s]", (0.0, 3600.0)),
     # ---- dual-arm mode (MODE_DUAL_ARM goals, /dual_arm/targets)
     "dual_arm_regression": ParamSpec("", "torso regression model stem (.npz + .yaml), relative to config/ or "
