@@ -52,7 +52,8 @@ FLOOR_BAND_M = 0.04                         # measured points below this height 
 CAMERA_FRAME = "head_camera_optical_frame"
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 SIM = {"width": 320, "height": 240, "joint_states_timeout_s": 3600.0, "diagnostics_period_s": 0.5}
-MAPPER = {"publish_period_s": 0.2, "diagnostics_period_s": 0.2, "warn_throttle_s": 0.0}
+MAPPER = {"publish_period_s": 0.2, "diagnostics_period_s": 0.2, "warn_throttle_s": 0.0,
+          "still_integration_period_s": 0.0}   # every depth map of a held pose integrated (not one a second)
 CLOUDS_PER_POSE = 3                         # depth maps integrated at every scan pose
 CLEAR_CLOUDS_PER_POSE = 8                   # ... when rescanning to clear (the free-space update is gentler)
 
