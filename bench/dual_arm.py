@@ -83,6 +83,8 @@ from humanoid_reach_ros.reach.kinematics import HandTargets, rodrigues_interpola
 from humanoid_reach_ros.reach.torso_regression import TorsoRegression
 from humanoid_reach_ros.reach.upper_body_ik import UpperBodyIK
 from humanoid_reach_ros.reach.whole_body_ik import FullBodyLMIK, measure_errors
+from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT, robots
 
 REPO = Path(__file__).resolve().parents[1]
 CLOCK = time.thread_time
@@ -305,6 +307,8 @@ def main(argv=None) -> int:
     ap.add_argument("--targets", choices=("reachable", "box"), default="reachable",
                     help="target distribution (module docstring)")
     ap.add_argument("--no-box-reference", action="store_true", help="skip the box_distribution run")
+    ap.add_argument("--robot", default=DEFAULT_ROBOT, choices=robots(),
+                    help=f"robot of config/robots (default {DEFAULT_ROBOT}); it needs a torso regression model")
     a = ap.parse_args(argv)
     if a.pairs_per_hand < 1:
         ap.error("--pairs-per-hand must be >= 1")
@@ -314,7 +318,11 @@ def main(argv=None) -> int:
         ap.error("--lm-max-iter must be >= 1")
     if not (np.isfinite(a.margin_m) and a.margin_m >= 0):
         ap.error("--margin-m must be a finite value >= 0")
-    ctl = DualArmReachController(regression=None if a.model is None else TorsoRegression.load(a.model))
+    robot_model = RobotModel(a.robot)
+    if a.model is None and not robot_model.spec.torso_regression:
+        ap.error(f"robot {a.robot!r} has no torso regression model (tools/train_torso_regression.py --robot "
+                 f"{a.robot}, then torso_regression in its robot.yaml; or --model)")
+    ctl = DualArmReachController(robot_model, regression=None if a.model is None else TorsoRegression.load(a.model))
     robot, ws = ctl.robot, ctl.ws
     dt = ctl.config.period_s
     DATA.append(robot.model.createData())

@@ -47,18 +47,20 @@ from humanoid_reach_ros.geometry.sphere_tree import SphereTree  # noqa: E402
 from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner  # noqa: E402
 from humanoid_reach_ros.planning.reshape import ReshapeParams, SmoothReshaper  # noqa: E402
 from humanoid_reach_ros.planning.wgr import valve_region  # noqa: E402
+from humanoid_reach_ros.robot.model import RobotModel  # noqa: E402
 from humanoid_reach_ros.robot.shapes import load_collision_model  # noqa: E402
+from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT, robots  # noqa: E402
 from humanoid_reach_ros.sim.scene import load_scene  # noqa: E402
 
 OVERRUN_S = 0.005
 ARMS = ("right", "left")
 
 
-def plan_reaches(seed: int, resolution_m: float = 0.02):
+def plan_reaches(seed: int, resolution_m: float = 0.02, robot: str = DEFAULT_ROBOT):
     """(planner, voxels, tree, {arm: SplineTrajectory}) on the plant scene."""
     scene = load_scene("scenes/plant.yaml")
     voxels = scene.voxelize(resolution_m, exclude_groups=("valve",))
-    planner = ReachPlanner(params=PlannerParams(time_budget_s=5.0))
+    planner = ReachPlanner(RobotModel(robot), params=PlannerParams(time_budget_s=5.0))
     planner.set_map(voxels)
     region = valve_region(scene.target.pose)
     refs = {}
@@ -214,11 +216,13 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=2000, help="timed steps in total, both arms (>= 2000 for the target)")
     ap.add_argument("--seed", type=int, default=3, help="planner seed")
     ap.add_argument("--osqp-steps", type=int, default=300, help="steps of the OSQP-cascade comparison run")
+    ap.add_argument("--robot", default=DEFAULT_ROBOT, choices=robots(),
+                    help=f"robot of config/robots (default {DEFAULT_ROBOT})")
     args = ap.parse_args(argv)
     if args.steps < 1 or args.osqp_steps < 0:
         ap.error("--steps must be >= 1 and --osqp-steps >= 0")
 
-    planner, voxels, tree, refs = plan_reaches(args.seed)
+    planner, voxels, tree, refs = plan_reaches(args.seed, robot=args.robot)
     robot = planner.robot
     cm = load_collision_model(None, robot)
     params = ExecutorParams()
