@@ -79,16 +79,26 @@ def test_headers_sizes_clouds_stereo_and_disabled_primitives(start_node, ros_pro
     ros_probe.spin_until(lambda: len(images) >= 2 and len(clouds) >= 2 and len(stereo["right"]) >= 1
                          and len(infos) >= 1 and len(stereo_info) >= 1, 30.0, "scene_sim output",
                          on_timeout=proc.log_tail)
-    img, info, cloud = images.last, infos.last, clouds.last
+    # stamps: those of /joint_states messages the driver published. The probe's best-effort joint-state
+    # subscription may match the driver late, or lose a message on a loaded machine: take the newest
+    # image and cloud whose joint state the probe has (more arrive every 0.1 s)
+
+    def with_joint_state(collector):
+        stamps = {msgs.nanoseconds_from_time(m.header.stamp) for m in joints.messages}
+        return next((m for m in reversed(collector.messages) if msgs.nanoseconds_from_time(m.header.stamp) in stamps),
+                    None)
+
+    img = ros_probe.spin_until(lambda: with_joint_state(images), 30.0, "an image stamped like a received joint state",
+                               on_timeout=proc.log_tail)
+    cloud = ros_probe.spin_until(lambda: with_joint_state(clouds), 30.0, "a cloud stamped like a received joint state",
+                                 on_timeout=proc.log_tail)
+    info = infos.last
     assert (img.width, img.height, img.encoding, img.step, len(img.data)) == (320, 240, "rgb8", 960, 320 * 240 * 3)
     assert img.header.frame_id == info.header.frame_id == cloud.header.frame_id == "head_camera_optical_frame"
     assert (info.width, info.height) == (320, 240) and info.k[0] > 0 and info.k[0] == info.k[4]
     right = stereo["right"].last
     assert right.encoding == "mono8" and right.header.frame_id == model.camera_frame + "_right"   # the default: camera frame + _right
     assert stereo_info.last.p[3] == pytest.approx(-stereo_info.last.k[0] * 0.07)
-    # stamps: those of /joint_states messages the driver published
-    joint_stamps = {msgs.nanoseconds_from_time(m.header.stamp) for m in joints.messages}
-    assert msgs.nanoseconds_from_time(img.header.stamp) in joint_stamps
     # the cloud (no range noise, every 2nd pixel, within 5 m) lies on the scene's surfaces
     pts = world_points(model, cloud, joints.messages)
     assert 2000 < len(pts) <= 160 * 120
