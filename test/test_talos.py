@@ -276,3 +276,56 @@ def test_the_zero_posture_touches_where_the_description_says(talos, cm):
     hits = {frozenset(p[:2]) for p in cm.colliding_pairs(P0, P1, r)}
     assert hits == {frozenset(p) for p in (("r_forearm", "waist_front"), ("l_forearm", "waist_front"),
                                            ("r_hand", "r_thigh_outer"), ("l_hand", "l_thigh_outer"))}, hits
+
+
+# ------------------------------------------------------------------ planning with 7-DOF arms
+@pytest.fixture(scope="module")
+def planner(talos):
+    from humanoid_reach_ros.planning.reach import ReachPlanner
+
+    return ReachPlanner(talos)
+
+
+def test_the_planning_space_of_a_seven_joint_arm_has_eleven_columns(talos, planner):
+    proj = planner.projector
+    assert proj.arm_dof == {"right": 7, "left": 7} and proj.plan_dim("right") == 11
+    q = talos.half_sitting()
+    for arm in ("right", "left"):
+        q_plan = proj.plan_config_of(q, arm)
+        assert q_plan.shape == (1, 11)
+        back = proj.project_plan_config(q_plan, arm)
+        assert back.ok.all()
+        np.testing.assert_allclose(back.q[0], q, atol=1e-9)
+    with pytest.raises(ValueError, match="11 columns"):
+        proj.project_plan_config(np.zeros((1, 10)), "right")
+    assert len(planner.planning_space("right").lower) == 11
+
+
+@pytest.mark.parametrize("target, arm", [((0.55, -0.25, 1.0), "right"), ((0.5, 0.3, 0.5), "left")])
+def test_talos_plans_a_reach_in_free_space(talos, planner, target, arm):
+    from humanoid_reach_ros.planning.reach import PlanRequest
+    from humanoid_reach_ros.planning.wgr import valve_region
+
+    planner.set_map(np.zeros((0, 3)))
+    region = valve_region(target_p=target)
+    out = planner.plan(talos.half_sitting_joints, PlanRequest(region, arm=arm, seed=0, time_budget_s=10.0))
+    assert out.success, out.message
+    assert out.arm == arm and out.waypoints_plan.shape[1] == 11
+    hand = talos.frame_pose(out.waypoints[-1], talos.hand_frames[arm])
+    np.testing.assert_allclose(hand.translation, region.target_p, atol=1e-6)
+    for q in out.waypoints:
+        for s, stance in zip(talos.sole_frames, talos.stance_soles):
+            np.testing.assert_allclose(talos.frame_pose(q, s).homogeneous, stance.homogeneous, atol=1e-6)
+
+
+def test_talos_reaches_the_plant_valve(talos, planner):
+    from humanoid_reach_ros.planning.reach import PlanRequest
+    from humanoid_reach_ros.planning.wgr import valve_region
+
+    planner.set_map_from_scene("scenes/plant.yaml")
+    out = planner.plan(talos.half_sitting_joints, PlanRequest(valve_region(), seed=0, time_budget_s=10.0))
+    assert out.success, out.message
+    check = planner.collision
+    assert check.check_batch(out.waypoints).all()
+    hand = talos.frame_pose(out.waypoints[-1], talos.hand_frames[out.arm])
+    np.testing.assert_allclose(hand.translation, valve_region().target_p, atol=1e-6)
