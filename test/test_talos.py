@@ -329,3 +329,36 @@ def test_talos_reaches_the_plant_valve(talos, planner):
     assert check.check_batch(out.waypoints).all()
     hand = talos.frame_pose(out.waypoints[-1], talos.hand_frames[out.arm])
     np.testing.assert_allclose(hand.translation, valve_region().target_p, atol=1e-6)
+
+
+def test_the_whole_body_executor_runs_a_talos_reach_unchanged(talos, cm):
+    """The executor is whole-body on pinocchio: a planned plant reach of the 7-DOF arm runs to the
+    end with feet, COG, distances and the hand as for HRP-2 (test_executor.py's criteria)."""
+    from humanoid_reach_ros.control.executor import ExecutorParams, WholeBodyExecutor
+    from humanoid_reach_ros.geometry.sphere_tree import SphereTree
+    from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner
+    from humanoid_reach_ros.planning.wgr import valve_region
+    from humanoid_reach_ros.sim.scene import load_scene
+
+    scene = load_scene("scenes/plant.yaml")
+    voxels = scene.voxelize(0.02, exclude_groups=("valve",))
+    planner = ReachPlanner(talos, PlannerParams(time_budget_s=5.0))
+    planner.set_map(voxels)
+    out = planner.plan(talos.half_sitting_joints, PlanRequest(valve_region(scene.target.pose), arm="right", seed=3))
+    assert out.success, out.message
+    ref = out.trajectory
+    ex = WholeBodyExecutor(talos, cm, ExecutorParams())
+    ex.set_environment(SphereTree.from_voxels(voxels, 0.02))
+    j0 = ref.position(0.0)
+    q0 = talos.config(j0, talos.base_on_feet(j0))
+    soles0 = [talos.frame_pose(q0, f).translation for f in talos.sole_frames]
+    ex.start(q0, ref, "right")
+    results = [ex.step() for _ in range(int(np.ceil(ref.duration / 0.005)) + 60)]
+    m = [r.metrics for r in results]
+    assert min(x.min_distance_m for x in m) >= ExecutorParams().security_distance_m - 2e-3
+    assert min(x.self_distance_m for x in m) >= 0.0
+    assert max(x.com_error_m for x in m) < 1e-3
+    for r in results[::25] + [results[-1]]:
+        for f, s0 in zip(talos.sole_frames, soles0):
+            assert np.linalg.norm(talos.frame_pose(r.q, f).translation - s0) < 1e-4
+    assert results[-1].done and m[-1].hand_error_m < 1e-3 and m[-1].progress == 1.0
