@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """Draw the sphere / capsule collision model of the half-sitting robot (cf. Kanehiro et
-al., Fig. 2 right): front and side views, with the URDF link boxes it approximates.
+al., Fig. 2 right): front and side views, with the URDF link boxes it approximates (a URDF
+of meshes has none: the skeleton of joint origins is drawn).
 
-    python tools/plot_collision_model.py [--out doc/collision_model.png] [--padding 0.0]
+    python tools/plot_collision_model.py [--robot hrp2] [--out doc/collision_model.png] [--padding 0.0]
 
 Orthographic views: a capsule projects to a "stadium" (the projected segment swept by
 a disc of the capsule's radius), a sphere to a disc; both are drawn exactly.
@@ -111,11 +112,12 @@ def draw_view(ax, axes: tuple[int, int], depth_axis: int, depth_sign: float, cm,
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default=str(ROOT / "doc" / "collision_model.png"))
+    ap.add_argument("--robot", default="hrp2", help="robot of config/robots (or a robot.yaml path)")
+    ap.add_argument("--out", default=None, help="default: doc/collision_model.png (hrp2), doc/collision_model_<robot>.png")
     ap.add_argument("--padding", type=float, default=None, help="override padding_m")
     args = ap.parse_args()
 
-    robot = RobotModel()
+    robot = RobotModel(args.robot)
     cm = load_collision_model(None, robot, padding_m=args.padding)
     q = robot.half_sitting()
     data = robot.forward(q)
@@ -125,36 +127,42 @@ def main() -> None:
     def pos(frame: str) -> np.ndarray:
         return data.oMf[robot.frame_id(frame)].translation.copy()
 
-    chains = [
-        ["r_sole", "RLEG_LINK4", "RLEG_LINK3", "RLEG_LINK2", "base_link", "LLEG_LINK2", "LLEG_LINK3", "LLEG_LINK4",
-         "l_sole"],
-        ["base_link", "CHEST_LINK1", "HEAD_LINK1", "head_camera_link"],
-        ["r_hand_ee", "RARM_LINK5", "RARM_LINK3", "RARM_LINK2", "CHEST_LINK1", "LARM_LINK2", "LARM_LINK3",
-         "LARM_LINK5", "l_hand_ee"],
-    ]
-    skeleton = [np.array([pos(f) for f in c]) for c in chains]
-    ees = [pos("r_hand_ee"), pos("l_hand_ee")]
+    def limb_chain(name: str) -> list[np.ndarray]:
+        """Root link, every joint origin of the limb, tip."""
+        limb = robot.limbs[name]
+        m = robot.model
+        return [pos(limb.root)] + [data.oMi[m.getJointId(j)].translation.copy() for j in limb.joints] + \
+            [pos(limb.tip)]
+
+    legs = limb_chain("right_leg")[::-1] + limb_chain("left_leg")
+    arms = limb_chain("right_arm")[::-1] + limb_chain("left_arm")
+    spine = [pos(robot.base_link), pos(robot.spec.chest_link), pos(robot.camera_frame)]
+    skeleton = [np.array(legs), np.array(spine), np.array(arms)]
+    ees = [pos(f) for f in robot.hand_frames.values()]
+    height = float(max(P1[:, 2].max(), P0[:, 2].max()) + radii.max()) + 0.05
 
     fig, (front, side) = plt.subplots(1, 2, figsize=(11, 8.5), gridspec_kw={"width_ratios": [1.15, 1]})
     draw_view(front, (1, 2), 0, 1.0, cm, P0, P1, radii, boxes, skeleton, ees,
               "front (from +x; robot's left on the right)")
     draw_view(side, (0, 2), 1, -1.0, cm, P0, P1, radii, boxes, skeleton, ees, "side (from -y, the robot's right)")
-    front.set_xlim(-0.55, 0.55)
-    side.set_xlim(-0.45, 0.45)
+    half = max(0.55, float(np.abs(np.concatenate([P0[:, 1], P1[:, 1]])).max() + radii.max() + 0.05))
+    front.set_xlim(-half, half)
+    side.set_xlim(-max(0.45, half - 0.1), max(0.45, half - 0.1))
     for ax in (front, side):
-        ax.set_ylim(-0.05, 1.65)
+        ax.set_ylim(-0.05, max(1.65, height))
     front.set_xlabel("y [m]")
     side.set_xlabel("x [m]")
     front.set_ylabel("z [m]")
     fig.suptitle(
-        f"HRP-2-class collision model, half-sitting: {cm.n_shapes} shapes "
+        f"{robot.name} collision model, half-sitting: {cm.n_shapes} shapes "
         f"({sum(s.is_sphere for s in cm.shapes)} spheres), {cm.n_pairs} self-collision pairs, "
         f"padding {cm.padding_m:g} m\n"
         "filled: shapes (red right, blue left, green torso); dashed: URDF link boxes; "
-        "x: hand end-effector points"
+        "line: joint origins; x: hand frames"
     )
     fig.tight_layout()
-    out = Path(args.out)
+    default = "collision_model.png" if args.robot == "hrp2" else f"collision_model_{robot.name}.png"
+    out = Path(args.out) if args.out else ROOT / "doc" / default
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     print(f"wrote {out}")

@@ -337,8 +337,9 @@ class PlanChecker:
 
     def _run(self, Q: np.ndarray, stop_first: bool) -> tuple[int, np.ndarray]:
         Q = np.ascontiguousarray(np.atleast_2d(np.asarray(Q, dtype=np.float64)))
-        if Q.shape[1] != 10:
-            raise ValueError(f"q_plan must have 10 columns (q_arm, z_t, rpy_t), got {Q.shape}")
+        d = self.projector.plan_dim(self.arm)
+        if Q.shape[1] != d:
+            raise ValueError(f"q_plan must have {d} columns (q_arm, z_t, rpy_t), got {Q.shape}")
         col = self.collision
         tree = col.tree
         out = np.zeros(len(Q), np.bool_)

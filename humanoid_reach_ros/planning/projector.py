@@ -105,21 +105,23 @@ def _project_plan_kernel(q_plan, v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, leg
     """:meth:`Projector.project_plan_config` for N rows in one compiled call (same
     steps as the numpy path: trunk pose by lines 2-4, arm joints set and limit-checked,
     right then left leg by :func:`~humanoid_reach_ros.robot.limb_ik.leg_ik_pose` with the
-    limb's default reference). ``fails``: (right_leg, left_leg, arm_limits) counts."""
+    limb's default reference). Rows ``(q_arm (na), z_t, rpy_t (3))``, ``na`` the arm's
+    joints (``arm_cols``). ``fails``: (right_leg, left_leg, arm_limits) counts."""
     n = q_plan.shape[0]
     nq = q_ref.shape[0]
+    na = arm_cols.shape[0]
     Rt = np.empty((3, 3))
     pt = np.empty(3)
     qleg = np.empty(6)
     work = np.empty(LEG_WORK_SIZE)
     for k in range(n):
-        roll, pitch, yaw = q_plan[k, 7], q_plan[k, 8], q_plan[k, 9]
+        roll, pitch, yaw = q_plan[k, na + 1], q_plan[k, na + 2], q_plan[k, na + 3]
         rpy_into(Rt, roll, pitch, yaw)
         for a in range(3):
             pt[a] = Rt[a, 0] * v[0] + Rt[a, 1] * v[1] + Rt[a, 2] * v[2]
         pt[0] += cog_xy[0]
         pt[1] += cog_xy[1]
-        pt[2] = q_plan[k, 6]
+        pt[2] = q_plan[k, na]
         for a in range(3):
             trunk_p[k, a] = pt[a]
             for b in range(3):
@@ -136,7 +138,7 @@ def _project_plan_kernel(q_plan, v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, leg
         Q[k, 5] = cr * cp * sy - sr * sp * cy
         Q[k, 6] = cr * cp * cy + sr * sp * sy
         lim = True
-        for a in range(6):
+        for a in range(na):
             x = q_plan[k, a]
             Q[k, arm_cols[a]] = x
             if not (x >= arm_lo[a] and x <= arm_hi[a]):
@@ -224,6 +226,8 @@ class Projector:
             np.ascontiguousarray(np.stack([self.feet[leg][1] for leg in LEGS])),
             np.ascontiguousarray(np.stack([lk.q_default for lk in legs])),
             *kc)
+        #: joints of each arm: the planning space of an arm is (q_arm (n), z_t, rpy_t (3))
+        self.arm_dof = {arm: len(robot.limbs[f"{arm}_arm"].joints) for arm in ARM_CODES}
         self._kernel_arm = {}
         for arm in ARM_CODES:
             ji = np.array(robot.limbs[f"{arm}_arm"].joint_index)
@@ -231,6 +235,10 @@ class Projector:
                                      np.array(robot.lower[ji], dtype=float), np.array(robot.upper[ji], dtype=float))
 
     # ------------------------------------------------------------ pieces
+    def plan_dim(self, arm: str) -> int:
+        """Columns of ``arm``'s planning space: its joints (6; 7 for a redundant arm) + 4."""
+        return self.arm_dof[arm] + 4
+
     def trunk_pose(self, z_t: np.ndarray, rpy_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Lines 2-4: ``R_t = RPY(rpy_t)``, ``p_t = R_t v + COG_approx``, ``p_t[z] = z_t``."""
         rpy_t = np.atleast_2d(np.asarray(rpy_t, float))
@@ -316,24 +324,26 @@ class Projector:
         return ProjectionResult(Q, ok, arm_used, failures, p_t, R_t)
 
     def project_plan_config(self, q_plan, arm: str) -> ProjectionResult:
-        """The planner's space (eq. 2): ``q_plan`` (N, 10) = (q_arm (6), z_t, rpy_t (3))
-        -> full configurations. The reaching arm's joints are set directly, the trunk
+        """The planner's space (eq. 2): ``q_plan`` (N, n + 4) = (q_arm (n), z_t, rpy_t (3))
+        -> full configurations (``n`` the arm's joints: 6, or 7 for a redundant arm, every
+        one a planning variable). The reaching arm's joints are set directly, the trunk
         horizontal position by lines 3-4 of Algorithm 1, the legs by closed-form IK;
         everything else at the reference. ``ok``: legs solved and the arm joints within
         their limits. ``failures`` counts leg IK failures (and ``"arm_limits"``)."""
         if arm not in ARM_CODES:
             raise ValueError(f"arm must be 'right' or 'left', got {arm!r}")
         q_plan = np.atleast_2d(np.asarray(q_plan, float))
-        if q_plan.shape[1] != 10:
-            raise ValueError(f"q_plan must have 10 columns (q_arm, z_t, rpy_t), got {q_plan.shape}")
+        na = self.arm_dof[arm]
+        if q_plan.shape[1] != na + 4:
+            raise ValueError(f"q_plan must have {na + 4} columns (q_arm ({na}), z_t, rpy_t), got {q_plan.shape}")
         if self.compiled:
             return self._project_plan_compiled(q_plan, arm)
         name = f"{arm}_arm"
-        p_t, R_t = self.trunk_pose(q_plan[:, 6], q_plan[:, 7:10])
-        Q = self._base(p_t, R_t, q_plan[:, 7:10])
-        Q[:, self.cols[name]] = q_plan[:, :6]
+        p_t, R_t = self.trunk_pose(q_plan[:, na], q_plan[:, na + 1:na + 4])
+        Q = self._base(p_t, R_t, q_plan[:, na + 1:na + 4])
+        Q[:, self.cols[name]] = q_plan[:, :na]
         ji = np.array(self.robot.limbs[name].joint_index)
-        lim = np.all((q_plan[:, :6] >= self.robot.lower[ji]) & (q_plan[:, :6] <= self.robot.upper[ji]), axis=1)
+        lim = np.all((q_plan[:, :na] >= self.robot.lower[ji]) & (q_plan[:, :na] <= self.robot.upper[ji]), axis=1)
         failures = {"right_leg": 0, "left_leg": 0, "arm_limits": int(np.count_nonzero(~lim))}
         idx = self._legs(Q, p_t, R_t, np.flatnonzero(lim), failures)
         ok = np.zeros(len(q_plan), bool)
@@ -359,7 +369,7 @@ class Projector:
         return ProjectionResult(Q, ok, arm_used, failures, p_t, R_t)
 
     def plan_config_of(self, q: np.ndarray, arm: str) -> np.ndarray:
-        """Inverse of :meth:`project_plan_config` on its image: (N, nq) -> (N, 10)."""
+        """Inverse of :meth:`project_plan_config` on its image: (N, nq) -> (N, n + 4)."""
         q = np.atleast_2d(np.asarray(q, float))
         R = quat_xyzw_matrix(q[:, 3:7])
         return np.concatenate([q[:, self.cols[f"{arm}_arm"]], q[:, 2:3], matrix_rpy(R)], axis=1)

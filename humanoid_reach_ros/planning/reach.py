@@ -88,15 +88,16 @@ class PlannerParams:
     reach the target; roll and yaw uniform in ``trunk_roll_rad`` / ``trunk_yaw_rad``. Arm
     ``auto``: the first arm gets at most ``first_arm_time_fraction`` of the remaining
     budget when the other arm has goals.
-    Planning space (eq. 2) ``q_plan = (q_arm (6), z_t, rpy_t (3))``: bounds = the arm
+    Planning space (eq. 2) ``q_plan = (q_arm (n), z_t, rpy_t (3))``, ``n`` the arm's joints
+    (6; 7 for a redundant arm: all planning variables): bounds = the arm
     joint limits and the request's trunk ranges, cut to ``trunk_space_margin`` (height
     [m], pitch [rad]; None: no cut) around the start and the goals (our choice: (0.1, 0.3)
     keeps paths from wandering through squats they do not need -- plant valve, 30 seeds:
     trajectory p50 / p90 3.6 / 5.1 s against 4.6 / 7.5 s uncut), and grown to include
     them; when RRT-connect finds no path there within ``trunk_space_cut_iterations``
     iterations (300: ~40 ms; 91 of 100 plant goals need fewer), the search goes on
-    in the whole box (a detour may need it); metric ``||W dq||`` with ``W = (arm_weight x6, trunk_z_weight,
-    trunk_rpy_weight x3)``, edges checked every ``edge_resolution``, RRT step ``rrt_step``.
+    in the whole box (a detour may need it); metric ``||W dq||`` with ``W = (arm_weight xn, trunk_z_weight,
+    trunk_rpy_weight x3)`` (:meth:`weights_for`), edges checked every ``edge_resolution``, RRT step ``rrt_step``.
     ``rrt_step`` is 1.0 (not 0.3): every checker call projects its batch through the
     closed-form leg IK, whose numpy cost was per call rather than per configuration, so
     fewer, longer CONNECT/EXTEND calls planned ~2.5x faster on the plant scene (20 valve
@@ -164,9 +165,14 @@ class PlannerParams:
             if not (len(r) == 2 and all(math.isfinite(x) for x in r) and r[0] <= r[1]):
                 raise ValueError(f"PlannerParams.{name}: need finite lo <= hi, got {r}")
 
+    def weights_for(self, n_arm: int) -> np.ndarray:
+        """The metric's weights of a planning space with ``n_arm`` arm joints."""
+        return np.array([self.arm_weight] * n_arm + [self.trunk_z_weight] + [self.trunk_rpy_weight] * 3)
+
     @property
     def weights(self) -> np.ndarray:
-        return np.array([self.arm_weight] * 6 + [self.trunk_z_weight] + [self.trunk_rpy_weight] * 3)
+        """:meth:`weights_for` six arm joints (the benches' HRP-2 figures)."""
+        return self.weights_for(6)
 
 
 @dataclass
@@ -187,7 +193,7 @@ class PlanOutcome:
     """Result of :meth:`ReachPlanner.plan` (arrays ``None`` unless ``success``, except
     ``goals`` which holds whatever was sampled). ``waypoint_times`` (W,): the time of
     each waypoint in the trajectory (its sample is exactly the waypoint's joints);
-    ``waypoints_plan`` (W', 10): the shortcut path in q_plan (without the pre-segment);
+    ``waypoints_plan`` (W', n + 4): the shortcut path in q_plan (without the pre-segment);
     ``goal_arms`` (G,) arm codes (``codes.ARM_RIGHT`` / ``ARM_LEFT``); ``goal_index``: the goal reached.
     ``stats["collision_time_s"]`` includes the capsule forward kinematics."""
 
@@ -386,27 +392,28 @@ class ReachPlanner:
     def planning_space(self, arm: str, include: np.ndarray | None = None,
                        trunk: TrunkSampler | None = None, cut: bool = True) -> PlanningSpace:
         """Box of eq. 2 for ``arm``: arm joint limits, the trunk ranges of ``trunk`` (default:
-        every leg-feasible cell), cut to ``trunk_space_margin`` around ``include`` (n, 10)
+        every leg-feasible cell), cut to ``trunk_space_margin`` around ``include`` (k, n + 4)
         when ``cut``, and grown to include it."""
         p = self.params
         ji = np.array(self.robot.limbs[f"{arm}_arm"].joint_index)
+        na = len(ji)
         t_lo, t_hi = (self.trunk_region.all_cells() if trunk is None else trunk).bounds()
         if cut and include is not None and len(include) and p.trunk_space_margin is not None:
             m = np.array([p.trunk_space_margin[0], p.trunk_roll_rad[1] - p.trunk_roll_rad[0], p.trunk_space_margin[1],
                           p.trunk_yaw_rad[1] - p.trunk_yaw_rad[0]])
-            t_lo = np.maximum(t_lo, np.min(include[:, 6:], axis=0) - m)
-            t_hi = np.minimum(t_hi, np.max(include[:, 6:], axis=0) + m)
+            t_lo = np.maximum(t_lo, np.min(include[:, na:], axis=0) - m)
+            t_hi = np.minimum(t_hi, np.max(include[:, na:], axis=0) + m)
         lo = np.concatenate([self.robot.lower[ji], t_lo])
         hi = np.concatenate([self.robot.upper[ji], t_hi])
         if include is not None and len(include):
             lo = np.minimum(lo, np.min(include, axis=0))
             hi = np.maximum(hi, np.max(include, axis=0))
-        return PlanningSpace(lo, hi, p.weights, p.edge_resolution)
+        return PlanningSpace(lo, hi, p.weights_for(na), p.edge_resolution)
 
     def search_path(self, arm: str, start_plan: np.ndarray, goal_plan: np.ndarray, collision: RobotCollision,
                     rng: np.random.Generator, planner: str, budget_s: float, trunk: TrunkSampler | None = None,
                     shortcut_s=None):
-        """Path in ``q_plan`` from ``start_plan`` (10,) to any of ``goal_plan`` (G, 10), then
+        """Path in ``q_plan`` from ``start_plan`` (n + 4,) to any of ``goal_plan`` (G, n + 4), then
         shortcut: ``(result, path or None, tree nodes)``. RRT-connect runs first in the
         planning space cut around the start and the goals (at most
         ``trunk_space_cut_iterations`` iterations: deterministic for a seed), then, if that
@@ -438,7 +445,7 @@ class ReachPlanner:
         return result, None, nodes
 
     def validity_fn(self, arm: str, collision: RobotCollision):
-        """``is_valid_batch(Q_plan (n, 10)) -> (n,)``: projection ok and collision-free.
+        """``is_valid_batch(Q_plan (k, n + 4)) -> (k,)``: projection ok and collision-free.
 
         With the compiled kinematics and early exit (the defaults) this is a
         :class:`~humanoid_reach_ros.planning.plan_check.PlanChecker` (projection, forward

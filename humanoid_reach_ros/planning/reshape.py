@@ -140,9 +140,10 @@ class SmoothReshaper:
         self._soles = robot.stance_soles
         self._solver = SaturatedNullSpaceHQP()
         self.com_xy = np.zeros(2)
-        arm_names = [n for n in robot.joint_names if n.startswith(("RARM", "LARM", "CHEST"))]
-        self._perturb = np.array([robot.joint_index[n] for n in arm_names
-                                  if robot.joint_index[n] not in grip], dtype=np.intp)
+        # the arms' and the chest's joints, in model order (from the description, not by name)
+        upper = {*robot.limbs["right_arm"].joints, *robot.limbs["left_arm"].joints, *robot.spec.chest_joints}
+        self._perturb = np.array([robot.joint_index[n] for n in robot.joint_names
+                                  if n in upper and robot.joint_index[n] not in grip], dtype=np.intp)
 
     # ------------------------------------------------------------ helpers
     def _full(self, joints: np.ndarray) -> np.ndarray:

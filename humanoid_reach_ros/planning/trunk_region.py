@@ -188,10 +188,11 @@ class TrunkRegion:
         Z, P = np.meshgrid(zs, ps, indexing="ij")
         self.z_grid, self.pitch_grid = Z.ravel(), P.ravel()
         self.pitches = ps
-        q_plan = np.zeros((len(self.z_grid), 10))
-        q_plan[:, :6] = projector.q_ref[projector.cols["right_arm"]]
-        q_plan[:, 6] = self.z_grid
-        q_plan[:, 8] = self.pitch_grid
+        na = projector.arm_dof["right"]
+        q_plan = np.zeros((len(self.z_grid), na + 4))
+        q_plan[:, :na] = projector.q_ref[projector.cols["right_arm"]]
+        q_plan[:, na] = self.z_grid
+        q_plan[:, na + 2] = self.pitch_grid
         self.feasible = projector.project_plan_config(q_plan, "right").ok.copy()
         if not self.feasible.any():
             raise ValueError(f"TrunkRegion: the legs' IK admits no trunk height in {self.z_span} m at pitch "

@@ -273,13 +273,17 @@ def _candidates(c: Chain6, P: np.ndarray, Rt: np.ndarray, ref: np.ndarray) -> np
 
 
 class GeneralLimb:
-    """:class:`GeneralLimbIK` behind the interface of ``limb_ik.LimbIK`` (one protocol for
-    every limb): ``solve`` / ``fk`` / ``maybe_reachable`` on world root and tip poses, and
-    the reach geometry the planner's bounds use -- ``t0`` (the root-end axes' centre in
-    the root link), ``te`` / ``Re`` (the tip in the frame whose origin is the tip-end
-    centre), ``l1 + l2`` the longest and ``|l1 - l2|`` the shortest centre distance."""
+    """:class:`GeneralLimbIK` (6 joints) or :class:`RedundantLimbIK` (7 joints) behind the
+    interface of ``limb_ik.LimbIK`` (one protocol for every limb): ``solve`` / ``fk`` /
+    ``maybe_reachable`` on world root and tip poses, and the reach geometry the planner's
+    bounds use -- ``t0`` (the root-end axes' centre in the root link), ``te`` / ``Re`` (the
+    tip in the frame whose origin is the tip-end centre), ``l1 + l2`` the longest and
+    ``|l1 - l2|`` the shortest centre distance. For a 7-joint chain ``t0`` is joint 1's
+    origin and the distances are bounds (the 6-DOF subchain's centre distances widened by
+    the distance ``|t2|`` of the subchain's root-end centre from joint 1's origin, which
+    joint 1 swings about): still conservative for ``maybe_reachable`` and the planner's
+    out-of-reach bound, no longer tight."""
 
-    kind = "general"
     compiled = False
 
     def __init__(self, robot, limb_name: str) -> None:
@@ -289,9 +293,16 @@ class GeneralLimb:
         q_hs = np.asarray(robot.half_sitting_joints)[list(spec.joint_index)]
         self.lower, self.upper = self.chain.lower, self.chain.upper
         self.q_default = np.clip(q_hs, self.lower, self.upper)
-        self.ik = GeneralLimbIK(self.chain, self.q_default)
         c = self.chain
-        solver = self.ik._solver
+        self.n_joints = len(c.axes)
+        if self.n_joints == 7:
+            self.kind = "redundant"
+            self.ik = RedundantLimbIK(c, self.q_default)
+            solver, swing = self.ik.sub._solver, float(np.linalg.norm(c.t[1]))
+        else:
+            self.kind = "general"
+            self.ik = GeneralLimbIK(c, self.q_default)
+            solver, swing = self.ik._solver, 0.0
         # centres of the two ends and the distance range between them (elbow / knee swing)
         a3, t3, R3, t4 = solver.axes[2], solver.t[2], solver.R[2], solver.t[3]
         upar = (a3 @ t4) * a3
@@ -299,10 +310,11 @@ class GeneralLimb:
         t3p = R3.T @ t3
         K0 = t3 @ t3 + t4 @ t4 + 2 * (t3p @ upar)
         rho = np.hypot(2 * (t3p @ uperp), 2 * (t3p @ np.cross(a3, uperp)))
-        d_max, d_min = np.sqrt(K0 + rho), np.sqrt(max(K0 - rho, 0.0))
+        d_max, d_min = np.sqrt(K0 + rho) + swing, max(np.sqrt(max(K0 - rho, 0.0)) - swing, 0.0)
         self.l1, self.l2 = float((d_max + d_min) / 2), float((d_max - d_min) / 2)
         # the root-end centre is joint 1's origin and the tip-end centre joint 6's (their
-        # translations t2 (, t3) and t6 (, t5) are zero), whichever end has three axes
+        # translations t2 (, t3) and t6 (, t5) are zero), whichever end has three axes;
+        # a 7-joint chain: joint 1's origin, the subchain's centre |t2| from it
         self.t0 = c.t[0].copy()
         self.te, self.Re = c.te.copy(), c.Re.copy()
 

@@ -3,9 +3,11 @@
 Conventions used throughout the package:
 
 * ``q`` is pinocchio's configuration of the floating-base model: base position (3),
-  base quaternion (x, y, z, w) and the 30 joint angles in URDF/pinocchio order
-  (``RobotModel.joint_names``). ``model.nq == 37``, ``model.nv == 36``.
-* ``joints`` is the 30-vector of joint angles alone (``q[7:]``).
+  base quaternion (x, y, z, w) and the ``n_joints`` joint angles in URDF/pinocchio order
+  (``RobotModel.joint_names``; HRP-2: 30, ``model.nq == 37``, ``model.nv == 36``).
+* ``joints`` is the vector of joint angles alone (``q[7:]``).
+* The description's added ``frames`` (robot/spec.py) are fixed frames of the model like
+  the URDF's own (pinocchio OP_FRAMEs).
 * The world frame is the stance frame: origin on the floor midway between the
   soles of the half-sitting stance, x forward, z up.
 """
@@ -28,13 +30,28 @@ N_BASE_V = 6
 
 @dataclass(frozen=True)
 class LimbSpec:
-    """A 6-DOF limb: joints from ``root`` link to ``tip`` frame."""
+    """A limb (6 joints; 7 for an arm): joints from ``root`` link to ``tip`` frame."""
 
     name: str
     root: str
     tip: str
     joints: tuple[str, ...]
-    joint_index: tuple[int, ...]  # indices into the 30-vector of joint angles
+    joint_index: tuple[int, ...]  # indices into the vector of joint angles
+
+
+def _add_frames(model: pin.Model, spec) -> None:
+    """The description's ``frames`` as fixed frames of ``model`` (parents the URDF lacks are
+    left to :func:`~humanoid_reach_ros.robot.spec.check_against_model` to report)."""
+    for name, d in spec.frames.items():
+        if model.existFrame(name):
+            raise ValueError(f"robot description {spec.path}: frames.{name} is already a frame of "
+                             f"{spec.urdf_path.name}")
+        if not model.existFrame(d.parent):
+            continue
+        pf = model.getFrameId(d.parent)
+        parent = model.frames[pf]
+        local = pin.SE3(pin.rpy.rpyToMatrix(*d.rpy), np.array(d.xyz, float))
+        model.addFrame(pin.Frame(name, parent.parentJoint, pf, parent.placement * local, pin.FrameType.OP_FRAME))
 
 
 class RobotModel:
@@ -49,6 +66,7 @@ class RobotModel:
         self.collision_path = self.spec.collision_path
         self.urdf_xml = self.urdf_path.read_text()
         self.model: pin.Model = pin.buildModelFromXML(self.urdf_xml, pin.JointModelFreeFlyer())
+        _add_frames(self.model, self.spec)
         self.data: pin.Data = self.model.createData()
         # joint 0 is "universe", joint 1 the free flyer
         self.joint_names: tuple[str, ...] = tuple(self.model.names[2:])
@@ -76,7 +94,7 @@ class RobotModel:
         return self.model.getFrameId(name)
 
     def joints_from_dict(self, values: Mapping[str, float], default: np.ndarray | None = None) -> np.ndarray:
-        """30-vector from a {joint name: angle [rad]} mapping; missing joints from ``default``."""
+        """Joint vector from a {joint name: angle [rad]} mapping; missing joints from ``default``."""
         out = np.zeros(self.n_joints) if default is None else np.array(default, dtype=float)
         for name, v in values.items():
             if name not in self.joint_index:
@@ -85,7 +103,7 @@ class RobotModel:
         return out
 
     def config(self, joints: Sequence[float], base: pin.SE3 | None = None) -> np.ndarray:
-        """Full configuration q from the 30 joint angles and a base (waist) pose."""
+        """Full configuration q from the joint angles and a base (waist) pose."""
         base = pin.SE3.Identity() if base is None else base
         q = np.empty(self.model.nq)
         q[:N_BASE_Q] = pin.SE3ToXYZQUAT(base)

@@ -1,11 +1,17 @@
 """The robot description: ``config/robots/<name>/robot.yaml`` read into one object.
 
 A :class:`RobotSpec` names everything the package needs to know about a robot beyond
-its URDF: the four limbs (root link, tip frame, six joints each: the hands are the arm
-limbs' tips, the soles the leg limbs' tips), the floating-base link, the chest and
-head joints by role, the head camera frame, the grippers, the half-sitting posture,
-the sole rectangle (the support polygon is the hull of both soles), the collision model
-file and the dual-arm torso regression model. :class:`~humanoid_reach_ros.robot.model.RobotModel`
+its URDF: the four limbs (root link, tip frame, six joints each -- seven allowed for an
+arm: the hands are the arm limbs' tips, the soles the leg limbs' tips), the floating-base
+link, the chest and head joints by role, the head camera frame, the grippers, the
+half-sitting posture, the sole rectangle (the support polygon is the hull of both soles),
+the collision model file, the dual-arm torso regression model, and fixed frames the
+description adds to the URDF's (``frames``: e.g. a grasp point the URDF lacks).
+
+The URDF is a file beside ``robot.yaml`` or a packaged resource
+``package://<package>/<path>`` (:func:`resolve_package_uri`: the package's ament share
+directory, else the ``cmeel.prefix/share`` of a pip-installed cmeel wheel on ``sys.path``),
+so a third-party model is read where its package installs it, not copied. :class:`~humanoid_reach_ros.robot.model.RobotModel`
 loads it and every layer receives it from there: no robot-specific name or number is
 written anywhere else in the package (``test/test_robot_spec.py`` checks).
 
@@ -14,6 +20,7 @@ No ROS here.
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,18 +31,32 @@ from humanoid_reach_ros.paths import config_path
 #: the robot the nodes, demo and benches use unless told otherwise
 DEFAULT_ROBOT = "hrp2"
 LIMB_NAMES = ("right_leg", "left_leg", "right_arm", "left_arm")
+#: joints per limb the description accepts (legs: the planner's compiled leg IK needs six;
+#: arms: six, or seven solved by robot/general_ik.py's RedundantLimbIK)
+LIMB_JOINTS = {"right_leg": (6,), "left_leg": (6,), "right_arm": (6, 7), "left_arm": (6, 7)}
+PACKAGE_SCHEME = "package://"
 _KEYS = {"robot_name", "urdf", "collision_model", "base_link", "limbs", "chest", "head", "gripper_joints",
-         "sole_rectangle_m", "torso_regression", "half_sitting"}
-_REQUIRED = _KEYS - {"gripper_joints", "torso_regression"}
+         "sole_rectangle_m", "torso_regression", "half_sitting", "frames"}
+_REQUIRED = _KEYS - {"gripper_joints", "torso_regression", "frames"}
 
 
 @dataclass(frozen=True)
 class LimbDef:
-    """A 6-DOF limb of the description: joints from the ``root`` link to the ``tip`` frame."""
+    """A limb of the description: joints (6; 7 for an arm) from the ``root`` link to the ``tip`` frame."""
 
     root: str
     tip: str
     joints: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class FrameDef:
+    """A fixed frame the description adds to the URDF's: ``xyz`` [m] and ``rpy`` [rad]
+    (URDF convention: R = Rz(yaw) Ry(pitch) Rx(roll)) in frame ``parent``."""
+
+    parent: str
+    xyz: tuple[float, float, float]
+    rpy: tuple[float, float, float]
 
 
 @dataclass(frozen=True)
@@ -57,6 +78,11 @@ class RobotSpec:
     sole_rectangle: tuple[float, float, float, float]
     half_sitting_deg: dict
     torso_regression: str | None
+    #: name -> FrameDef: fixed frames added to the URDF's by RobotModel
+    frames: dict
+    #: directories holding the URDF's package (pinocchio's ``package_dirs`` for its meshes);
+    #: empty for a URDF file beside robot.yaml
+    package_dirs: tuple[Path, ...] = ()
 
     @property
     def hand_frames(self) -> dict[str, str]:
@@ -84,7 +110,7 @@ class RobotSpec:
 
     def names(self) -> set[str]:
         """Every joint and frame name the description gives (robot-specific by nature)."""
-        out = {self.camera_frame, *self.chest_joints, *self.head_joints, *self.gripper_joints}
+        out = {self.camera_frame, *self.chest_joints, *self.head_joints, *self.gripper_joints, *self.frames}
         for limb in self.limbs.values():
             out |= {limb.root, limb.tip, *limb.joints}
         return out - {self.base_link}
@@ -105,11 +131,62 @@ def robot_config_path(robot: str | Path) -> Path:
     return p if p.is_absolute() else config_path(s)
 
 
+def resolve_package_uri(uri: str, where: str = "resource") -> tuple[Path, Path]:
+    """``package://<package>/<path>`` -> (the file, the directory holding the package's share
+    directory: pinocchio's ``package_dirs`` entry for the package's meshes). Looked up in the
+    ament index (a ROS install of the package), then in every ``<entry>/cmeel.prefix/share``
+    of ``sys.path`` (a pip-installed cmeel wheel, e.g. ``example-robot-data``). ValueError
+    naming the package and how to install it when it is not there, or naming the directory
+    searched when the package is there without the file."""
+    rest = uri[len(PACKAGE_SCHEME):]
+    package, _, rel = rest.partition("/")
+    if not uri.startswith(PACKAGE_SCHEME) or not package or not rel:
+        raise ValueError(f"{where}: {uri!r} is not package://<package>/<path>")
+    shares: list[Path] = []
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        shares.append(Path(get_package_share_directory(package)))
+    except Exception:   # not a ROS install of the package (or no ament index at all)
+        pass
+    for entry in sys.path:
+        d = Path(entry or ".") / "cmeel.prefix" / "share" / package
+        if d.is_dir() and d not in shares:
+            shares.append(d)
+    for share in shares:
+        if (share / rel).is_file():
+            return (share / rel).resolve(), share.parent.resolve()
+    if shares:
+        raise ValueError(f"{where}: {uri}: no {rel} in package {package!r} ({', '.join(map(str, shares))}); "
+                         f"another version of {package!r}? (tools/requirements.txt pins the one the description needs)")
+    raise ValueError(f"{where}: {uri}: package {package!r} is not installed (neither in the ament index nor a "
+                     f"pip cmeel prefix on sys.path): pip install {package} (pinned in tools/requirements.txt; "
+                     f"tools/setup.sh installs it), or install its ROS package")
+
+
+def _frames(doc, where: str) -> dict[str, FrameDef]:
+    raw = doc.get("frames", {}) or {}
+    if not isinstance(raw, dict):
+        raise ValueError(f"{where}: frames must map frame names to {{parent, xyz, rpy}}")
+    out = {}
+    for name, d in raw.items():
+        ok = isinstance(d, dict) and set(d) == {"parent", "xyz", "rpy"} and isinstance(d["parent"], str)
+        for k in ("xyz", "rpy"):
+            v = d.get(k) if isinstance(d, dict) else None
+            ok = ok and isinstance(v, list) and len(v) == 3 and all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
+        if not ok:
+            raise ValueError(f"{where}: frames.{name} must be {{parent: frame, xyz: [3 m], rpy: [3 rad]}}")
+        out[str(name)] = FrameDef(d["parent"], tuple(float(x) for x in d["xyz"]), tuple(float(x) for x in d["rpy"]))
+    return out
+
+
 def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]:
     """Read and validate a robot description; returns the spec and the raw document.
 
     ValueError naming the key for: unknown or missing keys, a limb without root, tip or
-    six joints, a chest/head without both roles, a sole rectangle that is not four finite
+    six joints (six or seven for an arm), a URDF ``package://`` resource that is not
+    installed, a malformed added frame, a chest/head without both roles, a sole rectangle that is not four finite
     numbers with min < max, a half-sitting entry that is not a finite angle. Names are
     checked against the URDF by :class:`~humanoid_reach_ros.robot.model.RobotModel`."""
     path = robot_config_path(robot)
@@ -129,8 +206,10 @@ def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]
     for name in LIMB_NAMES:
         d = doc["limbs"][name]
         if not isinstance(d, dict) or set(d) != {"root", "tip", "joints"} or not isinstance(d["joints"], list) \
-                or len(d["joints"]) != 6 or not all(isinstance(x, str) for x in [d["root"], d["tip"], *d["joints"]]):
-            raise ValueError(f"{where}: limbs.{name} must be {{root, tip, joints: [6 joint names]}}")
+                or len(d["joints"]) not in LIMB_JOINTS[name] \
+                or not all(isinstance(x, str) for x in [d["root"], d["tip"], *d["joints"]]):
+            counts = "" if len(LIMB_JOINTS[name]) == 1 else ", or 7: an arm may be redundant"
+            raise ValueError(f"{where}: limbs.{name} must be {{root, tip, joints: [6 joint names{counts}]}}")
         limbs[name] = LimbDef(d["root"], d["tip"], tuple(d["joints"]))
     if limbs["right_arm"].root != limbs["left_arm"].root:
         raise ValueError(f"{where}: both arms must hang from the same (chest) link")
@@ -153,8 +232,17 @@ def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]
     reg = doc.get("torso_regression")
     if reg is not None and not isinstance(reg, str):
         raise ValueError(f"{where}: torso_regression must be a model path (config/, no extension)")
+    frames = _frames(doc, where)
+    urdf = doc["urdf"]
+    if not isinstance(urdf, str):
+        raise ValueError(f"{where}: urdf must be a file name beside robot.yaml or package://<package>/<path>")
+    if urdf.startswith(PACKAGE_SCHEME):
+        urdf_path, package_dir = resolve_package_uri(urdf, f"{where}: urdf")
+        package_dirs: tuple[Path, ...] = (package_dir,)
+    else:
+        urdf_path, package_dirs = (path.parent / urdf).resolve(), ()
     spec = RobotSpec(
-        name=str(doc["robot_name"]), path=path, urdf_path=(path.parent / doc["urdf"]).resolve(),
+        name=str(doc["robot_name"]), path=path, urdf_path=urdf_path, package_dirs=package_dirs, frames=frames,
         collision_path=(path.parent / doc["collision_model"]).resolve(), base_link=str(doc["base_link"]),
         limbs=limbs, chest_yaw=roles["chest"]["yaw"], chest_pitch=roles["chest"]["pitch"],
         head_yaw=roles["head"]["yaw"], head_pitch=roles["head"]["pitch"], camera_frame=roles["head"]["camera_frame"],
@@ -172,9 +260,10 @@ def check_against_model(spec: RobotSpec, joint_names, has_frame) -> None:
         bad += [f"{name}.{j}" for j in limb.joints if j not in joints]
         bad += [f"{name} frame {f}" for f in (limb.root, limb.tip) if not has_frame(f)]
     bad += [f"frame {f}" for f in (spec.base_link, spec.camera_frame) if not has_frame(f)]
+    bad += [f"frames.{n} parent {d.parent}" for n, d in spec.frames.items() if not has_frame(d.parent)]
     if bad:
         raise ValueError(f"robot description {spec.path}: not in {spec.urdf_path.name}: {', '.join(bad)}")
 
 
-__all__ = ["RobotSpec", "LimbDef", "load_robot_spec", "robot_config_path", "robots", "check_against_model",
-           "DEFAULT_ROBOT", "LIMB_NAMES"]
+__all__ = ["RobotSpec", "LimbDef", "FrameDef", "load_robot_spec", "robot_config_path", "robots",
+           "check_against_model", "resolve_package_uri", "DEFAULT_ROBOT", "LIMB_NAMES", "LIMB_JOINTS"]
