@@ -13,7 +13,7 @@ test: setup
 	@$(ENV) python -m pytest test $(PYTEST_ARGS)
 
 demo: setup
-	@$(ENV) python -m humanoid_reach_ros.demo
+	@$(ENV) python -m humanoid_reach_ros.demo $(if $(ROBOT),--robot $(ROBOT))
 
 bench: setup
 	@$(ENV) for b in bench/graph.py $$(ls bench/*.py | grep -v '^bench/graph.py$$'); do echo "== $$b"; python $$b || exit 1; done

@@ -36,6 +36,7 @@ from humanoid_reach_ros.codes import ARM_REQUESTS
 from humanoid_reach_ros.graph import STOP_DEADLINE_S, NodeProcess, allocate_domain, graph_env, wait_for
 from humanoid_reach_ros.nodes.reach_executor_params import PARAMETERS
 from humanoid_reach_ros.paths import config_path
+from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT, robots
 
 GRAPH_NODES = ("joint_driver", "scene_sim", "voxel_mapper", "marker_localizer", "reach_planner", "reach_executor")
 # the topics the MCAP recording keeps (camera images are left out: 10 Hz of 640x480 RGB is 9 MB/s)
@@ -265,12 +266,12 @@ def execute(op: Operator, trajectory, arm: int):
     return result.result().result, time.monotonic() - t0
 
 
-def final_hand_in_region(op: Operator, region, arm: str, tol: float = 2e-3) -> bool:
+def final_hand_in_region(op: Operator, region, arm: str, tol: float = 2e-3, robot_name: str | None = None) -> bool:
     """Is the measured hand pose (FK of /joint_states) inside the WGR (bounds grown by ``tol``, m / rad)?"""
     from humanoid_reach_ros.io import msgs
     from humanoid_reach_ros.robot.model import RobotModel
 
-    robot = RobotModel()
+    robot = RobotModel(robot_name)
     js = msgs.parse_joint_state(op.joint_states)
     joints = robot.joints_from_dict(dict(zip(js.names, js.positions)))
     q = robot.config(joints, robot.base_on_feet(joints))
@@ -278,14 +279,14 @@ def final_hand_in_region(op: Operator, region, arm: str, tol: float = 2e-3) -> b
     return bool(region.contains(hand.translation, hand.rotation, tol=tol))
 
 
-def measured_balance(samples: list[Any]) -> dict[str, float]:
+def measured_balance(samples: list[Any], robot_name: str | None = None) -> dict[str, float]:
     """From the measured /joint_states while executing: drift of the left sole (the driver's odometry
     keeps the right sole at its stance pose, so a moving left sole is what a leg error would show) and
     of the exact COG's horizontal position from the first sample."""
     from humanoid_reach_ros.io import msgs
     from humanoid_reach_ros.robot.model import RobotModel
 
-    robot = RobotModel()
+    robot = RobotModel(robot_name)
     left = robot.stance_soles[1]
     feet, com0, com = 0.0, None, 0.0
     for msg in samples[::5]:
@@ -337,7 +338,7 @@ def run(args: argparse.Namespace) -> dict:
     try:
         scene = str(Path(args.scene).resolve())
         for name in GRAPH_NODES:
-            params: dict[str, Any] = {}
+            params: dict[str, Any] = {"robot_config": args.robot}
             if name == "scene_sim":
                 params["scene_file"] = scene
             elif name in ("reach_planner", "reach_executor"):
@@ -388,8 +389,8 @@ def run(args: argparse.Namespace) -> dict:
         if not result.success:
             raise RuntimeError(f"/execute_reach failed ({result.error_code}): {result.message}")
         op.spin_for(0.5)
-        in_region = final_hand_in_region(op, region, arm)
-        measured = measured_balance(op.samples)
+        in_region = final_hand_in_region(op, region, arm, robot_name=args.robot)
+        measured = measured_balance(op.samples, args.robot)
         report = {
             "arm": arm,
             "map_voxels": int(voxels),
@@ -441,6 +442,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--look", type=float, nargs=2, metavar=("YAW", "PITCH"), default=(0.0, 25.0),
                     help="head yaw/pitch [deg] while localizing the marker")
     ap.add_argument("--settle", type=float, default=1.0, help="seconds each head pose of the scan is held")
+    ap.add_argument("--robot", default=DEFAULT_ROBOT, choices=robots(),
+                    help=f"robot of config/robots (default {DEFAULT_ROBOT})")
     ap.add_argument("--out", default="out/demo", help="directory for logs, report, plots and the MCAP file")
     ap.add_argument("--no-record", action="store_true", help="do not record an MCAP file")
     args = ap.parse_args(argv)

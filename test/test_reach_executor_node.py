@@ -140,6 +140,14 @@ def test_look_requests_in_process(model) -> None:
                               ([math.radians(-170)], [0.0], "pose 0 of the goal: yaw -170.0")):
         with pytest.raises(RequestError, match=words):
             req.head_poses(yaw, pitch)
+    # the scan pattern (a parameter for any robot) is clamped into this robot's head limits; the same
+    # pose asked for in a goal is refused
+    idx = [model.joint_index[n] for n in model.spec.head_joints]
+    hi_deg = np.degrees(model.upper[idx])
+    p["scan_poses_deg"] = [0.0, 10.0, 0.0, float(hi_deg[1]) + 20.0]
+    np.testing.assert_allclose(np.degrees(req.head_poses([], []))[1], [0.0, hi_deg[1]])
+    with pytest.raises(RequestError, match="limits"):
+        req.head_poses([0.0], [math.radians(hi_deg[1] + 20.0)])
     p["scan_poses_deg"] = [0.0, 10.0, 5.0]
     with pytest.raises(RequestError, match="yaw, pitch pairs"):
         req.head_poses([], [])

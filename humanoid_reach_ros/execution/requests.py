@@ -263,7 +263,9 @@ class ExecutionRequests:
 
     def head_poses(self, yaw: list[float], pitch: list[float]) -> np.ndarray:
         """Validated head poses (K, 2) [rad] of a look request: as many yaws as pitches, finite,
-        within the head joints' limits; an empty request is the scan pattern (``scan_poses_deg``)."""
+        within the head joints' limits; an empty request is the scan pattern (``scan_poses_deg``,
+        a parameter for any robot: its poses are clamped into this robot's head limits, where a
+        goal's poses outside them are refused)."""
         bad = C.INVALID_GOAL
         if len(yaw) != len(pitch):
             raise RequestError(bad, f"{len(yaw)} yaw angles but {len(pitch)} pitch angles: give one pitch per yaw")
@@ -278,6 +280,8 @@ class ExecutionRequests:
             raise RequestError(bad, f"{what} has NaN/inf angles")
         idx = [self.robot.joint_index[n] for n in self.head_joints]
         lo, hi = self.robot.lower[idx], self.robot.upper[idx]
+        if what == "scan_poses_deg":
+            poses = np.clip(poses, lo, hi)
         for k, pose in enumerate(poses):
             for j, (name, label) in enumerate(zip(self.head_joints, ("yaw", "pitch"))):
                 if not lo[j] <= pose[j] <= hi[j]:
