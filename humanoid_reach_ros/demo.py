@@ -198,6 +198,28 @@ def scan_plant(op: Operator, settle_s: float) -> int:
     return op.maps[-1][1]
 
 
+def aim_head_deg(robot_name: str, point, step_deg: float = 1.0) -> tuple[float, float]:
+    """Head yaw and pitch [deg] (within the head's limits, on a ``step_deg`` grid) that point the
+    camera's optical axis closest to ``point`` [m, world] from half-sitting: where the operator
+    turns the head to find a marker they know roughly where to look for."""
+    from humanoid_reach_ros.robot.model import RobotModel
+
+    robot = RobotModel(robot_name)
+    idx = [robot.joint_index[n] for n in robot.spec.head_joints]
+    lo, hi = np.degrees(robot.lower[idx]), np.degrees(robot.upper[idx])
+    joints = robot.half_sitting_joints.copy()
+    best = (-2.0, 0.0, 0.0)
+    for yaw in np.arange(math.ceil(lo[0] / step_deg), math.floor(hi[0] / step_deg) + 1) * step_deg:
+        for pitch in np.arange(math.ceil(lo[1] / step_deg), math.floor(hi[1] / step_deg) + 1) * step_deg:
+            joints[idx] = np.radians([yaw, pitch])
+            cam = robot.frame_pose(robot.config(joints, robot.base_on_feet(joints)), robot.camera_frame)
+            d = np.asarray(point, float) - cam.translation
+            c = float(cam.rotation[:, 2] @ d) / max(float(np.linalg.norm(d)), 1e-9)
+            if c > best[0]:
+                best = (c, float(yaw), float(pitch))
+    return best[1], best[2]
+
+
 def wait_marker(op: Operator, look_at: tuple[float, float], timeout: float = 30.0):
     """Looks at the valve and waits for five consistent /target_pose messages."""
     from humanoid_reach_ros.io import msgs
@@ -362,7 +384,14 @@ def run(args: argparse.Namespace) -> dict:
         voxels = scan_plant(op, args.settle)
         target = None
         if args.target is None:
-            target = wait_marker(op, args.look)
+            look = args.look
+            if look is None:
+                from humanoid_reach_ros.sim.scene import load_scene
+
+                look = aim_head_deg(args.robot, load_scene(scene).target.pose[:3, 3])
+                print(f"[demo] looking for the marker at yaw {look[0]:.0f}, pitch {look[1]:.0f} deg (the head "
+                      "aimed at the scene's valve)")
+            target = wait_marker(op, look)
             from humanoid_reach_ros.io import msgs
 
             p = msgs.se3_from_pose(target.pose).translation
@@ -439,8 +468,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--planner", default="", help="rrt_connect | prm | modified_prm (default: the node's)")
     ap.add_argument("--budget", type=float, default=5.0, help="planning time budget [s]")
     ap.add_argument("--seed", type=int, default=-1, help="planner seed (negative: the node's)")
-    ap.add_argument("--look", type=float, nargs=2, metavar=("YAW", "PITCH"), default=(0.0, 25.0),
-                    help="head yaw/pitch [deg] while localizing the marker")
+    ap.add_argument("--look", type=float, nargs=2, metavar=("YAW", "PITCH"), default=None,
+                    help="head yaw/pitch [deg] while localizing the marker (default: aimed at the scene's valve)")
     ap.add_argument("--settle", type=float, default=1.0, help="seconds each head pose of the scan is held")
     ap.add_argument("--robot", default=DEFAULT_ROBOT, choices=robots(),
                     help=f"robot of config/robots (default {DEFAULT_ROBOT})")

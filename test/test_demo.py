@@ -24,10 +24,13 @@ def run_demo(tmp_path, *args: str, timeout: float = 420) -> subprocess.Completed
                           cwd=REPO_ROOT, capture_output=True, text=True, timeout=timeout)
 
 
-def test_whole_graph_reaches_the_valve(tmp_path):
-    proc = run_demo(tmp_path)
+@pytest.mark.parametrize("robot", ["hrp2", "talos"])
+def test_whole_graph_reaches_the_valve(tmp_path, robot):
+    """`make demo` and `make demo ROBOT=talos` (7-DOF arms, its own collision model and camera)."""
+    proc = run_demo(tmp_path, "--robot", robot)
     print(proc.stdout[-4000:])
     assert proc.returncode == 0, proc.stdout[-6000:] + proc.stderr[-3000:]
+    assert "the head aimed at the scene's valve" in proc.stdout
     report = json.loads((tmp_path / "demo_report.json").read_text())
     assert report["target_from_marker"] and report["arm"] in ("right", "left")
     assert report["min_distance_m"] >= 0.0
@@ -51,6 +54,7 @@ def test_whole_graph_reaches_the_valve(tmp_path):
     (("--scene", "/nonexistent.yaml"), "no such file"),
     (("--budget", "0"), "--budget"),
     (("--arm", "middle"), "invalid choice"),
+    (("--robot", "nao"), "invalid choice"),
 ])
 def test_bad_options_are_refused(tmp_path, args, message):
     proc = run_demo(tmp_path, *args, timeout=60)
