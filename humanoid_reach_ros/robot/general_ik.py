@@ -35,6 +35,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 import pinocchio as pin
 
@@ -356,12 +358,12 @@ class GeneralLimb:
 class RedundantLimbIK:
     """IK of a 7R arm in closed form on a 6-DOF subchain, the redundant joint sampled (our
     choice for 7-DOF arms, issue 13 part 2): the FIRST joint is held at ``samples`` values
-    -- the reference's value first, then an even grid over its limits -- and joints 2..7,
-    a chain of :class:`GeneralLimbIK`'s class (e.g. Talos: shoulder 2-3 intersecting,
-    spherical wrist 5-6-7), are solved for each; per pose, the solution nearest ``q_ref``
-    among those that reach it is kept. Simplification, named: the self-motion is searched
+    -- the reference's value first, then an even grid over its limits, nearest the reference
+    first -- and joints 2..7, a chain of :class:`GeneralLimbIK`'s class (e.g. Talos: shoulder
+    2-3 intersecting, spherical wrist 5-6-7), are solved until one reaches the pose. Simplification, named: the self-motion is searched
     on a grid, not parametrized continuously (a pose reachable only in a gap between grid
-    values is reported unreachable)."""
+    values is reported unreachable), and the first grid value that reaches a pose (nearest
+    the reference first) is kept, not the nearest solution over all of them."""
 
     def __init__(self, chain: Chain6, q_default: np.ndarray, samples: int = 16) -> None:
         if len(chain.axes) != 7:
@@ -371,25 +373,55 @@ class RedundantLimbIK:
         self.samples = int(samples)
         sub = Chain6(chain.R[1:], chain.t[1:], chain.axes[1:], chain.Re, chain.te, chain.lower[1:], chain.upper[1:])
         self.sub = GeneralLimbIK(sub, self.q_default[1:])   # ValueError outside the class
+        # the subchain's wrist-centre distance range (elbow swing), for a cheap test per first-joint
+        # value before the closed form runs (wrist at the tip only: the reversed form has its
+        # centres the other way round)
+        self._d_range = None
+        if not self.sub.reversed:
+            c = self.sub._solver
+            a3, t3, R3, t4 = c.axes[2], c.t[2], c.R[2], c.t[3]
+            upar = (a3 @ t4) * a3
+            uperp = t4 - upar
+            t3p = R3.T @ t3
+            K0 = t3 @ t3 + t4 @ t4 + 2 * (t3p @ upar)
+            rho = float(np.hypot(2 * (t3p @ uperp), 2 * (t3p @ np.cross(a3, uperp))))
+            self._d_range = (math.sqrt(max(K0 - rho, 0.0)) - 1e-9, math.sqrt(K0 + rho) + 1e-9)
 
     def solve(self, target_p: np.ndarray, target_R: np.ndarray, q_ref: np.ndarray | None = None) -> GeneralIKResult:
+        """Per pose, the first first-joint value that reaches it, in the order: the reference's
+        value, then the grid values nearest the reference's first (the first-joint value is
+        chosen nearest the reference; among the subchain's solutions the nearest is kept).
+        A pose is solved once: a reachable pose costs one subchain solve when the reference's
+        first joint reaches it, at most ``samples`` otherwise."""
         c = self.chain
         P = np.atleast_2d(np.asarray(target_p, float))
         Rt = np.asarray(target_R, float).reshape(-1, 3, 3)
         n = len(P)
         ref = np.broadcast_to(self.q_default if q_ref is None else np.asarray(q_ref, float), (n, 7))
         grid = np.linspace(c.lower[0], c.upper[0], max(self.samples - 1, 1))
-        values = [ref[:, 0]] + [np.full(n, g) for g in grid]
-        best_q, best_d = np.full((n, 7), np.nan), np.full(n, np.inf)
-        for q1 in values:
-            R1 = c.R[0] @ rotations(c.axes[0], q1)                    # (n, 3, 3): joint 1's rotated frame
+        grid = grid[np.argsort(np.abs(grid - float(np.mean(ref[:, 0]))), kind="stable")]
+        best_q, ok = np.full((n, 7), np.nan), np.zeros(n, bool)
+        if self._d_range is not None:   # wrist centre W in the root frame, for the distance test
+            W = P - np.einsum("nij,j->ni", np.broadcast_to(Rt, (n, 3, 3)), c.Re.T @ c.te) - c.t[0]
+        for k in range(len(grid) + 1):
+            todo = np.flatnonzero(~ok)
+            if not len(todo):
+                break
+            q1 = np.clip(ref[todo, 0] if k == 0 else np.full(len(todo), grid[k - 1]), c.lower[0], c.upper[0])
+            if self._d_range is not None:   # |W - R0 R(a0, q1) t1| outside the elbow's range: no solution
+                d = np.linalg.norm(W[todo] - (c.R[0] @ rotations(c.axes[0], q1)) @ c.t[1], axis=1)
+                near = (d >= self._d_range[0]) & (d <= self._d_range[1])
+                todo, q1 = todo[near], q1[near]
+                if not len(todo):
+                    continue
+            R1 = c.R[0] @ rotations(c.axes[0], q1)                    # (m, 3, 3): joint 1's rotated frame
             R1T = np.transpose(R1, (0, 2, 1))
-            sub = self.sub.solve(np.einsum("nij,nj->ni", R1T, P - c.t[0]), R1T @ Rt, ref[:, 1:])
-            q = np.column_stack([np.clip(q1, c.lower[0], c.upper[0]), sub.q])
-            d = np.where(sub.ok, np.linalg.norm(q - ref, axis=1), np.inf)
-            better = d < best_d
-            best_q[better], best_d[better] = q[better], d[better]
-        return GeneralIKResult(best_q, np.isfinite(best_d))
+            sub = self.sub.solve(np.einsum("nij,nj->ni", R1T, P[todo] - c.t[0]), R1T @ Rt[todo] if len(Rt) == n
+                                 else R1T @ Rt, ref[todo, 1:])
+            hit = todo[sub.ok]
+            best_q[hit] = np.column_stack([q1[sub.ok], sub.q[sub.ok]])
+            ok[hit] = True
+        return GeneralIKResult(best_q, ok)
 
 
 __all__ = ["Chain6", "GeneralLimbIK", "RedundantLimbIK", "GeneralIKResult", "GeneralLimb", "rotations"]
