@@ -358,12 +358,12 @@ class GeneralLimb:
 class RedundantLimbIK:
     """IK of a 7R arm in closed form on a 6-DOF subchain, the redundant joint sampled (our
     choice for 7-DOF arms, issue 13 part 2): the FIRST joint is held at ``samples`` values
-    -- the reference's value first, then an even grid over its limits, nearest the reference
-    first -- and joints 2..7, a chain of :class:`GeneralLimbIK`'s class (e.g. Talos: shoulder
-    2-3 intersecting, spherical wrist 5-6-7), are solved until one reaches the pose. Simplification, named: the self-motion is searched
+    -- the reference's value first, then an even grid over its limits -- and joints 2..7,
+    a chain of :class:`GeneralLimbIK`'s class (e.g. Talos: shoulder 2-3 intersecting,
+    spherical wrist 5-6-7), are solved for each; per pose, the solution nearest ``q_ref``
+    among those that reach it is kept. Simplification, named: the self-motion is searched
     on a grid, not parametrized continuously (a pose reachable only in a gap between grid
-    values is reported unreachable), and the first grid value that reaches a pose (nearest
-    the reference first) is kept, not the nearest solution over all of them."""
+    values is reported unreachable)."""
 
     def __init__(self, chain: Chain6, q_default: np.ndarray, samples: int = 16) -> None:
         if len(chain.axes) != 7:
@@ -388,40 +388,36 @@ class RedundantLimbIK:
             self._d_range = (math.sqrt(max(K0 - rho, 0.0)) - 1e-9, math.sqrt(K0 + rho) + 1e-9)
 
     def solve(self, target_p: np.ndarray, target_R: np.ndarray, q_ref: np.ndarray | None = None) -> GeneralIKResult:
-        """Per pose, the first first-joint value that reaches it, in the order: the reference's
-        value, then the grid values nearest the reference's first (the first-joint value is
-        chosen nearest the reference; among the subchain's solutions the nearest is kept).
-        A pose is solved once: a reachable pose costs one subchain solve when the reference's
-        first joint reaches it, at most ``samples`` otherwise."""
+        """Per pose, the solution nearest ``q_ref`` over the first-joint values (the reference's,
+        then the grid); a value whose subchain cannot reach the wrist centre (the elbow's
+        distance range) is skipped for that pose before the closed form runs."""
         c = self.chain
         P = np.atleast_2d(np.asarray(target_p, float))
         Rt = np.asarray(target_R, float).reshape(-1, 3, 3)
         n = len(P)
         ref = np.broadcast_to(self.q_default if q_ref is None else np.asarray(q_ref, float), (n, 7))
         grid = np.linspace(c.lower[0], c.upper[0], max(self.samples - 1, 1))
-        grid = grid[np.argsort(np.abs(grid - float(np.mean(ref[:, 0]))), kind="stable")]
-        best_q, ok = np.full((n, 7), np.nan), np.zeros(n, bool)
+        best_q, best_d = np.full((n, 7), np.nan), np.full(n, np.inf)
         if self._d_range is not None:   # wrist centre W in the root frame, for the distance test
             W = P - np.einsum("nij,j->ni", np.broadcast_to(Rt, (n, 3, 3)), c.Re.T @ c.te) - c.t[0]
+        everyone = np.arange(n)
         for k in range(len(grid) + 1):
-            todo = np.flatnonzero(~ok)
-            if not len(todo):
-                break
-            q1 = np.clip(ref[todo, 0] if k == 0 else np.full(len(todo), grid[k - 1]), c.lower[0], c.upper[0])
+            q1 = np.clip(ref[:, 0] if k == 0 else np.full(n, grid[k - 1]), c.lower[0], c.upper[0])
+            todo = everyone
             if self._d_range is not None:   # |W - R0 R(a0, q1) t1| outside the elbow's range: no solution
-                d = np.linalg.norm(W[todo] - (c.R[0] @ rotations(c.axes[0], q1)) @ c.t[1], axis=1)
-                near = (d >= self._d_range[0]) & (d <= self._d_range[1])
-                todo, q1 = todo[near], q1[near]
+                d = np.linalg.norm(W - (c.R[0] @ rotations(c.axes[0], q1)) @ c.t[1], axis=1)
+                todo = np.flatnonzero((d >= self._d_range[0]) & (d <= self._d_range[1]))
                 if not len(todo):
                     continue
-            R1 = c.R[0] @ rotations(c.axes[0], q1)                    # (m, 3, 3): joint 1's rotated frame
+            R1 = c.R[0] @ rotations(c.axes[0], q1[todo])                # (m, 3, 3): joint 1's rotated frame
             R1T = np.transpose(R1, (0, 2, 1))
-            sub = self.sub.solve(np.einsum("nij,nj->ni", R1T, P[todo] - c.t[0]), R1T @ Rt[todo] if len(Rt) == n
-                                 else R1T @ Rt, ref[todo, 1:])
-            hit = todo[sub.ok]
-            best_q[hit] = np.column_stack([q1[sub.ok], sub.q[sub.ok]])
-            ok[hit] = True
-        return GeneralIKResult(best_q, ok)
+            sub = self.sub.solve(np.einsum("nij,nj->ni", R1T, P[todo] - c.t[0]),
+                                 R1T @ (Rt[todo] if len(Rt) == n else Rt), ref[todo, 1:])
+            q = np.column_stack([q1[todo], sub.q])
+            dist = np.where(sub.ok, np.linalg.norm(q - ref[todo], axis=1), np.inf)
+            better = dist < best_d[todo]
+            best_q[todo[better]], best_d[todo[better]] = q[better], dist[better]
+        return GeneralIKResult(best_q, np.isfinite(best_d))
 
 
 __all__ = ["Chain6", "GeneralLimbIK", "RedundantLimbIK", "GeneralIKResult", "GeneralLimb", "rotations"]
