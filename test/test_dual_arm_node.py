@@ -172,7 +172,9 @@ def test_dual_arm_goals_follow_and_bad_inputs(start_node, ros_probe, model, ws) 
     def settled_joints() -> np.ndarray:
         """/joint_states once the driver has caught up with the last command."""
         # the latest command each time (the probe may still be working through a backlog)
-        ros_probe.spin_until(lambda: np.max(np.abs(measured() - np.array(commands.last.position))) < 1e-6, 30.0,
+        # (the probe's own /joint_states subscription may not have delivered yet on a loaded machine: ci7)
+        ros_probe.spin_until(lambda: states.last is not None and commands.last is not None
+                             and np.max(np.abs(measured() - np.array(commands.last.position))) < 1e-6, 30.0,
                              "driver to settle on the held command")
         return measured()
 
