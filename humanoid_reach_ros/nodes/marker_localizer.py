@@ -53,7 +53,7 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes.common import LatestOnDemand, ParamSpec, declare_parameters, run_node
-from humanoid_reach_ros.perception.markers import (JointStateBuffer, MarkerDetector, camera_pose,
+from humanoid_reach_ros.perception.markers import (JointStateBuffer, MarkerDetector, camera_pose, same_camera_pose,
                                                    marker_table, object_pose)
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
@@ -308,11 +308,9 @@ class MarkerLocalizer(Node):
         """The camera is where it was at the last detection (1 mm, 1 mrad) and that was less than
         ``still_period_s`` ago: this image is skipped (else this pose becomes the last detection's)."""
         period, now, last = self._p["still_period_s"], time.monotonic(), self._last_detection
-        if period > 0 and self.hand_ids is None and last is not None and now - last[1] < period:
-            cos = (np.trace(last[0][:3, :3].T @ R_T_C[:3, :3]) - 1.0) / 2.0
-            if float(np.linalg.norm(R_T_C[:3, 3] - last[0][:3, 3])) < 1e-3 \
-                    and math.acos(min(1.0, max(-1.0, cos))) < 1e-3:
-                return True
+        if period > 0 and self.hand_ids is None and last is not None and now - last[1] < period \
+                and same_camera_pose(R_T_C, last[0]):
+            return True
         self._last_detection = (R_T_C.copy(), now)
         return False
 

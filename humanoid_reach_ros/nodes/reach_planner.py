@@ -183,7 +183,7 @@ class ReachPlannerNode(Node):
         self.hardware_id = self.model.name
 
         self._plan_lock = threading.Lock()   # one request at a time; a second one gets BUSY
-        self._state_lock = threading.Lock()  # latest joint state / target
+        self._state_lock = threading.Lock()  # the map layers (occupied, frontier, blocks) and what was carved
         self._map_points: np.ndarray | None = None   # the last /voxel_map (uncarved)
         self._frontier: np.ndarray | None = None     # the last /voxel_map/unobserved
         self._blocks: np.ndarray | None = None       # the last /voxel_map/unobserved_blocks

@@ -74,7 +74,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes.common import LatestOnDemand, LATCHED, ParamSpec, declare_parameters, run_node
-from humanoid_reach_ros.perception.markers import JointStateBuffer, camera_pose
+from humanoid_reach_ros.perception.markers import JointStateBuffer, camera_pose, same_camera_pose
 from humanoid_reach_ros.perception.stereo import StereoCalibration, StereoMatcher, StereoParams
 from humanoid_reach_ros.perception.voxel_map import FusionParams, VoxelMap
 from humanoid_reach_ros.robot.model import RobotModel
@@ -505,18 +505,13 @@ class VoxelMapperNode(Node):
         period = self._p["still_integration_period_s"]
         now = time.monotonic()
         last = self._last_integrated
-        if period > 0 and last is not None and now - last[1] < period and self._same_pose(pose, last[0]):
+        same = last is not None and same_camera_pose(pose, last[0])
+        if period > 0 and same and now - last[1] < period:
             return True
-        if last is None or not self._same_pose(pose, last[0]):
+        if not same:
             self._view_moved = True       # a new view: its changes are published at once
         self._last_integrated = (pose.copy(), now)
         return False
-
-    @staticmethod
-    def _same_pose(a: np.ndarray, b: np.ndarray) -> bool:
-        """Within 1 mm and 1 mrad."""
-        cos = (np.trace(b[:3, :3].T @ a[:3, :3]) - 1.0) / 2.0
-        return float(np.linalg.norm(a[:3, 3] - b[:3, 3])) < 1e-3 and math.acos(min(1.0, max(-1.0, cos))) < 1e-3
 
     # ------------------------------------------------------------ outputs
     def _on_clear(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:

@@ -423,8 +423,15 @@ def camera_pose(model: Any, joints: np.ndarray, frame: str) -> np.ndarray:
     return np.asarray(model.frame_pose(q, frame).homogeneous)
 
 
+def same_camera_pose(a: np.ndarray, b: np.ndarray, tol_m: float = 1e-3, tol_rad: float = 1e-3) -> bool:
+    """Two camera poses (4x4) within ``tol_m`` and ``tol_rad`` of each other: the camera has not
+    moved (the still-view rules of ``voxel_mapper`` and ``marker_localizer``)."""
+    cos = (np.trace(b[:3, :3].T @ a[:3, :3]) - 1.0) / 2.0
+    return float(np.linalg.norm(a[:3, 3] - b[:3, 3])) < tol_m and math.acos(min(1.0, max(-1.0, cos))) < tol_rad
+
+
 __all__ = [
     "MARKER_KEYS", "transform", "object_pose", "marker_corners", "MarkerSpec", "MarkerTable", "marker_table",
     "load_marker_config", "MarkerDetection", "DetectionResult", "MarkerDetector", "refine_corners_by_edges", "solve_marker_pose",
-    "JointStateBuffer", "camera_pose",
+    "JointStateBuffer", "camera_pose", "same_camera_pose",
 ]

@@ -457,7 +457,7 @@ class VoxelMap:
         the unobserved-space readers (a head camera never sees around its own body), never
         for occupancy (an occupied voxel stays occupied). Returns the voxels newly marked."""
         h = self.params.resolution_m
-        before = int(np.count_nonzero(self.swept))
+        before = self.swept_count
         for a, b, r in zip(np.asarray(p0, float), np.asarray(p1, float), np.asarray(radii, float)):
             lo = np.maximum(np.floor((np.minimum(a, b) - r) / h).astype(np.int64), self.index_lo)
             hi = np.minimum(np.floor((np.maximum(a, b) + r) / h).astype(np.int64), self.index_hi)
