@@ -37,6 +37,20 @@ def _joint(name, parent, child, axis, xyz, lo, hi) -> str:
             f'<limit lower="{lo}" upper="{hi}" velocity="3" effort="50"/></joint>')
 
 
+def _limb(side: str, parent: str, joints, links: dict, tip: str, tip_z: float) -> list[str]:
+    """A serial limb: ``joints`` (name, axis, xyz, lo, hi) from ``parent``, each child link a box
+    (``links``: joint index -> (mass, size, centre)), then a fixed ``tip``
+    frame ``tip_z`` below the last link."""
+    parts = []
+    for k, (j, ax, xyz, lo, hi) in enumerate(joints):
+        child = f"{side}_{j}_link"
+        mass, size, centre = links[k]
+        parts += [_box_link(child, mass, size, centre), _joint(f"{side}_{j}", parent, child, ax, xyz, lo, hi)]
+        parent = child
+    return parts + [f'<link name="{side}_{tip}"/><joint name="{side}_{tip}_fix" type="fixed"><parent link="{parent}"/>'
+                    f'<child link="{side}_{tip}"/><origin xyz="0 0 {tip_z:g}"/></joint>']
+
+
 def tiny_urdf() -> str:
     """0.9 m tall, 14 kg: waist, legs z x y | y | y x (thigh and shank 0.2 m), chest yaw and
     pitch, arms x z | y | z x y (upper arm and forearm 0.14 m, spherical wrist), head yaw and
@@ -46,15 +60,10 @@ def tiny_urdf() -> str:
         leg = [("hip_yaw", "z", (0, sy * 0.06, -0.06), -0.5, 0.5), ("hip_roll", "x", (0, 0, 0), -0.4, 0.4),
                ("hip_pitch", "y", (0, 0, 0), -1.8, 0.6), ("knee", "y", (0, 0, -0.2), 0.0, 2.4),
                ("ankle_pitch", "y", (0, 0, -0.2), -1.2, 0.8), ("ankle_roll", "x", (0, 0, 0), -0.4, 0.4)]
-        parent = "waist"
-        for k, (j, ax, xyz, lo, hi) in enumerate(leg):
-            child = f"{s}_{j}_link"
-            mass, size, centre = {2: (1.5, (0.07, 0.07, 0.2), (0, 0, -0.1)), 3: (1.0, (0.06, 0.06, 0.2), (0, 0, -0.1)),
-                                  5: (0.6, (0.14, 0.08, 0.03), (0.01, 0, -0.025))}.get(k, (0.2, (0.04, 0.04, 0.04), (0, 0, 0)))
-            parts += [_box_link(child, mass, size, centre), _joint(f"{s}_{j}", parent, child, ax, xyz, lo, hi)]
-            parent = child
-        parts += [f'<link name="{s}_sole"/><joint name="{s}_sole_fix" type="fixed"><parent link="{parent}"/>'
-                  f'<child link="{s}_sole"/><origin xyz="0 0 -0.04"/></joint>']
+        small = (0.2, (0.04, 0.04, 0.04), (0, 0, 0))
+        links = {0: small, 1: small, 2: (1.5, (0.07, 0.07, 0.2), (0, 0, -0.1)), 3: (1.0, (0.06, 0.06, 0.2), (0, 0, -0.1)),
+                 4: small, 5: (0.6, (0.14, 0.08, 0.03), (0.01, 0, -0.025))}
+        parts += _limb(s, "waist", leg, links, "sole", -0.04)
     parts += [_box_link("chest_yaw_link", 0.3, (0.05, 0.05, 0.05)), _joint("chest_yaw", "waist", "chest_yaw_link", "z",
                                                                           (0, 0, 0.08), -0.8, 0.8),
               _box_link("chest", 3.0, (0.12, 0.2, 0.22), (0, 0, 0.11)),
@@ -67,15 +76,10 @@ def tiny_urdf() -> str:
         arm = [("shoulder_roll", "x", (0, sy * 0.13, 0.18), -1.6, 1.6), ("shoulder_yaw", "z", (0, 0, 0), -1.6, 1.6),
                ("elbow", "y", (0, 0, -0.14), -2.4, 0.0), ("wrist_yaw", "z", (0, 0, -0.14), -1.6, 1.6),
                ("wrist_roll", "x", (0, 0, 0), -1.6, 1.6), ("wrist_pitch", "y", (0, 0, 0), -1.6, 1.6)]
-        parent = "chest"
-        for k, (j, ax, xyz, lo, hi) in enumerate(arm):
-            child = f"{s}_{j}_link"
-            mass, size, centre = {1: (0.5, (0.05, 0.05, 0.14), (0, 0, -0.07)), 2: (0.4, (0.045, 0.045, 0.14), (0, 0, -0.07)),
-                                  5: (0.2, (0.03, 0.05, 0.06), (0, 0, -0.03))}.get(k, (0.1, (0.03, 0.03, 0.03), (0, 0, 0)))
-            parts += [_box_link(child, mass, size, centre), _joint(f"{s}_{j}", parent, child, ax, xyz, lo, hi)]
-            parent = child
-        parts += [f'<link name="{s}_hand"/><joint name="{s}_hand_fix" type="fixed"><parent link="{parent}"/>'
-                  f'<child link="{s}_hand"/><origin xyz="0 0 -0.08"/></joint>']
+        small = (0.1, (0.03, 0.03, 0.03), (0, 0, 0))
+        links = {0: small, 1: (0.5, (0.05, 0.05, 0.14), (0, 0, -0.07)), 2: (0.4, (0.045, 0.045, 0.14), (0, 0, -0.07)),
+                 3: small, 4: small, 5: (0.2, (0.03, 0.05, 0.06), (0, 0, -0.03))}
+        parts += _limb(s, "chest", arm, links, "hand", -0.08)
     return '<?xml version="1.0"?><robot name="tiny">' + "".join(parts) + "</robot>"
 
 
