@@ -3,6 +3,9 @@
 SHELL := /bin/bash
 ENV := . tools/env.sh &&
 PYTEST_ARGS ?=
+# make test runs the test files on this many pytest-xdist workers (one file stays on one worker,
+# so its module fixtures are built once); TEST_WORKERS=0 runs them in this process, one by one
+TEST_WORKERS ?= 2
 
 .PHONY: setup test demo bench bench-graph bags clean urdf bench-peers
 
@@ -10,7 +13,7 @@ setup:
 	@tools/setup.sh
 
 test: setup
-	@$(ENV) python -m pytest test $(PYTEST_ARGS)
+	@$(ENV) python -m pytest test $(if $(filter-out 0,$(TEST_WORKERS)),-n $(TEST_WORKERS) --dist loadfile) $(PYTEST_ARGS)
 
 demo: setup
 	@$(ENV) python -m humanoid_reach_ros.demo $(if $(ROBOT),--robot $(ROBOT))

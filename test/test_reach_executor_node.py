@@ -380,8 +380,11 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
     n_done = len(commands)
     ros_probe.spin_until(lambda: len(commands) > n_done + 80, 20.0, "held commands")
     Jh, _ = command_array(commands, model, n_done)
-    # (the first of them may still finish the settling that ends the goal; then the posture is held)
-    assert np.max(np.abs(Jh[-40:] - Jh[-1])) < 1e-12 and np.max(np.abs(Jh[-1] - J[-1])) < 1e-3
+    # (the first of them may still finish the settling that ends the goal; then the posture is held;
+    # on a loaded machine the probe may receive the last motion commands after the result, so the
+    # held posture is checked where it must be, not against the last command seen before the result)
+    assert np.max(np.abs(Jh[-40:] - Jh[-1])) < 1e-12
+    assert hand_distance(model, Jh[-1], valve_plan.positions[-1]) < 0.005 and left_sole_offset(model, Jh[-1]) < 1e-3
 
     # G3 back to half-sitting with smooth reshaping, canceled at a quarter: the robot stops smoothly
     # and holds
