@@ -179,6 +179,33 @@ def test_seven_dof_arms_get_the_redundant_closed_form_and_round_trip(talos, ik, 
     np.testing.assert_allclose(Rk[0], hand.rotation, atol=1e-12)
 
 
+@pytest.mark.parametrize("arm", ARMS)
+def test_the_reach_centres_of_a_seven_dof_arm_hold_every_posture(talos, ik, arm):
+    """GeneralLimb.reach_centres (the out-of-reach proof's tight form): at any joint angles, the
+    joint-2 centre is within the slack of a point on the joint-1 circle and the wrist centre
+    within the reach of it -- and the reach is the subchain's, well under l1 + l2."""
+    solver = ik[arm]
+    pts, slack, reach = solver.reach_centres(0.05)
+    rng = np.random.default_rng(8)
+    q = rng.uniform(solver.lower, solver.upper, size=(5000, 7))
+    q[:2500, 3] = solver.upper[3]                   # elbow straight: the reach is attained
+    j = talos.half_sitting_joints.copy()
+    names = talos.limbs[arm].joints
+    centre, wrist = [], []
+    for row in q[::10]:
+        j[list(talos.limbs[arm].joint_index)] = row
+        full = talos.config(j)
+        chest = talos.frame_pose(full, talos.limbs[arm].root)
+        to_chest = lambda p: chest.rotation.T @ (p - chest.translation)   # noqa: E731
+        centre.append(to_chest(talos.frame_pose(full, names[1].replace("_joint", "_link")).translation))
+        wrist.append(to_chest(talos.frame_pose(full, names[4].replace("_joint", "_link")).translation))
+    centre, wrist = np.array(centre), np.array(wrist)
+    assert np.min(np.linalg.norm(centre[:, None] - pts[None], axis=2), axis=1).max() <= slack + 1e-12
+    d = np.linalg.norm(wrist - centre, axis=1)
+    assert d.max() <= reach + 1e-9 and d.max() > reach - 1e-3
+    assert reach < solver.l1 + solver.l2 - 0.1
+
+
 def test_half_sitting_hands_come_back_through_the_arm_ik(talos, ik):
     q = talos.half_sitting()
     for arm, side in zip(ARMS, ("right", "left")):

@@ -116,6 +116,34 @@ def test_reachable_targets_are_never_ruled_out(region_and_projector):
         assert tr.out_of_reach(valve_region(target)) is None, target
 
 
+def test_a_seven_joint_arm_is_bounded_by_its_centre_circle():
+    """Talos (7-DOF arms: the joint-2 centre on a circle about joint 1): the hands of random
+    postures -- trunk up to the legs' chain length at any searched orientation, arm joints
+    anywhere within their limits -- are never ruled out, the highest, lowest and farthest of
+    them included; and the valve 2.25 m up (suite case high_valve) is ruled out, which the
+    bound through joint 1's origin widened by the circle's radius could not do."""
+    projector = Projector(RobotModel("talos"))
+    tr = TrunkRegion(projector)
+    rng = np.random.default_rng(9)
+    for arm in ("right", "left"):
+        lk = projector.ik[f"{arm}_arm"]
+        n = 100_000
+        q = rng.uniform(lk.lower, lk.upper, (n, 7))
+        q[n // 2:, 3] = rng.uniform(lk.upper[3] - 0.05, lk.upper[3], n - n // 2)   # elbow nearly straight
+        z = np.where(np.arange(n) % 2 == 0, rng.uniform(tr.trunk_z_max - 0.05, tr.trunk_z_max, n),
+                     rng.uniform(tr.z_span[0], tr.trunk_z_max, n))
+        rpy = np.stack([rng.uniform(*tr.roll, n), rng.uniform(*tr.pitch_span, n), rng.uniform(*tr.yaw, n)], axis=1)
+        c_p, c_R = projector.chest_pose(*projector.trunk_pose(z, rpy))
+        p, _ = lk.fk(c_p, c_R, q)
+        far = np.hypot(p[:, 0] - tr.cog_xy[0], p[:, 1] - tr.cog_xy[1])
+        pick = np.concatenate([np.argsort(p[:, 2])[-60:], np.argsort(p[:, 2])[:20], np.argsort(far)[-60:],
+                               rng.integers(0, n, 40)])
+        ruled_out = [tuple(np.round(p[k], 3)) for k in pick if tr.out_of_reach(valve_region(p[k]), arm)]
+        assert not ruled_out, ruled_out
+        assert p[:, 2].max() > 2.15                                 # the bound is close above the highest
+        assert tr.out_of_reach(valve_region((0.30, 0.0, 2.25), np.eye(3)), arm)
+
+
 def test_bad_spans_are_refused(region_and_projector):
     _, projector = region_and_projector
     with pytest.raises(ValueError, match="pitch_span"):

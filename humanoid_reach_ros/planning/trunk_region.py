@@ -25,6 +25,11 @@ so the ranges here come from the robot and from the target:
   roll, pitch and yaw ranges the planner searches, its horizontal position set by
   ``COG_approx`` (``p_t = R_t v + COG_approx``); the shoulder is at ``R_t u`` from it and
   the hand within ``l1 + l2 + |te|`` of the shoulder (the closed form's reach condition).
+  For a 7-joint arm the shoulder is the subchain's centre (joint 2), which joint 1 carries
+  on a circle, and the reach the subchain's (``GeneralLimb.reach_centres``): measuring
+  from joint 1's origin instead would credit the hand with the circle's radius in every
+  direction (Talos: 0.884 m from joint 1's origin against 0.740 m from a joint-2 centre
+  0.047 m above it), too loose to rule out a valve 2.25 m up that no posture reaches.
   A region farther than that from every such shoulder position, for every arm allowed,
   has no goal posture in the planner's search space whatever the sampler would try: the
   planner answers ``TARGET_OUT_OF_REACH`` at once instead of spending the budget. The
@@ -46,7 +51,8 @@ from humanoid_reach_ros.planning.projector import rpy_into
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion, rpy_matrix
 
 BAND_SLACK_M = 0.02     # vertical slack of the target band (roll, cell size)
-PROOF_STEP_RAD = 0.05   # orientation grid of the out-of-reach proof
+PROOF_STEP_RAD = 0.05   # roll x pitch grid of the out-of-reach proof (and joint 1 of a 7-joint arm)
+PROOF_REFINE = 5        # cells whose bound the grid's slack spoils are searched again this many times finer
 
 
 @dataclass(frozen=True, eq=False)
@@ -201,12 +207,21 @@ class TrunkRegion:
         self.shoulder = {}
         self.arm_reach = {}
         self.arms = {}
+        #: per arm: the proof's centres (K, 3) in the trunk frame, their slack [m] and the hand's reach from them
+        self.centres = {}
         for arm in ARMS:
             lk = ik[f"{arm}_arm"]
             self.shoulder[arm] = projector.chest_p_in_trunk + projector.chest_R_in_trunk @ lk.t0
             self.arm_reach[arm] = _chain_reach(lk, with_root=False)
             self.arms[arm] = ArmReach(self.shoulder[arm], np.array(lk.Re, float), np.array(lk.te, float),
                                       float(lk.l1 + lk.l2) + 1e-3)
+            # the proof's tight form (GeneralLimb.reach_centres): a 7-joint arm's centre moves on
+            # a circle, which ``shoulder`` + ``arm_reach`` (widened by the circle's radius in every
+            # direction) covers loosely; a 6-joint arm's is ``shoulder`` and ``arm_reach`` itself
+            pts, arc, reach = (lk.reach_centres(PROOF_STEP_RAD) if hasattr(lk, "reach_centres")
+                               else (np.asarray(lk.t0, float)[None], 0.0, lk.l1 + lk.l2))
+            self.centres[arm] = (np.array([projector.chest_p_in_trunk + projector.chest_R_in_trunk @ p for p in pts]),
+                                 float(arc), float(reach + np.linalg.norm(lk.te)) + 1e-3)
         self.cog_xy = np.array(projector.cog_approx_xy, float)
         self.v = np.array(projector.v, float)
 
@@ -256,33 +271,75 @@ class TrunkRegion:
         (module doc), else None. Conservative: None does not mean reachable.
 
         The trunk poses: height up to the legs' chain length above the soles (at any
-        height below), orientation within the roll, pitch and yaw ranges searched. The
-        orientations are gridded at ``PROOF_STEP_RAD``; between grid points the shoulder
-        moves at most ``|w| eps`` (``eps``: half the steps summed), which is subtracted."""
+        height below), orientation within the roll, pitch and yaw ranges searched. Yaw is
+        exact (it turns the shoulder on a horizontal circle about ``COG_approx`` and leaves
+        its height alone: the nearest point of that arc is closed-form); roll and pitch are
+        gridded at ``PROOF_STEP_RAD``, the centres of a 7-joint arm taken every
+        ``PROOF_STEP_RAD`` of joint 1 (``GeneralLimb.reach_centres``), and what the shoulder
+        may move between grid points is subtracted. The grid cells whose bound that slack
+        spoils are searched again ``PROOF_REFINE`` times finer (near the bound only)."""
         centre, half, _, _, _ = _region_extent(region)
+        s_r, s_p = _step(self.roll, PROOF_STEP_RAD), _step(self.pitch_span, PROOF_STEP_RAD)
+        R, P = (g.ravel() for g in np.meshgrid(_grid(self.roll, PROOF_STEP_RAD),
+                                               _grid(self.pitch_span, PROOF_STEP_RAD), indexing="ij"))
+        off = (np.arange(PROOF_REFINE) - (PROOF_REFINE - 1) / 2) / PROOF_REFINE   # sub-points of a cell
         reasons = []
-        rolls, pitches, yaws = (_grid(r, PROOF_STEP_RAD) for r in (self.roll, self.pitch_span, self.yaw))
-        eps = sum(_step(r, PROOF_STEP_RAD) for r in (self.roll, self.pitch_span, self.yaw)) / 2
-        R, Rp, Ry = np.meshgrid(rolls, pitches, yaws, indexing="ij")
-        Rt = rpy_matrix(np.stack([R.ravel(), Rp.ravel(), Ry.ravel()], axis=1))
-        z_lo, z_hi = self.z_span[0], self.trunk_z_max
         for a in _arms(arm):
-            u = self.shoulder[a]
-            w = self.v + u
-            sxy = self.cog_xy + (Rt @ w)[:, :2]
-            uz = (Rt @ u)[:, 2]
-            dh = np.hypot(sxy[:, 0] - centre[0], sxy[:, 1] - centre[1])
-            dv = np.maximum(0.0, np.maximum(centre[2] - (z_hi + uz), (z_lo + uz) - centre[2]))
-            slack = eps * math.hypot(np.linalg.norm(w), np.linalg.norm(u))
-            closest = float(np.min(np.hypot(dh, dv)))
-            gap = closest - slack - half - self.arm_reach[a]
+            U, arc, reach = self.centres[a]
+            need = reach + half
+            m, k = (g.ravel() for g in np.meshgrid(np.arange(len(R)), np.arange(len(U)), indexing="ij"))
+            d = self._shoulder_distance(R[m], P[m], U[k], centre)
+            if d.min() <= need:   # a searched trunk pose puts the hand there: no proof
+                return None
+            low = d - self._slack(U, arc, (s_r + s_p) / 2)
+            spoilt = low <= need
+            if spoilt.any():      # those cells again, finer: roll x pitch sub-points, each cell's extent
+                rr = np.clip(R[m[spoilt]][:, None, None] + off[None, :, None] * s_r, *self.roll)
+                pp = np.clip(P[m[spoilt]][:, None, None] + off[None, None, :] * s_p, *self.pitch_span)
+                rr, pp = (g.ravel() for g in np.broadcast_arrays(rr, pp))
+                fine = self._shoulder_distance(rr, pp, np.repeat(U[k[spoilt]], PROOF_REFINE ** 2, axis=0), centre)
+                low = np.concatenate([low[~spoilt],
+                                      fine - self._slack(U, arc, (s_r + s_p) / (2 * PROOF_REFINE))])
+            bound = float(low.min())
+            gap = bound - need
             if gap <= 0:
                 return None
-            reasons.append(f"{a} hand {self.arm_reach[a]:.2f} m from a shoulder at best {closest - slack:.2f} m "
-                           f"away, {gap:.2f} m short")
-        return (f"{'; '.join(reasons)}; searched: trunk up to {z_hi:.2f} m, roll "
+            reasons.append(f"{a} hand {reach:.3f} m from a shoulder at best {bound:.3f} m away, {gap:.3f} m short")
+        return (f"{'; '.join(reasons)}; searched: trunk up to {self.trunk_z_max:.2f} m, roll "
                 f"{self.roll[0]:.2f}..{self.roll[1]:.2f}, pitch {self.pitch_span[0]:.2f}..{self.pitch_span[1]:.2f}, "
                 f"yaw {self.yaw[0]:.2f}..{self.yaw[1]:.2f} rad")
+
+    def _shoulder_distance(self, roll: np.ndarray, pitch: np.ndarray, U: np.ndarray, centre: np.ndarray) -> np.ndarray:
+        """(N,) distance from ``centre`` to the nearest shoulder centre ``U`` (N, 3) (trunk frame)
+        of a trunk at ``roll``, ``pitch`` (N,), any yaw searched and any height up to the legs'."""
+        Rrp = rpy_matrix(np.stack([roll, pitch, np.zeros(len(roll))], axis=1))   # Ry(pitch) Rx(roll)
+        Pxy = np.einsum("nij,nj->ni", Rrp[:, :2], self.v + U)    # COG_approx -> centre at yaw 0, horizontal
+        uz = np.einsum("nj,nj->n", Rrp[:, 2], U)                  # centre height above the trunk origin
+        dh = _arc_distance(Pxy, centre[:2] - self.cog_xy, self.yaw)
+        dv = np.maximum(0.0, np.maximum(centre[2] - (self.trunk_z_max + uz), (self.z_span[0] + uz) - centre[2]))
+        return np.hypot(dh, dv)
+
+    def _slack(self, U: np.ndarray, arc: float, eps: float) -> float:
+        """How far the distance may drop between grid points: roll and pitch within ``eps``
+        (summed) of a grid point move a centre by at most ``eps`` times its lever (horizontally
+        ``|v + U|``, vertically ``|U|``; a centre up to ``arc`` off its point, longer by that),
+        the distance is 1-Lipschitz in both, and the centre is within ``arc`` of a point."""
+        lever_h = float(np.linalg.norm(self.v + U, axis=1).max()) + arc
+        lever_v = float(np.linalg.norm(U, axis=1).max()) + arc
+        return eps * math.hypot(lever_h, lever_v) + arc
+
+
+def _arc_distance(P: np.ndarray, T: np.ndarray, yaw: tuple[float, float]) -> np.ndarray:
+    """Distance from the point ``T`` (2,) to the arc ``Rz(psi) P`` (P: (..., 2)), psi in
+    ``yaw``: ``|T - Rz(psi) P|`` grows with the angle between ``Rz(psi) P`` and ``T``, so it is
+    ``| |T| - |P| |`` when the arc passes ``T``'s direction, else the nearer end's."""
+    rho = np.hypot(P[..., 0], P[..., 1])
+    ahead = np.mod(math.atan2(T[1], T[0]) - np.arctan2(P[..., 1], P[..., 0]) - yaw[0], 2 * math.pi)
+    ends = []
+    for psi in yaw:
+        c, s = math.cos(psi), math.sin(psi)
+        ends.append(np.hypot(T[0] - (c * P[..., 0] - s * P[..., 1]), T[1] - (s * P[..., 0] + c * P[..., 1])))
+    return np.where(ahead <= yaw[1] - yaw[0], np.abs(math.hypot(T[0], T[1]) - rho), np.minimum(*ends))
 
 
 @nb.njit(cache=True, nogil=False, fastmath=False)

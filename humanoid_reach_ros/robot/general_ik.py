@@ -283,8 +283,8 @@ class GeneralLimb:
     ``|l1 - l2|`` the shortest centre distance. For a 7-joint chain ``t0`` is joint 1's
     origin and the distances are bounds (the 6-DOF subchain's centre distances widened by
     the distance ``|t2|`` of the subchain's root-end centre from joint 1's origin, which
-    joint 1 swings about): still conservative for ``maybe_reachable`` and the planner's
-    out-of-reach bound, no longer tight."""
+    joint 1 swings about): still conservative for ``maybe_reachable``, no longer tight; the
+    planner's out-of-reach bound uses the tight form, :meth:`reach_centres`."""
 
     compiled = False
 
@@ -314,11 +314,38 @@ class GeneralLimb:
         rho = np.hypot(2 * (t3p @ uperp), 2 * (t3p @ np.cross(a3, uperp)))
         d_max, d_min = np.sqrt(K0 + rho) + swing, max(np.sqrt(max(K0 - rho, 0.0)) - swing, 0.0)
         self.l1, self.l2 = float((d_max + d_min) / 2), float((d_max - d_min) / 2)
+        #: the closed form's own centre distance bound, without the swing (reach_centres)
+        self.centre_reach = float(np.sqrt(K0 + rho))
         # the root-end centre is joint 1's origin and the tip-end centre joint 6's (their
         # translations t2 (, t3) and t6 (, t5) are zero), whichever end has three axes;
         # a 7-joint chain: joint 1's origin, the subchain's centre |t2| from it
         self.t0 = c.t[0].copy()
         self.te, self.Re = c.te.copy(), c.Re.copy()
+
+    def reach_centres(self, step_rad: float = 0.05) -> tuple[np.ndarray, float, float]:
+        """The tight form of the reach bound: ``(points (K, 3), slack [m], reach [m])`` in the
+        root link, such that every wrist (tip-end) centre the IK may solve for is within
+        ``reach`` of a root-end centre lying within ``slack`` of one of the points.
+
+        A 6-joint chain: joint 1's origin ``t0``, ``reach = l1 + l2``, no slack. A 7-joint
+        chain: the subchain's root-end centre is joint 2's origin, which joint 1 carries on a
+        circle about its axis; the points are that circle over joint 1's limits every
+        ``step_rad`` (a point between two of them is at most ``r step_rad / 2`` from the
+        nearer, ``r`` the circle's radius) and ``reach`` the subchain's own centre distance
+        bound. Why not ``t0`` and ``l1 + l2`` here too: those widen the reach by the swing
+        ``|t2|`` in every direction, while the centre only moves on the circle (Talos: the
+        joint-2 centre is 0.047 m above joint 1's origin at any joint-1 angle, 0.539 m from the
+        wrist at most, so the wrist rises 0.586 m above joint 1's origin at most; ``l1 + l2`` =
+        0.683 m credits it with 0.098 m more)."""
+        if self.n_joints == 6:
+            return self.t0[None].copy(), 0.0, self.l1 + self.l2
+        c = self.chain
+        n = max(1, int(math.ceil((c.upper[0] - c.lower[0]) / step_rad - 1e-9)))
+        q1 = np.linspace(c.lower[0], c.upper[0], n + 1)
+        pts = c.t[0] + np.einsum("ij,njk,k->ni", c.R[0], rotations(c.axes[0], q1), c.t[1])
+        a = c.axes[0] / np.linalg.norm(c.axes[0])
+        r = float(np.linalg.norm(c.t[1] - (a @ c.t[1]) * a))
+        return pts, r * (c.upper[0] - c.lower[0]) / n / 2, self.centre_reach
 
     def fk(self, root_p, root_R, q):
         root_p = np.atleast_2d(np.asarray(root_p, float))
