@@ -126,8 +126,10 @@ class Graph:
                               on_timeout=self.logs)
 
     def hold(self, yaw_deg: float, pitch_deg: float, clouds: int = CLOUDS_PER_POSE) -> list[PointCloud2]:
-        """Look, then wait until the mapper integrated ``clouds`` more depth maps and the test
-        received at least two clouds stamped after the head arrived. Returns those clouds."""
+        """Look, then wait until the test received ``clouds`` depth maps stamped after the head
+        arrived and the mapper integrated ``clouds`` more depth maps, the newest of them at least
+        as new as those (its ``last_integrated_stamp_s``): a loaded mapper that is still working
+        through maps taken while the head moved has not seen this pose yet. Returns the clouds."""
         self.look(yaw_deg, pitch_deg)
         arrived_ns = msgs.nanoseconds_from_time(self.joints.last.header.stamp)
         n0 = self.counter("clouds_integrated")
@@ -135,9 +137,11 @@ class Graph:
 
         def settled() -> list[PointCloud2] | None:
             held = [c for c in self.clouds.messages[k0:] if msgs.nanoseconds_from_time(c.header.stamp) >= arrived_ns]
-            if len(held) >= 2 and self.counter("clouds_integrated") >= n0 + clouds:
-                return held
-            return None
+            m = self.mapper_status("map")
+            if len(held) < clouds or m is None or self.counter("clouds_integrated") < n0 + clouds:
+                return None
+            newest_ns = round(float(m.get("last_integrated_stamp_s", 0.0)) * 1e9)
+            return held if newest_ns >= msgs.nanoseconds_from_time(held[clouds - 1].header.stamp) - 1000 else None
 
         return self.probe.spin_until(settled, 60.0, f"{clouds} depth maps integrated at yaw {yaw_deg:g}, "
                                      f"pitch {pitch_deg:g} deg", on_timeout=self.logs)

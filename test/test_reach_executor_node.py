@@ -10,6 +10,7 @@ intervals are checked loosely (the machine is shared), step times come from benc
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -271,7 +272,10 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
     diags = ros_probe.collect(DiagnosticArray, "/diagnostics")
     commands = ros_probe.collect(JointState, "/joint_command", DEEP)
     metrics = ros_probe.collect(ExecutorMetrics, "/executor/metrics", DEEP)
-    ex = start_node("reach_executor", params_file=PARAMS_FILE, params=FAST_DIAG, ready_log=READY, timeout=60.0)
+    # the hold republishes for 30 s rather than 1 s: the checks of held commands below must not race
+    # the hold's end on a loaded machine (the hold timeout itself: test_supervisor.py)
+    ex = start_node("reach_executor", params_file=PARAMS_FILE, params={**FAST_DIAG, "hold_timeout_s": 30.0},
+                    ready_log=READY, timeout=60.0)
     assert ex.log_lines(r"map source: scene file .*plant\.yaml \(\d+ voxels")
     client = ActionClient(ros_probe.node, ExecuteReach, "/execute_reach")
     ros_probe.spin_until(client.server_is_ready, 20.0, "/execute_reach server", on_timeout=ex.log_tail)
@@ -361,6 +365,11 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
     assert g2.feedback and 0.0 <= g2.feedback[0].progress <= g2.feedback[-1].progress <= 1.0
     assert all(f.min_distance_m >= 0.0 for f in g2.feedback)
     assert wait_log(ros_probe, ex, r"goal #\d+: SUCCESS at progress 1\.00: .*min distance")
+    # the result can be taken before the last motion commands queued at the probe (a loaded machine):
+    # wait for a command sent after the result (the hold republishes), so J ends where the motion did
+    t_result = time.time()
+    ros_probe.spin_until(lambda: len(commands) and msgs.seconds_from_time(commands.messages[-1].header.stamp)
+                         >= t_result, 20.0, "a command after the result")
 
     J, stamps = command_array(commands, model)
     assert np.median(np.diff(stamps)) < 0.02           # loosely the 5 ms period
@@ -380,11 +389,7 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
     n_done = len(commands)
     ros_probe.spin_until(lambda: len(commands) > n_done + 80, 20.0, "held commands")
     Jh, _ = command_array(commands, model, n_done)
-    # (the first of them may still finish the settling that ends the goal; then the posture is held;
-    # on a loaded machine the probe may receive the last motion commands after the result, so the
-    # held posture is checked where it must be, not against the last command seen before the result)
-    assert np.max(np.abs(Jh[-40:] - Jh[-1])) < 1e-12
-    assert hand_distance(model, Jh[-1], valve_plan.positions[-1]) < 0.005 and left_sole_offset(model, Jh[-1]) < 1e-3
+    assert np.max(np.abs(Jh[-40:] - Jh[-1])) < 1e-12 and np.max(np.abs(Jh[-1] - J[-1])) < 1e-12
 
     # G3 back to half-sitting with smooth reshaping, canceled at a quarter: the robot stops smoothly
     # and holds

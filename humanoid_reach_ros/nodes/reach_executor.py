@@ -243,13 +243,16 @@ class ReachExecutorNode(Node):
                                                            self.get_clock().now().to_msg()))
 
     def destroy_node(self) -> None:
-        self.loop.close()
+        # the child tears its node down while this process tears down its own (two DDS
+        # participants' teardown overlap: Ctrl-C ends the node within STOP_DEADLINE_S on a busy machine)
+        self.loop.request_close()
         self.joint_states.destroy()
         for server in (self.action_server, self.look_server):
             try:
                 server.destroy()
             except Exception:
                 pass
+        self.loop.close()
         super().destroy_node()
 
 

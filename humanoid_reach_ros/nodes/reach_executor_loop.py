@@ -40,6 +40,7 @@ from typing import Any, Callable
 
 PR_SET_PDEATHSIG = 1
 IDLE_STATUS_PERIOD_S = 1.0     # status to the node while nothing moves
+_WAKE = ("wake",)              # queued on shutdown: the sender stops at once, not after its idle wait
 
 
 @dataclass
@@ -100,11 +101,17 @@ class LoopProcess:
         with self._send_lock:
             self._conn.send(command)
 
-    def close(self, timeout: float = 3.0) -> None:
+    def request_close(self) -> None:
+        """Ask the child to stop (it aborts a motion, tears its node down and exits); returns at
+        once, so the parent can tear its own node down meanwhile (:meth:`close` waits)."""
         try:
             self.send(("close",))
         except (OSError, EOFError, BrokenPipeError):
             pass
+
+    def close(self, timeout: float = 3.0) -> None:
+        """Stop the child and wait for it (``timeout``; then SIGTERM, then SIGKILL)."""
+        self.request_close()
         try:
             self.proc.wait(timeout)
         except subprocess.TimeoutExpired:
@@ -185,6 +192,8 @@ def child_main(conn, config: LoopConfig) -> None:
                 event = out.get(timeout=wait + 1e-3)
             except queue.Empty:
                 event = None
+            if event is _WAKE:      # shutting down: no waiting out the idle period
+                continue
             try:
                 if event is not None:
                     conn.send(event)
@@ -224,11 +233,14 @@ def child_main(conn, config: LoopConfig) -> None:
         sup.close()
         loop.stop()
         stop.set()
+        out.put(_WAKE)
         send_thread.join(1.0)
         # the last outcomes (e.g. ABORTED on shutdown) still reach the parent
         while True:
             try:
-                conn.send(out.get_nowait())
+                event = out.get_nowait()
+                if event is not _WAKE:
+                    conn.send(event)
             except (queue.Empty, OSError, EOFError, BrokenPipeError):
                 break
         try:

@@ -213,6 +213,7 @@ class Counters:
     clouds_skipped_still: int = 0
     minor_changes_deferred: int = 0
     last_integration_s: float = 0.0
+    last_integrated_stamp_s: float = 0.0      # header stamp of the newest depth map in the map (how fresh it is)
     integration_time_s: float = 0.0
     last_problem: str = ""
     last_problem_time: float = -1e9
@@ -496,6 +497,7 @@ class VoxelMapperNode(Node):
             c.points_floor += st.floor
             c.points_beyond_range += st.beyond_range
             c.last_integration_s = dt
+            c.last_integrated_stamp_s = max(c.last_integrated_stamp_s, job.stamp_s)
             c.integration_time_s += dt
 
     def _still(self, pose: np.ndarray) -> bool:
@@ -599,6 +601,7 @@ class VoxelMapperNode(Node):
         values = {"occupied_voxels": occupied, "capacity_voxels": m.capacity, "memory_bytes": m.nbytes,
                   "resolution_m": m.resolution_m, "depth_maps": depth_maps, "frame_id": self.map_frame,
                   "last_integration_ms": c.last_integration_s * 1e3, "mean_integration_ms": mean_s * 1e3,
+                  "last_integrated_stamp_s": f"{c.last_integrated_stamp_s:.6f}",
                   "points_per_s": (c.points_integrated + c.points_outside + c.points_floor) / c.integration_time_s
                   if c.integration_time_s > 0 else 0.0, "clears": c.clears,
                   "map_version": version, "published_version": published,
