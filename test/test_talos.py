@@ -62,6 +62,21 @@ def test_the_description_loads_from_the_packaged_urdf(talos):
         ["JointModelRZ", "JointModelRY", "JointModelRZ", "JointModelRY"]
 
 
+def test_robot_description_carries_the_added_frames(talos):
+    """/robot_description (``description_xml``) has the description's grasp frames as fixed links:
+    a model built from it alone puts them where RobotModel does (TF and RViz see them)."""
+    assert set(talos.spec.frames) == {"gripper_right_grasp_frame", "gripper_left_grasp_frame"}
+    model = pin.buildModelFromXML(talos.description_xml, pin.JointModelFreeFlyer())
+    data = model.createData()
+    q = talos.half_sitting()
+    pin.framesForwardKinematics(model, data, q)
+    for name in talos.spec.frames:
+        assert name not in talos.urdf_xml and f'<link name="{name}"' in talos.description_xml
+        np.testing.assert_allclose(data.oMf[model.getFrameId(name)].homogeneous,
+                                   talos.frame_pose(q, name).homogeneous, atol=1e-12)
+    assert RobotModel().description_xml == RobotModel().urdf_xml     # no added frames: the URDF as it is
+
+
 def test_a_package_that_is_not_installed_is_named_with_its_pip_package(tmp_path):
     from humanoid_reach_ros.robot.spec import robot_config_path
 

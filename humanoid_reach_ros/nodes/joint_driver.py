@@ -6,7 +6,8 @@ the 30 joints) and every ``period_s`` (5 ms) steps ``JointSimulator`` and publis
 * ``/joint_states``  sensor_msgs/JointState, all 30 joints, position + velocity;
 * ``/base_pose``     geometry_msgs/PoseStamped, waist pose in ``world`` by kinematic
   odometry (right foot fixed on the floor, see ``humanoid_reach_ros.sim.joint_sim``);
-* ``/robot_description`` std_msgs/String, the URDF, once, transient local (depth 1);
+* ``/robot_description`` std_msgs/String, the URDF (with the robot description's added frames as
+  fixed links), once, transient local (depth 1);
 * ``/diagnostics``   diagnostic_msgs/DiagnosticArray every ``diagnostics_period_s``:
   command rejections (with the last reason), stale commands, target clipping,
   loop timing (achieved rate, overruns), left-foot slip.
@@ -123,7 +124,7 @@ class JointDriver(Node):
         self._pose_msg: PoseStamped | None = None
         self._pose_key = b""
 
-        self.description_pub.publish(String(data=self.model.urdf_xml))
+        self.description_pub.publish(String(data=self.model.description_xml))
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         # the 200 Hz loop runs in a thread of its own at absolute deadlines: an executor wake-up per tick
         # (wait set, callback dispatch) cost more than the tick itself

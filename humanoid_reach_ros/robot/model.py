@@ -54,6 +54,33 @@ def _add_frames(model: pin.Model, spec) -> None:
         model.addFrame(pin.Frame(name, parent.parentJoint, pf, parent.placement * local, pin.FrameType.OP_FRAME))
 
 
+def urdf_with_frames(model: pin.Model, urdf_xml: str, names) -> str:
+    """``urdf_xml`` with the added frames ``names`` of ``model`` as links on fixed joints (what
+    ``/robot_description`` carries, so robot_state_publisher puts them in TF and RViz shows
+    them): each hangs off the URDF link moving with its parent joint, at its placement there."""
+    import xml.etree.ElementTree as ET
+
+    names = [n for n in names if model.existFrame(n)]
+    if not names:
+        return urdf_xml
+    root = ET.fromstring(urdf_xml)
+    links = {e.get("name") for e in root.findall("link")}
+    for name in names:
+        f = model.frames[model.getFrameId(name)]
+        body = next((b for b in model.frames if b.type == pin.FrameType.BODY and b.parentJoint == f.parentJoint
+                     and b.name in links and b.placement.isIdentity(1e-12)), None)
+        if body is None:
+            continue       # no URDF link at the parent joint (cannot happen for a URDF-built model)
+        xyz = f.placement.translation
+        rpy = pin.rpy.matrixToRpy(f.placement.rotation)
+        ET.SubElement(root, "link", name=name)
+        joint = ET.SubElement(root, "joint", name=f"{name}_joint", type="fixed")
+        ET.SubElement(joint, "parent", link=body.name)
+        ET.SubElement(joint, "child", link=name)
+        ET.SubElement(joint, "origin", xyz=" ".join(f"{v:.9g}" for v in xyz), rpy=" ".join(f"{v:.9g}" for v in rpy))
+    return ET.tostring(root, encoding="unicode")
+
+
 class RobotModel:
     """Pinocchio model of the robot with the groups and postures the planner needs."""
 
@@ -67,6 +94,8 @@ class RobotModel:
         self.urdf_xml = self.urdf_path.read_text()
         self.model: pin.Model = pin.buildModelFromXML(self.urdf_xml, pin.JointModelFreeFlyer())
         _add_frames(self.model, self.spec)
+        #: the URDF with the description's added frames as fixed links (published as /robot_description)
+        self.description_xml = urdf_with_frames(self.model, self.urdf_xml, self.spec.frames)
         self.data: pin.Data = self.model.createData()
         # joint 0 is "universe", joint 1 the free flyer
         self.joint_names: tuple[str, ...] = tuple(self.model.names[2:])
