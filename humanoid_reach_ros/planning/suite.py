@@ -8,14 +8,20 @@ paper's eq. 3 -- hand at the target, roll and pitch within +-90 deg, yaw free --
 ``cone``: roll and pitch within +-``cone_deg``), ``exclude_groups`` (default
 ``[target]``: the reached object is not an obstacle) and ``expect`` per arm:
 ``reachable`` (SUCCESS), ``out_of_reach`` (TARGET_OUT_OF_REACH, proven by the geometric
-bound) or ``no_goal`` (NO_GOAL_FOUND: not ruled out by the bound, yet no goal posture).
+bound), ``no_goal`` (NO_GOAL_FOUND: not ruled out by the bound, yet no goal posture) or
+``blocked`` (NO_GOAL_FOUND or NO_PATH: the hand only fits with zero clearance, so a rare goal
+may be found but no path reaches it; which of the two depends on the samples).
+``expect`` holds for every robot; ``expect_by_robot`` ``{robot: {arm: ...}}`` replaces it
+for one robot of ``config/robots`` and the arms it names (robots differ: a longer arm reaches
+across to a valve the other robot's cannot, a bigger hand does not pass where a smaller one
+does).
 
 No ROS here.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -23,14 +29,17 @@ import yaml
 
 from humanoid_reach_ros.codes import ARMS
 from humanoid_reach_ros.paths import config_path
+from humanoid_reach_ros.robot.spec import robots
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion
 from humanoid_reach_ros.sim.scene import Scene, load_scene, pose_matrix
 from humanoid_reach_ros.yaml_checks import vec3
 
 SUITE_FILE = "scenes/suite.yaml"
-EXPECTATIONS = {"reachable": "SUCCESS", "out_of_reach": "TARGET_OUT_OF_REACH", "no_goal": "NO_GOAL_FOUND"}
+#: expectation -> the PlanReach error code names that answer it correctly
+EXPECTATIONS = {"reachable": ("SUCCESS",), "out_of_reach": ("TARGET_OUT_OF_REACH",), "no_goal": ("NO_GOAL_FOUND",),
+                "blocked": ("NO_GOAL_FOUND", "NO_PATH")}
 REGIONS = ("hemisphere", "cone")
-_CASE_KEYS = {"name", "scene", "target", "region", "cone_deg", "exclude_groups", "expect"}
+_CASE_KEYS = {"name", "scene", "target", "region", "cone_deg", "exclude_groups", "expect", "expect_by_robot"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -43,7 +52,8 @@ class SuiteCase:
     region_kind: str
     cone_deg: float
     exclude_groups: tuple[str, ...]
-    expect: dict                     # arm -> key of EXPECTATIONS
+    expect: dict                     # arm -> key of EXPECTATIONS (every robot)
+    expect_by_robot: dict = field(default_factory=dict)   # robot -> {arm -> key}: replaces ``expect``
 
     def region(self) -> WorkspaceGoalRegion:
         a = math.pi / 2 if self.region_kind == "hemisphere" else math.radians(self.cone_deg)
@@ -57,14 +67,17 @@ class SuiteCase:
         """The scene's occupied voxel centres without the reached object."""
         return self.scene().voxelize(resolution_m, exclude_groups=self.exclude_groups)
 
-    def expected_code(self, arm: str) -> str:
-        """PlanReach error code name expected for ``arm``."""
-        return EXPECTATIONS[self.expect[arm]]
+    def expect_for(self, robot: str | None = None) -> dict:
+        """arm -> expectation for ``robot`` (``None``: the common ``expect``)."""
+        return {**self.expect, **self.expect_by_robot.get(robot, {})}
 
-    @property
-    def scene_class(self) -> str:
-        """What kind of case it is: the expectation of its best arm."""
-        kinds = set(self.expect.values())
+    def expected_codes(self, arm: str, robot: str | None = None) -> tuple[str, ...]:
+        """PlanReach error code names that answer ``arm`` of ``robot`` correctly."""
+        return EXPECTATIONS[self.expect_for(robot)[arm]]
+
+    def scene_class(self, robot: str | None = None) -> str:
+        """What kind of case it is for ``robot``: the expectation of its best arm."""
+        kinds = set(self.expect_for(robot).values())
         return "reachable" if "reachable" in kinds else sorted(kinds)[0]
 
 
@@ -120,7 +133,15 @@ def load_suite(path: str | Path = SUITE_FILE) -> list[SuiteCase]:
         if not isinstance(expect, dict) or set(expect) != set(ARMS) or not all(
                 v in EXPECTATIONS for v in expect.values()):
             raise ValueError(f"{where}: expect must give each of {ARMS} one of {sorted(EXPECTATIONS)}, got {expect!r}")
-        cases.append(SuiteCase(name, scene_path, pose, region, float(cone), tuple(groups), dict(expect)))
+        by_robot = entry.get("expect_by_robot", {})
+        known = robots()
+        if not isinstance(by_robot, dict) or not all(
+                r in known and isinstance(e, dict) and e and set(e) <= set(ARMS) and all(v in EXPECTATIONS for v in e.values())
+                for r, e in by_robot.items()):
+            raise ValueError(f"{where}: expect_by_robot must map robots of config/robots ({', '.join(known)}) to "
+                             f"{{arm: one of {sorted(EXPECTATIONS)}}} for some of {ARMS}, got {by_robot!r}")
+        cases.append(SuiteCase(name, scene_path, pose, region, float(cone), tuple(groups), dict(expect),
+                               {r: dict(e) for r, e in by_robot.items()}))
     return cases
 
 
