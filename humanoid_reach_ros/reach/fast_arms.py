@@ -163,8 +163,14 @@ class CompiledArmIK:
     """Single-pose closed-form IK of one arm (:func:`arm_ik_pose`) with the constants of
     a :class:`LimbIK` of kind ``arm``."""
 
+    @staticmethod
+    def supports(limb) -> bool:
+        """Whether ``limb`` (a ``LimbIKSet`` entry) is of the hand-derived 6-DOF arm pattern
+        this kernel compiles; other arms (``GeneralLimb``: general 6R, 7-DOF) are not."""
+        return isinstance(limb, LimbIK) and limb.kind == "arm"
+
     def __init__(self, limb: LimbIK) -> None:
-        if limb.kind != "arm":
+        if not self.supports(limb):
             raise ValueError(f"{limb.limb_name}: CompiledArmIK needs an arm, got a {limb.kind}")
         self.limb = limb
         self._kc = limb._kc

@@ -9,9 +9,19 @@ angles set, Algorithm 3 for the legs, then the closed-form IK of both arms
 compiled: the legs by :class:`~humanoid_reach_ros.reach.fast_legs.ClosedFormLowerBodyIK`
 (Algorithm 3's 12 equations solved as closed-form legs + a 3-D Newton on the waist
 position -- a named reformulation with the same solution, falling back to
-:class:`LowerBodyIK` whenever it fails), the arms by
+:class:`LowerBodyIK` whenever it fails), the arms of the hand-derived 6-DOF arm pattern
+(``LimbIK`` of kind ``arm``, e.g. HRP-2's) by
 :class:`~humanoid_reach_ros.reach.fast_arms.CompiledArmIK` (numba twin of the closed-form
-arm IK). ``closed_form_legs=False, compiled_arms=False`` gives the reference path; the
+arm IK). Every other arm goes through the limb protocol (``LimbIKSet``, numpy; CompiledArmIK
+covers only the hand-derived pattern): a general 6R chain (``GeneralLimb`` of kind
+``general``) through its ``solve``; a 7-DOF arm (kind ``redundant``, e.g. Talos's) through
+its ``solve`` (``RedundantLimbIK``: the first joint on a grid over its range) where a
+configuration is looked for from afar (``step(..., tracking=False)``: the controller's
+final-configuration check), and through
+:class:`~humanoid_reach_ros.reach.redundant_arms.RedundantArmTracker` (the first joint moved
+at most its velocity limit times ``period_s`` per step, away from the joint limits) in the
+steps of a motion, where the grid's jumps between first-joint values would be unbounded
+accelerations. ``closed_form_legs=False, compiled_arms=False`` gives the reference path; the
 tests check both agree.
 
 :class:`FullBodyLMIK` -- the conventional method of Sec. 5.2 (Table 2): one LM
@@ -33,7 +43,7 @@ from humanoid_reach_ros.reach.lower_body_ik import (
     LegTargets, LowerBodyIK, LowerBodyResult, _FloatingKinematics, lowered_initial_posture,
 )
 from humanoid_reach_ros.robot.limb_ik import IKReason, LimbIKSet
-from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
+from humanoid_reach_ros.robot.model import N_BASE_Q, N_BASE_V, RobotModel
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,7 +63,7 @@ class ProposedWholeBodyIK:
     """One control step of the proposed method: chest set -> Algorithm 3 -> closed-form arms."""
 
     def __init__(self, robot: RobotModel, support: str = "right", closed_form_legs: bool = True,
-                 compiled_arms: bool = True, **lower_kw) -> None:
+                 compiled_arms: bool = True, period_s: float = 0.005, **lower_kw) -> None:
         self.robot = robot
         self.lower = LowerBodyIK(robot, support, **lower_kw)
         if closed_form_legs:      # same solution, compiled (reach/fast_legs.py); falls back to LowerBodyIK
@@ -65,10 +75,21 @@ class ProposedWholeBodyIK:
         self.arm_cols = {s: N_BASE_Q + np.array(robot.limbs[f"{s}_arm"].joint_index) for s in ("right", "left")}
         self.fid_chest = robot.frame_id(robot.limbs["right_arm"].root)
         self.fid_hand = {s: robot.frame_id(robot.limbs[f"{s}_arm"].tip) for s in ("right", "left")}
-        self.arm_ik = None
+        #: side -> CompiledArmIK, or None: the limb protocol's solve (module docstring)
+        self.arm_ik = {"right": None, "left": None}
         if compiled_arms:         # numba twin of the closed-form arm IK (reach/fast_arms.py)
             from humanoid_reach_ros.reach.fast_arms import CompiledArmIK
-            self.arm_ik = {s: CompiledArmIK(self.limb_ik[f"{s}_arm"]) for s in ("right", "left")}
+            for s in self.arm_ik:
+                if CompiledArmIK.supports(self.limb_ik[f"{s}_arm"]):
+                    self.arm_ik[s] = CompiledArmIK(self.limb_ik[f"{s}_arm"])
+        #: side -> RedundantArmTracker for a 7-DOF arm (the steps of a motion; module docstring)
+        self.arm_track = {}
+        for s in ("right", "left"):
+            limb = self.limb_ik[f"{s}_arm"]
+            if getattr(limb, "kind", "") == "redundant":
+                from humanoid_reach_ros.reach.redundant_arms import RedundantArmTracker
+                first = N_BASE_V + robot.joint_index[limb.joint_names[0]]
+                self.arm_track[s] = RedundantArmTracker(limb, float(robot.model.velocityLimit[first]) * period_s)
         if closed_form_legs or compiled_arms:
             self.warm_up()
 
@@ -86,9 +107,11 @@ class ProposedWholeBodyIK:
         self.step(q, hands, np.array([q[self.chest_pitch], q[self.chest_yaw]]), legs, soles[sup], measure=False)
 
     def step(self, q_prev: np.ndarray, hands: HandTargets, chest_pitch_yaw: np.ndarray,
-             legs: LegTargets, sole_world: pin.SE3, measure: bool = True) -> StepResult:
+             legs: LegTargets, sole_world: pin.SE3, measure: bool = True, tracking: bool = True) -> StepResult:
         """One control step; ``measure=False`` skips the error bookkeeping (errors NaN)
-        so that timing covers the method only (:func:`measure_errors` afterwards)."""
+        so that timing covers the method only (:func:`measure_errors` afterwards).
+        ``tracking=False``: a 7-DOF arm's self-motion searched over its whole range (a
+        configuration looked for from afar, not a step of a motion; module docstring)."""
         q = np.array(q_prev, dtype=float)
         q[self.chest_pitch], q[self.chest_yaw] = chest_pitch_yaw
         q[self.chest_pitch] = np.clip(q[self.chest_pitch], *self._lim(self.robot.spec.chest_pitch))
@@ -101,8 +124,10 @@ class ProposedWholeBodyIK:
             reasons.append(f"lower body: |e| = {low.error_norm:.2e} after {low.iterations} iterations")
         for side, p, R in (("right", hands.p_right, hands.R_right), ("left", hands.p_left, hands.R_left)):
             cols = self.arm_cols[side]
-            if self.arm_ik is not None:
+            if self.arm_ik[side] is not None:
                 code, qa = self.arm_ik[side].solve(C.translation, C.rotation, p, R, q[cols])
+            elif tracking and side in self.arm_track:
+                code, qa = self.arm_track[side].solve(C.translation, C.rotation, p, R, q[cols])
             else:
                 res = self.limb_ik[f"{side}_arm"].solve(C.translation, C.rotation, p, R, q[cols])
                 code, qa = int(res.reason[0]), res.q[0]
