@@ -480,3 +480,17 @@ def test_dual_arm_requests_need_a_torso_model(model, tmp_path) -> None:
             call()
         assert e.value.code == ExecuteCode.INVALID_GOAL
     assert ExecutionRequests(model, p).dual_arm_model() == model.spec.torso_regression
+
+
+def test_dual_arm_workspace_is_the_robots_unless_given(model) -> None:
+    """The dual-arm mode reads the workspace file its robot's model was trained on (robot.yaml
+    dual_arm_workspace) unless the dual_arm_workspace parameter names another (no node)."""
+    from humanoid_reach_ros.execution.requests import ExecutionRequests
+
+    p = {k: spec.default for k, spec in reach_executor_params.PARAMETERS.items()}
+    assert p["dual_arm_workspace"] == ""
+    assert ExecutionRequests(model, p).dual_arm_workspace() == model.spec.dual_arm_workspace
+    talos = RobotModel("talos")
+    assert ExecutionRequests(talos, p).dual_arm_workspace() == talos.spec.dual_arm_workspace != model.spec.dual_arm_workspace
+    p["dual_arm_workspace"] = "elsewhere/ws.yaml"
+    assert ExecutionRequests(talos, p).dual_arm_workspace() == "elsewhere/ws.yaml"

@@ -78,6 +78,11 @@ def _write(tmp_path, edit) -> Path:
     (lambda d: d.update(chest={"yaw": "CHEST_JOINT0"}), "chest must be"),
     (lambda d: d.update(sole_rectangle_m=[0.1, -0.1, -0.07, 0.07]), "sole_rectangle_m"),
     (lambda d: d["half_sitting"].update(RLEG_JOINT2=float("nan")), "half_sitting"),
+    (lambda d: d.update(dual_arm_workspace=3), "dual_arm_workspace must be a YAML file"),
+    (lambda d: d.update(dual_arm_workspace="torso_regression/hrp2_torso_svr"), "dual_arm_workspace must be a YAML"),
+    (lambda d: d.update(dual_arm_workspace="torso_regression/nope.yaml"), "dual_arm_workspace .*no such file"),
+    (lambda d: d.update(dual_arm_workspace="torso_regression/hrp2_torso_svr.yaml"),
+     "not a dual-arm workspace file"),
 ])
 def test_bad_descriptions_are_refused(tmp_path, edit, text):
     with pytest.raises(ValueError, match=text):
@@ -96,3 +101,13 @@ def test_names_the_urdf_lacks_are_refused(tmp_path, edit, text):
 def test_unknown_robot_names_the_robots_there_are():
     with pytest.raises(ValueError, match="hrp2"):
         RobotModel("nao")
+
+
+def test_dual_arm_workspace_defaults_to_the_first_robots_and_is_per_robot(tmp_path):
+    """A description without the key reads as before the key existed (HRP-2's file); Talos
+    names its own."""
+    doc_path = _write(tmp_path, lambda d: d.pop("dual_arm_workspace"))
+    assert load_robot_spec(doc_path)[0].dual_arm_workspace == load_robot_spec("hrp2")[0].dual_arm_workspace
+    assert config_path(load_robot_spec("hrp2")[0].dual_arm_workspace).is_file()
+    if "talos" in ROBOTS:
+        assert load_robot_spec("talos")[0].dual_arm_workspace != load_robot_spec("hrp2")[0].dual_arm_workspace

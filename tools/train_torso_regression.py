@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
-"""Regenerate config/torso_regression/hrp2_torso_svr.{npz,yaml} (dissertation Sec. 4.1).
+"""Regenerate a robot's dual-arm torso regression model (dissertation Sec. 4.1).
 
-Algorithm 2 dataset over the workspace of config/torso_regression/workspace.yaml from the
-initial posture (half-sitting lowered by initial_com_drop_m), then one RBF SVR per chest
-angle with the Table 1 parameters. Usage:
+Algorithm 2 dataset over the robot's workspace file (robot.yaml dual_arm_workspace; HRP-2:
+config/torso_regression/workspace.yaml) from the initial posture (half-sitting with its
+initial_joints_deg, lowered by its initial_com_drop_m), then one RBF SVR per chest angle with the Table 1 parameters,
+written to the robot's torso_regression stem (.npz + .yaml). Usage:
 
-    python tools/train_torso_regression.py [--samples N] [--seed S] [--out STEM]
+    python tools/train_torso_regression.py [--robot NAME] [--samples N] [--seed S] [--out STEM]
 """
 from __future__ import annotations
 
@@ -14,14 +15,13 @@ import sys
 import time
 
 from humanoid_reach_ros.reach.torso_regression import ReachWorkspace, TorsoRegression, generate_dataset
-from humanoid_reach_ros.reach.whole_body_ik import lowered_initial_posture
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--samples", type=int, default=None, help="target pairs tried (default: workspace.yaml)")
+    ap.add_argument("--samples", type=int, default=None, help="target pairs tried (default: the workspace file's dataset.n_samples)")
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("--robot", default=DEFAULT_ROBOT, help=f"robot (config/robots/<name>; default {DEFAULT_ROBOT})")
     ap.add_argument("--out", default=None, help="output stem under config/ (default: the robot description's "
@@ -34,12 +34,12 @@ def main(argv: list[str] | None = None) -> int:
     out = a.out or robot.spec.torso_regression
     if not out:
         ap.error(f"robot {a.robot!r} names no torso_regression in its description: give --out")
-    ws = ReachWorkspace.load()
+    ws = ReachWorkspace.for_robot(robot)
     n = int(ws.dataset["n_samples"]) if a.samples is None else a.samples
     seed = int(ws.dataset["seed"]) if a.seed is None else a.seed
     if n < 10:
         ap.error("--samples must be >= 10")
-    q0 = lowered_initial_posture(robot, ws.initial_com_drop_m)
+    q0 = ws.initial_posture(robot)
     t = time.perf_counter()
     X, Y, tried = generate_dataset(robot, ws, q0, n, seed)
     t_data = time.perf_counter() - t
@@ -47,7 +47,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"only {len(X)} of {tried} pairs solvable: check the workspace", file=sys.stderr)
         return 1
     reg = TorsoRegression.fit(X, Y, **{k: float(ws.svr[k]) for k in ("kernel_width_m", "C", "epsilon")})
-    reg.meta.update({"n_tried": tried, "seed": seed, "dataset_seconds": round(t_data, 1)})
+    reg.meta.update({"n_tried": tried, "seed": seed, "dataset_seconds": round(t_data, 1),
+                     "workspace": robot.spec.dual_arm_workspace})
     npz, yml = reg.save(out)
     print(f"{len(X)}/{tried} pairs solvable ({t_data:.1f} s); wrote {npz} and {yml}; "
           f"train RMSE {reg.meta['train_rmse_rad']}")

@@ -322,6 +322,10 @@ class ExecutionRequests:
         """The torso regression model of the dual-arm mode: the parameter, else the robot's."""
         return self.p["dual_arm_regression"] or self.robot.spec.torso_regression
 
+    def dual_arm_workspace(self) -> str:
+        """The dual-arm workspace file: the parameter, else the robot's (the one its model was trained on)."""
+        return self.p["dual_arm_workspace"] or self.robot.spec.dual_arm_workspace
+
     def _need_dual_arm(self) -> None:
         if not self.dual_arm_model():
             raise RequestError(C.INVALID_GOAL, f"robot {self.robot.name!r} has no dual-arm torso regression model "
@@ -352,7 +356,7 @@ class ExecutionRequests:
                 from humanoid_reach_ros.reach.torso_regression import ReachWorkspace, TorsoRegression
                 self._sampler = DualArmReachController(
                     RobotModel(self.p["robot_config"]), TorsoRegression.load(self.dual_arm_model()),
-                    ReachWorkspace.load(self.p["dual_arm_workspace"]),
+                    ReachWorkspace.load(self.dual_arm_workspace()),
                     ControllerConfig(period_s=self.p["period_s"], max_speed_mps=self.p["dual_arm_max_speed_mps"]))
             pairs = self._sampler.sample_reachable(np.random.default_rng(seed), count)
         return Motion(mid, label, "sequential", arm="both", sequential=(count, seed, pairs), q_measured=q0)

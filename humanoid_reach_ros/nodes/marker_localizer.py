@@ -72,8 +72,8 @@ PARAMETERS: dict[str, ParamSpec] = {
                                  "hand targets on /dual_arm/targets; [-1, -1]: off"),
     "hand_orientation": ParamSpec("workspace", "hand target orientation: workspace (dual-arm workspace rule) | "
                                   "marker (the object frame)"),
-    "dual_arm_workspace": ParamSpec("torso_regression/workspace.yaml", "dual-arm workspace YAML (orientation rule), "
-                                    "relative to config/ or absolute"),
+    "dual_arm_workspace": ParamSpec("", "dual-arm workspace YAML (orientation rule), relative to config/ or "
+                                    "absolute; empty: the robot description's dual_arm_workspace"),
     "robot_config": ParamSpec(DEFAULT_ROBOT, "robot: a name (config/robots/<name>/robot.yaml) or the path of "
                                           "a robot description (relative to config/, or absolute)"),
     "camera_frame_id": ParamSpec("", "URDF frame of the camera (R_T_C by FK); empty: the robot description's "
@@ -170,11 +170,12 @@ class MarkerLocalizer(Node):
             raise ValueError(f"target_marker_id {p['target_marker_id']} is not among marker_ids {p['marker_ids']}")
         if not 1 <= p["corner_refine_window_px"] <= 50:
             raise ValueError("corner_refine_window_px must be in 1..50")
-        self.hand_ids, self.workspace = hand_marker_setup(p["hand_marker_ids"], p["hand_orientation"],
-                                                          p["dual_arm_workspace"], self.table.markers)
+        self.model = RobotModel(p["robot_config"])
+        self.hand_ids, self.workspace = hand_marker_setup(
+            p["hand_marker_ids"], p["hand_orientation"], p["dual_arm_workspace"] or self.model.spec.dual_arm_workspace,
+            self.table.markers)
         self.detector = MarkerDetector(self.table, p["max_reprojection_error_px"], p["corner_refine_window_px"],
                                        p["edge_refinement"])
-        self.model = RobotModel(p["robot_config"])
         p["camera_frame_id"] = p["camera_frame_id"] or self.model.camera_frame
         self.model.frame_id(p["camera_frame_id"])  # KeyError for a frame the URDF lacks
         self.hardware_id = self.model.name + " head camera"

@@ -93,7 +93,7 @@ class ReachExecutorNode(Node):
         t0 = time.perf_counter()
         self.loop = LoopProcess(LoopConfig(
             robot_config=p["robot_config"], executor_params=self.params, supervisor=supervisor_config(p),
-            dual_arm={"regression": self.requests.dual_arm_model(), "workspace": p["dual_arm_workspace"],
+            dual_arm={"regression": self.requests.dual_arm_model(), "workspace": self.requests.dual_arm_workspace(),
                       "max_speed_mps": p["dual_arm_max_speed_mps"]} if self.requests.dual_arm_model() else None,
             node_name=f"{self.get_name()}_loop", namespace=self.get_namespace(),
             command_topic=self.resolve_topic_name("joint_command"),

@@ -89,8 +89,8 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     # ---- dual-arm mode (MODE_DUAL_ARM goals, /dual_arm/targets)
     "dual_arm_regression": ParamSpec("", "torso regression model stem (.npz + .yaml), relative to config/ or "
                                      "absolute; empty: the robot description's torso_regression"),
-    "dual_arm_workspace": ParamSpec("torso_regression/workspace.yaml", "workspace / eq. 6 YAML of the dual-arm "
-                                    "controller, relative to config/ or absolute"),
+    "dual_arm_workspace": ParamSpec("", "workspace / eq. 6 YAML of the dual-arm controller, relative to config/ "
+                                    "or absolute; empty: the robot description's dual_arm_workspace"),
     "dual_arm_max_speed_mps": ParamSpec(0.38, "speed limit of the hands and the CoM in dual-arm mode [m/s]",
                                         (0.01, 2.0)),
     "dual_arm_brake_s": ParamSpec(0.2, "a canceled / preempted dual-arm motion stops on its path over this "

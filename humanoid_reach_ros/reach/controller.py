@@ -46,7 +46,7 @@ import pinocchio as pin
 from humanoid_reach_ros.reach.com_target import ComTarget, ComTargetSelector
 from humanoid_reach_ros.reach.kinematics import HandTargets, rodrigues_interpolate
 from humanoid_reach_ros.reach.torso_regression import ReachWorkspace, TorsoRegression
-from humanoid_reach_ros.reach.whole_body_ik import LegTargets, ProposedWholeBodyIK, lowered_initial_posture
+from humanoid_reach_ros.reach.whole_body_ik import LegTargets, ProposedWholeBodyIK
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 
 
@@ -113,16 +113,18 @@ class ControlStep:
 
 
 class DualArmReachController:
-    """The proposed whole-body controller (ROS-free; the executor node wraps it)."""
+    """The proposed whole-body controller (ROS-free; the executor node wraps it). By default
+    the workspace is the robot description's ``dual_arm_workspace`` and the regression its
+    ``torso_regression`` (the model trained on that workspace)."""
 
     def __init__(self, robot: RobotModel | None = None, regression: TorsoRegression | None = None,
                  workspace: ReachWorkspace | None = None, config: ControllerConfig = ControllerConfig()) -> None:
         self.robot = RobotModel() if robot is None else robot
-        self.ws = ReachWorkspace.load() if workspace is None else workspace
+        self.ws = ReachWorkspace.for_robot(self.robot) if workspace is None else workspace
         self.regression = TorsoRegression.load(self.robot.spec.torso_regression) if regression is None else regression
         self.config = config
-        self.q_init = lowered_initial_posture(self.robot, self.ws.initial_com_drop_m)
-        self.ik = ProposedWholeBodyIK(self.robot, config.support)
+        self.q_init = self.ws.initial_posture(self.robot)
+        self.ik = ProposedWholeBodyIK(self.robot, config.support, period_s=config.period_s)
         self.selector = ComTargetSelector(self.robot, self.q_init, self.ws.com_offset_m, self.ik.limb_ik)
         soles = self.robot.stance_soles
         self.sole_support, self.sole_swing = (soles if config.support == "right" else soles[::-1])
@@ -277,7 +279,8 @@ class DualArmReachController:
         posture (eq. 6 CoM candidate, regression chest, Algorithm 3 + closed-form arms):
         an ``ik.step`` result whose ``ok`` says whether the pair can be held at all."""
         com, chest = self._com_and_chest(t)
-        return self.ik.step(self.q_init, t, chest, self.leg_targets(com.p_com), self.sole_support, measure=False)
+        return self.ik.step(self.q_init, t, chest, self.leg_targets(com.p_com), self.sole_support, measure=False,
+                            tracking=False)
 
     def sample_reachable(self, rng: np.random.Generator, n: int, max_draws: int = 100000) -> tuple[np.ndarray, np.ndarray]:
         """``n`` right and ``n`` left hand target positions, uniform in the workspace boxes

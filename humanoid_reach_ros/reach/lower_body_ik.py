@@ -158,15 +158,16 @@ class LowerBodyIK(_FloatingKinematics):
 
 
 
-def lowered_initial_posture(robot: RobotModel, drop_m: float) -> np.ndarray:
-    """Half-sitting with the CoM lowered by ``drop_m`` (Algorithm 3, waist kept upright,
-    feet at the stance poses). Raises ``ValueError`` if the legs cannot do it."""
+def lowered_initial_posture(robot: RobotModel, drop_m: float, q_start: np.ndarray | None = None) -> np.ndarray:
+    """Half-sitting (or ``q_start``: half-sitting with other upper-body joints) with the CoM
+    lowered by ``drop_m`` from half-sitting's (Algorithm 3, waist kept upright, feet at the
+    stance poses). Raises ``ValueError`` if the legs cannot do it."""
     if not (np.isfinite(drop_m) and 0.0 <= drop_m < 0.3):
         raise ValueError(f"initial_com_drop_m must be in [0, 0.3), got {drop_m}")
-    q0 = robot.half_sitting()
+    q0 = robot.half_sitting() if q_start is None else np.array(q_start, dtype=float)
     r_sole, l_sole = robot.stance_soles
     low = LowerBodyIK(robot, "right", max_iter=100)
-    com = robot.com(q0) - np.array([0.0, 0.0, drop_m])
+    com = robot.com(robot.half_sitting()) - np.array([0.0, 0.0, drop_m])
     res = low.solve(q0, LegTargets(com, np.eye(3), l_sole.translation, l_sole.rotation), r_sole)
     if not res.converged:
         raise ValueError(f"cannot lower the CoM by {drop_m} m (|e| = {res.error_norm:.2e})")

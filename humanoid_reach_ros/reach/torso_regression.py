@@ -7,8 +7,10 @@ Table 1 parameters: kernel width ``sigma = 0.1`` m (``gamma = 1 / (2 sigma^2)`` 
 dissertation gives the width, not gamma), constraint ``C = 1.0``, slack ``epsilon = 1e-4``.
 
 Dataset (Algorithm 2): hand target pairs uniform in the workspace boxes (Sec. 4.1: one box
-0.45 x 0.8 x 0.75 m in front of the robot, split at y = 0 between the hands; config
-``config/torso_regression/workspace.yaml``), fixed hand orientations, each solved by the
+0.45 x 0.8 x 0.75 m in front of the robot, split at y = 0 between the hands), fixed hand
+orientations -- the robot's workspace file (robot.yaml ``dual_arm_workspace``, e.g.
+``config/torso_regression/workspace.yaml``: the box, orientation origins and initial CoM
+drop are fitted to one robot's arms and legs, see :meth:`ReachWorkspace.for_robot`) --, each solved by the
 LM *BothArmsIK* from the initial posture with the torso height fixed; unsolvable pairs are
 dropped and only the chest angles of the solved ones are kept. The dissertation does not
 state its dataset size; ours is in the YAML (3,000 pairs tried by default).
@@ -21,6 +23,7 @@ prediction (:meth:`TorsoRegression.predict`) evaluates the RBF expansion with nu
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,10 +33,13 @@ import yaml
 
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.reach.kinematics import HandTargets
+from humanoid_reach_ros.reach.lower_body_ik import lowered_initial_posture
 from humanoid_reach_ros.reach.upper_body_ik import UpperBodyIK
-from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
+from humanoid_reach_ros.robot.spec import DEFAULT_DUAL_ARM_WORKSPACE
 
-WORKSPACE_YAML = "torso_regression/workspace.yaml"
+#: the workspace file of a robot description without ``dual_arm_workspace``
+WORKSPACE_YAML = DEFAULT_DUAL_ARM_WORKSPACE
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,6 +58,9 @@ class ReachWorkspace:
     com_offset_m: float
     svr: dict
     dataset: dict
+    #: joint -> angle [rad] of the initial posture that differ from half-sitting (optional
+    #: ``initial_joints_deg``; e.g. arms moved off a singular half-sitting posture)
+    initial_joints: dict = dataclasses.field(default_factory=dict)
 
     @classmethod
     def load(cls, path: str | Path = WORKSPACE_YAML) -> "ReachWorkspace":
@@ -63,14 +72,37 @@ class ReachWorkspace:
             box = {s: (np.array(ws[s]["lower_m"], float), np.array(ws[s]["upper_m"], float)) for s in ("right", "left")}
             rot = {s: _rpy(y["hand_rpy_deg"][s]) for s in ("right", "left")}
             org = {s: np.array(y["orientation_origin_m"][s], float) for s in ("right", "left")}
+            joints = {str(k): float(np.radians(float(v))) for k, v in (y.get("initial_joints_deg") or {}).items()}
             out = cls(box["right"][0], box["right"][1], box["left"][0], box["left"][1], rot["right"], rot["left"],
-                      org["right"], org["left"], float(y["initial_com_drop_m"]), float(y["com_offset_m"]), dict(y["svr"]), dict(y["dataset"]))
-        except (KeyError, TypeError) as exc:
+                      org["right"], org["left"], float(y["initial_com_drop_m"]), float(y["com_offset_m"]), dict(y["svr"]),
+                      dict(y["dataset"]), joints)
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise ValueError(f"{p}: malformed workspace file ({exc!r})") from exc
         for lo, hi in ((out.right_lower, out.right_upper), (out.left_lower, out.left_upper)):
             if lo.shape != (3,) or hi.shape != (3,) or not np.all(lo < hi):
                 raise ValueError(f"{p}: each box needs lower_m < upper_m, 3 values each")
+        if not all(np.isfinite(v) for v in out.initial_joints.values()):
+            raise ValueError(f"{p}: initial_joints_deg must map joint names to finite angles [deg]")
         return out
+
+    def initial_posture(self, robot: RobotModel) -> np.ndarray:
+        """The initial posture (nq): half-sitting with ``initial_joints`` set, the CoM lowered
+        by ``initial_com_drop_m``. ``ValueError`` naming a joint the robot lacks or a value
+        outside its limits."""
+        q = robot.half_sitting()
+        for name, v in self.initial_joints.items():
+            if name not in robot.joint_index:
+                raise ValueError(f"workspace initial_joints_deg: robot {robot.name!r} has no joint {name!r}")
+            i = robot.joint_index[name]
+            if not robot.lower[i] <= v <= robot.upper[i]:
+                raise ValueError(f"workspace initial_joints_deg: {name} = {np.degrees(v):.1f} deg is outside its limits")
+            q[N_BASE_Q + i] = v
+        return lowered_initial_posture(robot, self.initial_com_drop_m, q)
+
+    @classmethod
+    def for_robot(cls, robot: RobotModel) -> "ReachWorkspace":
+        """The workspace file the robot's description names (``dual_arm_workspace``)."""
+        return cls.load(robot.spec.dual_arm_workspace)
 
     def sample(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
         """``n`` right and ``n`` left target positions, uniform in the boxes."""

@@ -5,8 +5,10 @@ its URDF: the four limbs (root link, tip frame, six joints each -- seven allowed
 arm: the hands are the arm limbs' tips, the soles the leg limbs' tips), the floating-base
 link, the chest and head joints by role, the head camera frame, the grippers, the
 half-sitting posture, the sole rectangle (the support polygon is the hull of both soles),
-the collision model file, the dual-arm torso regression model, and fixed frames the
-description adds to the URDF's (``frames``: e.g. a grasp point the URDF lacks).
+the collision model file, the dual-arm torso regression model and the dual-arm workspace
+file it was trained on (box, hand orientation rule, initial CoM drop: fitted to one robot's
+arms and legs, so each robot names its own), and fixed frames the description adds to the
+URDF's (``frames``: e.g. a grasp point the URDF lacks).
 
 The URDF is a file beside ``robot.yaml`` or a packaged resource
 ``package://<package>/<path>`` (:func:`resolve_package_uri`: the package's ament share
@@ -35,9 +37,12 @@ LIMB_NAMES = ("right_leg", "left_leg", "right_arm", "left_arm")
 #: arms: six, or seven solved by robot/general_ik.py's RedundantLimbIK)
 LIMB_JOINTS = {"right_leg": (6,), "left_leg": (6,), "right_arm": (6, 7), "left_arm": (6, 7)}
 PACKAGE_SCHEME = "package://"
+#: the dual-arm workspace file of a description that names none (config/; the first robot's,
+#: kept as the default so that descriptions written before the key read as before)
+DEFAULT_DUAL_ARM_WORKSPACE = "torso_regression/workspace.yaml"
 _KEYS = {"robot_name", "urdf", "collision_model", "base_link", "limbs", "chest", "head", "gripper_joints",
-         "sole_rectangle_m", "torso_regression", "half_sitting", "frames"}
-_REQUIRED = _KEYS - {"gripper_joints", "torso_regression", "frames"}
+         "sole_rectangle_m", "torso_regression", "dual_arm_workspace", "half_sitting", "frames"}
+_REQUIRED = _KEYS - {"gripper_joints", "torso_regression", "dual_arm_workspace", "frames"}
 
 
 @dataclass(frozen=True)
@@ -78,6 +83,9 @@ class RobotSpec:
     sole_rectangle: tuple[float, float, float, float]
     half_sitting_deg: dict
     torso_regression: str | None
+    #: the dual-arm workspace YAML (config/-relative or absolute; reach/torso_regression.py's
+    #: ReachWorkspace reads it)
+    dual_arm_workspace: str
     #: name -> FrameDef: fixed frames added to the URDF's by RobotModel
     frames: dict
     #: directories holding the URDF's package (pinocchio's ``package_dirs`` for its meshes);
@@ -181,13 +189,35 @@ def _frames(doc, where: str) -> dict[str, FrameDef]:
     return out
 
 
+def _dual_arm_workspace(doc, where: str) -> str:
+    """The ``dual_arm_workspace`` entry: a YAML file under ``config/`` (or absolute) that
+    exists and holds a mapping with a ``workspace`` box. Its full content is checked by
+    ``ReachWorkspace.load`` when the dual-arm mode starts (the robot layer does not import
+    reach/); this catches a wrong or missing path when the description is read."""
+    ws = doc.get("dual_arm_workspace", DEFAULT_DUAL_ARM_WORKSPACE)
+    if not isinstance(ws, str) or not ws.endswith((".yaml", ".yml")):
+        raise ValueError(f"{where}: dual_arm_workspace must be a YAML file under config/ (or absolute), got {ws!r}")
+    p = config_path(ws)
+    if not p.is_file():
+        raise ValueError(f"{where}: dual_arm_workspace {ws!r}: no such file {p}")
+    with open(p) as f:
+        try:
+            body = yaml.safe_load(f)
+        except yaml.YAMLError as exc:
+            raise ValueError(f"{where}: dual_arm_workspace {p}: not YAML ({exc})") from None
+    if not isinstance(body, dict) or "workspace" not in body:
+        raise ValueError(f"{where}: dual_arm_workspace {p}: not a dual-arm workspace file (no 'workspace' boxes)")
+    return ws
+
+
 def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]:
     """Read and validate a robot description; returns the spec and the raw document.
 
     ValueError naming the key for: unknown or missing keys, a limb without root, tip or
     six joints (six or seven for an arm), a URDF ``package://`` resource that is not
     installed, a malformed added frame, a chest/head without both roles, a sole rectangle that is not four finite
-    numbers with min < max, a half-sitting entry that is not a finite angle. Names are
+    numbers with min < max, a half-sitting entry that is not a finite angle, a
+    ``dual_arm_workspace`` that is not an existing workspace YAML. Names are
     checked against the URDF by :class:`~humanoid_reach_ros.robot.model.RobotModel`."""
     path = robot_config_path(robot)
     if not path.exists():
@@ -232,6 +262,7 @@ def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]
     reg = doc.get("torso_regression")
     if reg is not None and not isinstance(reg, str):
         raise ValueError(f"{where}: torso_regression must be a model path (config/, no extension)")
+    workspace = _dual_arm_workspace(doc, where)
     frames = _frames(doc, where)
     urdf = doc["urdf"]
     if not isinstance(urdf, str):
@@ -247,7 +278,8 @@ def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]
         limbs=limbs, chest_yaw=roles["chest"]["yaw"], chest_pitch=roles["chest"]["pitch"],
         head_yaw=roles["head"]["yaw"], head_pitch=roles["head"]["pitch"], camera_frame=roles["head"]["camera_frame"],
         gripper_joints=tuple(grippers), sole_rectangle=tuple(float(x) for x in rect),
-        half_sitting_deg={str(k): float(v) for k, v in hs.items()}, torso_regression=reg)
+        half_sitting_deg={str(k): float(v) for k, v in hs.items()}, torso_regression=reg,
+        dual_arm_workspace=workspace)
     return spec, doc
 
 
@@ -266,4 +298,4 @@ def check_against_model(spec: RobotSpec, joint_names, has_frame) -> None:
 
 
 __all__ = ["RobotSpec", "LimbDef", "FrameDef", "load_robot_spec", "robot_config_path", "robots",
-           "check_against_model", "resolve_package_uri", "DEFAULT_ROBOT", "LIMB_NAMES", "LIMB_JOINTS"]
+           "check_against_model", "resolve_package_uri", "DEFAULT_ROBOT", "DEFAULT_DUAL_ARM_WORKSPACE", "LIMB_NAMES", "LIMB_JOINTS"]
