@@ -1,13 +1,15 @@
 #!/usr/bin/env python3
-"""Benchmark: dissertation Table 2 (Sec. 5.2.3) and Fig. 14 (Sec. 5.1.3) on the HRP-2-class model.
+"""Benchmark: dissertation Table 2 (Sec. 5.2.3) and Fig. 14 (Sec. 5.1.3) on the HRP-2-class model
+(``--robot``: another robot of config/robots with a torso regression model, Table 2 only).
 
 Table 2. ``pairs_per_hand`` (27) random target positions per hand, every right/left
-combination: 27 x 27 = 729 target pairs. Each pair is one motion from the initial posture,
+combination: 27 x 27 = 729 target pairs (``--pairs-per-hand N``: N x N, a named reduction
+for a slower robot; the JSON reports the count). Each pair is one motion from the initial posture,
 interpolated at 0.38 m/s with 5 ms control steps (hands linear + Rodrigues, CoM to the eq. 6
 candidate). Targets (``--targets``):
 
-* ``reachable`` (default): uniform in the Sec. 4.1 workspace boxes
-  (config/torso_regression/workspace.yaml), each hand's target kept only if the method
+* ``reachable`` (default): uniform in the Sec. 4.1 workspace boxes of the robot's
+  workspace file (robot.yaml ``dual_arm_workspace``), each hand's target kept only if the method
   reaches it from the initial posture in the symmetric pair it forms with its mirror image
   (``DualArmReachController.sample_reachable``; our reading of "random target poses in the
   workspace, as shown in Figure 5" -- the dissertation does not say how it drew them);
@@ -20,7 +22,8 @@ uniform ``box`` pairs of the same seed (how much of the raw box this model reach
   final whole-body configuration exists -- their time is added to the first step --, then
   per step Algorithm 3 legs and closed-form arms). A pair whose final configuration does
   not exist is refused before moving (counted as a failure, no motion);
-* conventional: FullBodyLMIK -- one LM on legs + chest + arms (26 joints, 24 task rows),
+* conventional: FullBodyLMIK -- one LM on legs + chest + arms (26 joints on HRP-2, 28 on a
+  robot with 7-DOF arms; 24 task rows),
   the same references per step (hand poses, CoM, upright waist, swing sole), warm-started
   from the previous step, same tolerance as Algorithm 3 (1e-7), at most ``--lm-max-iter``
   iterations per step.
@@ -55,8 +58,10 @@ failed, final hand error > 1 mm, balance margin) and lists the first ten with th
 Fig. 14. One motion with the upper-body IK of Algorithm 1 (waist and legs fixed), standard
 vs weighted pseudo-inverse (chest mobility 0.1), 3 s, interpolated targets: chest pitch
 trajectory and frontal ZMP trajectory (RNEA) -> doc/fig14_chest_pitch.png, doc/fig14_zmp.png.
+Its target posture is written in HRP-2's joints (the dissertation's figure), so it runs for
+the default robot only; ``fig14`` says so for another.
 
-The last stdout line is one JSON object.
+The last stdout line is one JSON object; its ``robot`` names the robot.
 """
 from __future__ import annotations
 
@@ -149,8 +154,8 @@ def run_baseline(lm: FullBodyLMIK, ctl: DualArmReachController, refs):
 def final_hand_errors(robot, q, pr, pl):
     d = robot.model.createData()
     pin.framesForwardKinematics(robot.model, d, q)
-    return (float(np.linalg.norm(d.oMf[robot.frame_id("r_hand_ee")].translation - pr)),
-            float(np.linalg.norm(d.oMf[robot.frame_id("l_hand_ee")].translation - pl)))
+    return (float(np.linalg.norm(d.oMf[robot.frame_id(robot.hand_frames["right"])].translation - pr)),
+            float(np.linalg.norm(d.oMf[robot.frame_id(robot.hand_frames["left"])].translation - pl)))
 
 
 def balance(robot, q0, qs, dt, poly, margin):
@@ -296,7 +301,8 @@ def box_reference(ctl: DualArmReachController, ws, seed: int, n: int, poly, marg
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description="Table 2 + Fig. 14 of the dissertation")
-    ap.add_argument("--pairs-per-hand", type=int, default=27)
+    ap.add_argument("--pairs-per-hand", type=int, default=27, help="target positions per hand; N x N pairs "
+                                                                   "(default 27: 729, the dissertation's)")
     ap.add_argument("--seed", type=int, default=2018)
     ap.add_argument("--baseline-pairs", type=int, default=None, help="conventional method on the first N pairs only")
     ap.add_argument("--lm-max-iter", type=int, default=100)
@@ -419,7 +425,7 @@ def main(argv=None) -> int:
     ratio = float(np.mean(Bt_sub) / np.mean(Pt_sub)) if Pt_sub else float("nan")
     ratio_wall = float(np.mean(Bw_sub) / np.mean(Pw_sub)) if Pw_sub else float("nan")
     out = {
-        "bench": "dual_arm_table2",
+        "bench": "dual_arm_table2", "robot": robot.name,
         "machine": {"description": describe(), "load_avg_1m": round(os.getloadavg()[0], 2)},
         "timing": "CPU time of the calling thread per control step (time.thread_time)",
         "pairs": len(pairs), "pairs_per_hand": a.pairs_per_hand, "baseline_pairs": n_base,
@@ -444,7 +450,10 @@ def main(argv=None) -> int:
     if not a.no_box_reference:
         out["box_distribution"] = box_reference(ctl, ws, a.seed, a.pairs_per_hand, poly, a.margin_m)
     if not a.no_fig:
-        out["fig14"] = fig14(robot, ctl, Path(a.fig_dir), dt)
+        # the figure's posture is in the default robot's joints (fig14 docstring); another
+        # robot would also overwrite its files
+        out["fig14"] = fig14(robot, ctl, Path(a.fig_dir), dt) if a.robot == DEFAULT_ROBOT else \
+            f"skipped: Fig. 14's posture is written for {DEFAULT_ROBOT}"
     print(json.dumps(out))
     return 0
 
