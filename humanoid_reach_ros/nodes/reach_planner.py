@@ -177,9 +177,12 @@ class ReachPlannerNode(Node):
         self.model = RobotModel(p["robot_config"])            # node-side FK (waist, markers)
         self.planner = ReachPlanner(RobotModel(p["robot_config"]), planner_params(p))
         t0 = time.perf_counter()
-        self.planner.warm_up()  # compiled kernels before the first request (cache: tools/setup.sh)
+        warm = self.planner.warm_up()  # compiled kernels before the first request (cache: tools/setup.sh)
         self.get_logger().info(f"planning kernels warmed up in {1e3 * (time.perf_counter() - t0):.0f} ms; goal "
                                f"search: {self.planner.trunk_region.describe()}")
+        if not warm:
+            self.get_logger().warn("the warm-up plan (free space) did not succeed: the first request may pay "
+                                   "for compiling the path checker")
         self.hardware_id = self.model.name
 
         self._plan_lock = threading.Lock()   # one request at a time; a second one gets BUSY

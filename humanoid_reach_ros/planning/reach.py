@@ -776,8 +776,12 @@ class ReachPlanner:
         return _Traj(spline, t - spline.times[0], pos, vel, acc, spline.times - spline.times[0])
 
     # ------------------------------------------------------------ misc
-    def warm_up(self) -> None:
-        """Compile the numba kernels (free-space plan) so the first request is fast."""
+    def warm_up(self, budget_s: float = 60.0) -> bool:
+        """Compile the numba kernels (a free-space plan, to its end) so the first request is fast;
+        True when the warm-up plan succeeded. The budget is generous on purpose: compiling the
+        goal sampler's kernels takes seconds, and a plan that runs out of time before its path
+        search never compiles the path checker's kernels, which the first real request would
+        then compile inside its own budget (seen: NO_PATH within 4 s on a loaded machine)."""
         from humanoid_reach_ros.planning.wgr import valve_region
         from humanoid_reach_ros.robot import limb_ik
 
@@ -785,7 +789,9 @@ class ReachPlanner:
         saved = (self._collision, self._map_voxels, self._tree_build_s)
         try:
             self.set_map(np.array([[5.0, 5.0, 5.0]]))
-            self.plan(self.robot.half_sitting_joints, PlanRequest(valve_region(), goal_count=1, time_budget_s=1.0))
+            out = self.plan(self.robot.half_sitting_joints,
+                            PlanRequest(valve_region(), goal_count=1, time_budget_s=float(budget_s)))
+            return bool(out.success)
         finally:
             with self._map_lock:
                 self._collision, self._map_voxels, self._tree_build_s = saved
