@@ -90,7 +90,7 @@ fi
 # (a cold cache would otherwise compile for seconds inside the first planning request)
 py_hash=$(find humanoid_reach_ros -name '*.py' | sort | xargs cat | sha256sum | cut -c1-16)
 if [ "$force" = "--force" ] || [ "$(cat "$STAMPS/numba" 2>/dev/null)" != "$py_hash" ]; then
-  log "compiling numba kernels (about 15 s the first time)"
+  log "compiling numba kernels (about a minute the first time)"
   ( set +u; . tools/env.sh && python -m humanoid_reach_ros.warmup ) > build/warmup.log 2>&1 \
     || { tail -20 build/warmup.log >&2; die "numba warm-up failed (full log: build/warmup.log)"; }
   echo "$py_hash" > "$STAMPS/numba"
