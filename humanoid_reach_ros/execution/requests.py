@@ -269,7 +269,8 @@ class ExecutionRequests:
         bad = C.INVALID_GOAL
         if len(yaw) != len(pitch):
             raise RequestError(bad, f"{len(yaw)} yaw angles but {len(pitch)} pitch angles: give one pitch per yaw")
-        if len(yaw) == 0:
+        scan = len(yaw) == 0
+        if scan:
             flat = np.radians(np.asarray(self.p["scan_poses_deg"], dtype=float))
             if len(flat) < 2 or len(flat) % 2:
                 raise RequestError(bad, f"parameter scan_poses_deg must hold yaw, pitch pairs, got {len(flat)} values")
@@ -280,7 +281,7 @@ class ExecutionRequests:
             raise RequestError(bad, f"{what} has NaN/inf angles")
         idx = [self.robot.joint_index[n] for n in self.head_joints]
         lo, hi = self.robot.lower[idx], self.robot.upper[idx]
-        if what == "scan_poses_deg":
+        if scan:
             poses = np.clip(poses, lo, hi)
         for k, pose in enumerate(poses):
             for j, (name, label) in enumerate(zip(self.head_joints, ("yaw", "pitch"))):

@@ -215,11 +215,10 @@ class TrunkRegion:
             self.arm_reach[arm] = _chain_reach(lk, with_root=False)
             self.arms[arm] = ArmReach(self.shoulder[arm], np.array(lk.Re, float), np.array(lk.te, float),
                                       float(lk.l1 + lk.l2) + 1e-3)
-            # the proof's tight form (GeneralLimb.reach_centres): a 7-joint arm's centre moves on
-            # a circle, which ``shoulder`` + ``arm_reach`` (widened by the circle's radius in every
-            # direction) covers loosely; a 6-joint arm's is ``shoulder`` and ``arm_reach`` itself
-            pts, arc, reach = (lk.reach_centres(PROOF_STEP_RAD) if hasattr(lk, "reach_centres")
-                               else (np.asarray(lk.t0, float)[None], 0.0, lk.l1 + lk.l2))
+            # the proof's tight form (the limb protocol's reach_centres): a 7-joint arm's centre
+            # moves on a circle, which ``shoulder`` + ``arm_reach`` (widened by the circle's radius
+            # in every direction) covers loosely; a 6-joint arm's is ``shoulder`` and ``arm_reach`` itself
+            pts, arc, reach = lk.reach_centres(PROOF_STEP_RAD)
             self.centres[arm] = (np.array([projector.chest_p_in_trunk + projector.chest_R_in_trunk @ p for p in pts]),
                                  float(arc), float(reach + np.linalg.norm(lk.te)) + 1e-3)
         self.cog_xy = np.array(projector.cog_approx_xy, float)

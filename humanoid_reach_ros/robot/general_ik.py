@@ -232,6 +232,25 @@ def _sp2(w1: np.ndarray, w2: np.ndarray, p: np.ndarray, q: np.ndarray, ref1, ref
     return out
 
 
+def _elbow_terms(c) -> tuple[float, float, float]:
+    """``K0, K1, K2`` of the elbow equation of a wrist-at-tip chain ``c``:
+    ``|t3 + R3 R(a3, q3) t4|^2 = K0 + K1 cos q3 + K2 sin q3``, the squared distance between the
+    centres of its two ends (joints 1-2 and the wrist) as the elbow (joint 3) turns."""
+    a3, t3, R3, t4 = c.axes[2], c.t[2], c.R[2], c.t[3]
+    upar = (a3 @ t4) * a3
+    uperp = t4 - upar
+    t3p = R3.T @ t3
+    return t3 @ t3 + t4 @ t4 + 2 * (t3p @ upar), 2 * (t3p @ uperp), 2 * (t3p @ np.cross(a3, uperp))
+
+
+def _centre_distance_range(c) -> tuple[float, float]:
+    """The range of the distance between the two end centres of chain ``c`` over the elbow's
+    turn: ``sqrt(K0 -+ rho)``, ``rho = |(K1, K2)|`` (:func:`_elbow_terms`)."""
+    K0, K1, K2 = _elbow_terms(c)
+    rho = float(np.hypot(K1, K2))
+    return math.sqrt(max(K0 - rho, 0.0)), math.sqrt(K0 + rho)
+
+
 def _candidates(c: Chain6, P: np.ndarray, Rt: np.ndarray, ref: np.ndarray) -> np.ndarray:
     """(N, 8, 6) candidate joints of a wrist-at-tip chain for tip poses (P, Rt) relative to its root."""
     n = len(P)
@@ -243,11 +262,7 @@ def _candidates(c: Chain6, P: np.ndarray, Rt: np.ndarray, ref: np.ndarray) -> np
     d2 = np.einsum("ni,ni->n", u, u)
     # elbow: |t3 + R3 R(a3, q3) t4|^2 = K0 + K1 cos + K2 sin
     a3, t3, R3, t4 = c.axes[2], c.t[2], c.R[2], c.t[3]
-    upar = (a3 @ t4) * a3
-    uperp = t4 - upar
-    t3p = R3.T @ t3
-    K0 = t3 @ t3 + t4 @ t4 + 2 * (t3p @ upar)
-    K1, K2 = 2 * (t3p @ uperp), 2 * (t3p @ np.cross(a3, uperp))
+    K0, K1, K2 = _elbow_terms(c)
     rho, phi = np.hypot(K1, K2), np.arctan2(K2, K1)
     cosx = (d2 - K0) / rho if rho > 1e-12 else np.full(n, np.nan)
     cosx = np.where(np.abs(cosx) <= 1 + 1e-10, np.clip(cosx, -1, 1), np.nan)
@@ -306,16 +321,11 @@ class GeneralLimb:
             self.ik = GeneralLimbIK(c, self.q_default)
             solver, swing = self.ik._solver, 0.0
         # centres of the two ends and the distance range between them (elbow / knee swing)
-        a3, t3, R3, t4 = solver.axes[2], solver.t[2], solver.R[2], solver.t[3]
-        upar = (a3 @ t4) * a3
-        uperp = t4 - upar
-        t3p = R3.T @ t3
-        K0 = t3 @ t3 + t4 @ t4 + 2 * (t3p @ upar)
-        rho = np.hypot(2 * (t3p @ uperp), 2 * (t3p @ np.cross(a3, uperp)))
-        d_max, d_min = np.sqrt(K0 + rho) + swing, max(np.sqrt(max(K0 - rho, 0.0)) - swing, 0.0)
+        c_min, c_max = _centre_distance_range(solver)
+        d_max, d_min = c_max + swing, max(c_min - swing, 0.0)
         self.l1, self.l2 = float((d_max + d_min) / 2), float((d_max - d_min) / 2)
         #: the closed form's own centre distance bound, without the swing (reach_centres)
-        self.centre_reach = float(np.sqrt(K0 + rho))
+        self.centre_reach = c_max
         # the root-end centre is joint 1's origin and the tip-end centre joint 6's (their
         # translations t2 (, t3) and t6 (, t5) are zero), whichever end has three axes;
         # a 7-joint chain: joint 1's origin, the subchain's centre |t2| from it
@@ -405,14 +415,8 @@ class RedundantLimbIK:
         # centres the other way round)
         self._d_range = None
         if not self.sub.reversed:
-            c = self.sub._solver
-            a3, t3, R3, t4 = c.axes[2], c.t[2], c.R[2], c.t[3]
-            upar = (a3 @ t4) * a3
-            uperp = t4 - upar
-            t3p = R3.T @ t3
-            K0 = t3 @ t3 + t4 @ t4 + 2 * (t3p @ upar)
-            rho = float(np.hypot(2 * (t3p @ uperp), 2 * (t3p @ np.cross(a3, uperp))))
-            self._d_range = (math.sqrt(max(K0 - rho, 0.0)) - 1e-9, math.sqrt(K0 + rho) + 1e-9)
+            d_min, d_max = _centre_distance_range(self.sub._solver)
+            self._d_range = (d_min - 1e-9, d_max + 1e-9)
 
     def solve(self, target_p: np.ndarray, target_R: np.ndarray, q_ref: np.ndarray | None = None) -> GeneralIKResult:
         """Per pose, the solution nearest ``q_ref`` over the first-joint values (the reference's,

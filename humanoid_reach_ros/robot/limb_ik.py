@@ -342,6 +342,11 @@ class LimbIK:
             return self._solve_one(*(a[0].tolist() for a in arrs))
         return self._solve_batch(*arrs)
 
+    def reach_centres(self, step_rad: float = 0.05) -> tuple[np.ndarray, float, float]:
+        """The reach bound in the protocol's form (``GeneralLimb.reach_centres``): joint 0's
+        origin ``t0``, no slack, ``l1 + l2`` (``step_rad``: unused, no joint swings the centre)."""
+        return self.t0[None].copy(), 0.0, self.l1 + self.l2
+
     def maybe_reachable(self, root_p, root_R, tip_p, tip_R) -> np.ndarray:
         """Cheap necessary condition of :meth:`solve` success, (N,) bool, numpy-batched.
 
@@ -1012,8 +1017,8 @@ def _limb_solver(model: RobotModel, name: str, compiled: bool):
 @dataclass(frozen=True, eq=False)
 class LimbIKSet:
     """The closed-form IK of every limb of ``model`` (``model.limbs``), by name: one protocol
-    (``solve`` / ``fk`` / ``maybe_reachable`` and the reach geometry ``t0``, ``l1``, ``l2``,
-    ``te``, ``Re``) whichever solver a limb gets (:func:`_limb_solver`)."""
+    (``solve`` / ``fk`` / ``maybe_reachable`` / ``reach_centres`` and the reach geometry ``t0``,
+    ``l1``, ``l2``, ``te``, ``Re``) whichever solver a limb gets (:func:`_limb_solver`)."""
 
     model: RobotModel
     compiled: bool = True

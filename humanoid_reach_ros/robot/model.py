@@ -94,8 +94,6 @@ class RobotModel:
         self.urdf_xml = self.urdf_path.read_text()
         self.model: pin.Model = pin.buildModelFromXML(self.urdf_xml, pin.JointModelFreeFlyer())
         _add_frames(self.model, self.spec)
-        #: the URDF with the description's added frames as fixed links (published as /robot_description)
-        self.description_xml = urdf_with_frames(self.model, self.urdf_xml, self.spec.frames)
         self.data: pin.Data = self.model.createData()
         # joint 0 is "universe", joint 1 the free flyer
         self.joint_names: tuple[str, ...] = tuple(self.model.names[2:])
@@ -161,6 +159,12 @@ class RobotModel:
         return bool(np.all(joints >= self.lower - tol) and np.all(joints <= self.upper + tol))
 
     # ------------------------------------------------------------ postures
+    @cached_property
+    def description_xml(self) -> str:
+        """The URDF with the description's added frames as fixed links (published as
+        ``/robot_description``); built on first use (only the joint driver asks)."""
+        return urdf_with_frames(self.model, self.urdf_xml, self.spec.frames)
+
     @cached_property
     def half_sitting_joints(self) -> np.ndarray:
         deg = {k: np.radians(v) for k, v in self.spec.half_sitting_deg.items()}
