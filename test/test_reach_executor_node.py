@@ -445,9 +445,14 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
     st4, r4 = g4.result()
     assert st4 == GoalStatus.STATUS_ABORTED and r4.error_code == R.ABORTED and "stale" in r4.message, r4.message
     assert g4.progress() < 0.9
-    n2 = len(commands)
-    ros_probe.spin_until(lambda: len(commands) > n2 + 20, 20.0, "held commands without the driver")
-    Js, _ = command_array(commands, model, n2)
+    # the commands sent after the result (not those of the motion still queued at the probe): held
+    t_abort = time.time()
+
+    def held_since_abort():
+        return [m for m in commands.messages if msgs.seconds_from_time(m.header.stamp) >= t_abort]
+
+    ros_probe.spin_until(lambda: len(held_since_abort()) > 20, 20.0, "held commands without the driver")
+    Js = np.array([m.position for m in held_since_abort()])
     assert np.max(np.abs(Js[-10:] - Js[-1])) < 1e-6   # holding still
     st, res = Run(ros_probe, client, goal(forward)).result()
     assert res.error_code == R.NO_JOINT_STATES and "stale" in res.message, res.message
