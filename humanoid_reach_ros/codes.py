@@ -30,6 +30,7 @@ class PlanError(IntEnum):
     BUSY = 11
     UNOBSERVED_SPACE = 12
     NO_GOAL_FOUND = 13          # the budget ran out before a goal posture was found (not proven out of reach)
+    UNOBSERVABLE_SPACE = 14     # as UNOBSERVED_SPACE, but no reachable gaze of the head camera sees that space
     INTERNAL_ERROR = 99
 
 
