@@ -1,4 +1,5 @@
-"""Path -> clamped cubic spline trajectory (Kanehiro Sec. IV)."""
+"""Path -> monotone cubic (PCHIP, zero end slopes) trajectory (Kanehiro Sec. IV; the paper's clamped
+cubic spline overshot the joint limits between waypoints: test/test_trajectory_limits.py)."""
 from __future__ import annotations
 
 import numpy as np
@@ -36,12 +37,16 @@ def test_passes_through_waypoints_at_times_and_rests_at_ends():
     np.testing.assert_allclose(traj.position(traj.duration + 1.0), WAYPOINTS[-1])
 
 
-def test_velocity_and_acceleration_continuous_at_knots():
+def test_velocity_continuous_at_knots_acceleration_may_jump():
+    # PCHIP is C1: the clamped spline's continuous acceleration was the price of its overshoot
+    # (its C2 condition is what pushes a joint past the waypoints); velocity stays continuous
     traj = path_to_trajectory(WAYPOINTS, TrajectoryOptions(joint_velocity=0.5))
     eps = 1e-7
+    jumps = []
     for t in traj.times[1:-1]:
         np.testing.assert_allclose(traj.velocity(t - eps), traj.velocity(t + eps), atol=1e-5)
-        np.testing.assert_allclose(traj.acceleration(t - eps), traj.acceleration(t + eps), atol=1e-4)
+        jumps.append(np.abs(traj.acceleration(t - eps) - traj.acceleration(t + eps)).max())
+    assert max(jumps) > 0.1      # measured 2.3 rad/s^2 on this path: the knots really are only C1
 
 
 def test_single_segment_peak_is_one_and_a_half_v_and_rescaling_restores_the_bound():
