@@ -11,19 +11,24 @@ COG held), the map and the marker come from the head sensors, the valve is reach
 way, bad head requests are refused with a reason and nothing stops (a pose outside the
 head's limits from the command line; mismatched pose lists through the action), and a
 target given before the scan is refused as ``UNOBSERVED_SPACE`` (the head has not seen it).
+At the end ``/look`` takes gaze points (the balanced whole-body gaze): bad ones are refused,
+good ones looked at, one beyond the camera's range reported as not in view.
 """
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 
 import pytest
+from geometry_msgs.msg import Point
 from humanoid_reach_interfaces.action import Look
 from rclpy.action import ActionClient
 
 from humanoid_reach_ros.demo import SIM_JOINT_STATES_ABORT_S, SIM_JOINT_STATES_TIMEOUT_S
 from humanoid_reach_ros.graph import STOP_DEADLINE_S
+from humanoid_reach_ros.io import exec_msgs
 from nodetools import REPO_ROOT
 
 pytestmark = pytest.mark.node
@@ -43,6 +48,15 @@ def operator(env, *args: str, timeout: float = 300.0) -> tuple[int, dict, str]:
                           cwd=REPO_ROOT, env=dict(env), capture_output=True, text=True, timeout=timeout)
     lines = proc.stdout.strip().splitlines()
     return proc.returncode, (json.loads(lines[-1]) if lines else {}), proc.stderr
+
+
+def look_result(ros_probe, client: ActionClient, goal: Look.Goal, timeout: float = 60.0) -> Look.Result:
+    """Send a /look goal and wait for its result."""
+    sent = client.send_goal_async(goal)
+    ros_probe.spin_until(sent.done, 30.0, "the /look goal response")
+    result = sent.result().get_result_async()
+    ros_probe.spin_until(result.done, timeout, "the /look result")
+    return result.result().result
 
 
 def test_scan_then_reach_the_marker_from_the_command_line(start_node, ros_env, ros_probe) -> None:
@@ -85,6 +99,18 @@ def test_scan_then_reach_the_marker_from_the_command_line(start_node, ros_env, r
     assert out["plan"]["success"] and out["plan"]["statistics"]["map_voxels"] > 1000, out["plan"]
     ex = out["execution"]
     assert ex["success"] and ex["min_distance_m"] >= 0.0 and ex["final_hand_error_m"] < 1e-3, ex
+
+    # /look at gaze points (the balanced whole-body gaze, hand held at the valve): a NaN point and a goal
+    # giving both points and angles are refused, nothing stops; the valve and a point beyond the camera's
+    # range are looked at, the latter reported as not in view
+    for goal, words in ((Look.Goal(gaze_points=[Point(x=math.nan, z=1.0)]), "gaze point 0 has NaN/inf"),
+                        (Look.Goal(yaw_rad=[0.1], pitch_rad=[0.2], gaze_points=[Point(x=0.7, z=0.9)]), "not both")):
+        res = look_result(ros_probe, client, goal)
+        assert res.error_code == Look.Result.INVALID_GOAL and words in res.message, res.message
+    res = look_result(ros_probe, client, exec_msgs.look_goal_at([[0.71, 0.03, 0.90], [6.0, 0.0, 1.3]], dwell_s=0.2))
+    print(f"gaze: {res.message} [{res.duration_s:.1f} s, max COG error {res.max_com_error_m * 1e3:.3f} mm]")
+    assert res.success and res.poses_done == 2 and res.max_com_error_m < 1e-3, res.message
+    assert "point 1 [6.0, 0.0, 1.3] not in view (" in res.message and "point 0" not in res.message, res.message
     assert all(p.alive() for p in procs)
 
     # Ctrl-C: every node exits 0 within STOP_DEADLINE_S (after a motion, with the executor holding)

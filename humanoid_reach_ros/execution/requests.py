@@ -12,6 +12,8 @@ ROS-free (the node converts messages with ``io/exec_msgs.py`` first):
   here, outside the control loop;
 * smooth reshaping (Yoshida et al., ``planning/reshape.py``) of a goal that asks for it,
   seconds, in the caller's thread while the loop keeps running or holding;
+* the ``/look`` motions: head poses (:meth:`ExecutionRequests.look`) and balanced whole-body
+  gazes at world points (:meth:`ExecutionRequests.gaze`, ``control/gaze.py``);
 * :class:`ExecutionRequests`: the above plus the counters the node's diagnostics report.
 
 Every refusal is a :class:`~humanoid_reach_ros.codes.RequestError` whose code is the
@@ -36,6 +38,8 @@ from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.robot.model import RobotModel
 
 HAND_LIMBS = {"right": "right_arm", "left": "left_arm"}
+#: serialises the gaze solves of every ExecutionRequests (a GazeSolver owns one pinocchio data)
+_GAZE_LOCK = threading.Lock()
 
 # A requested arm whose joints travel less than this fraction of the other arm's, while the other
 # arm's travel more than WRONG_ARM_MIN_TRAVEL_RAD, is the wrong arm for the trajectory.
@@ -300,19 +304,67 @@ class ExecutionRequests:
         """A whole-body motion that turns the head to ``pose`` (yaw, pitch [rad]) from the measured
         joints, every other joint's reference held: the executor keeps the feet, the exact COG and
         the right hand (level 3) where they are while the posture task (level 4) turns the head.
-        Timed by ``head_speed_rad_s`` (the clamped spline's peak)."""
+        Timed by :meth:`_look_spline` (``head_speed_rad_s``, the spline's peak)."""
         from humanoid_reach_ros.execution.supervisor import Motion
-        from humanoid_reach_ros.geometry.trajectory import SplineTrajectory, TrajectoryOptions
         q0 = self.measured_start(joints, reason)   # NO_JOINT_STATES without joints
         start = np.asarray(joints, float)
         goal = start.copy()
         goal[[self.robot.joint_index[n] for n in self.head_joints]] = pose
-        speed = float(self.p["head_speed_rad_s"])
-        spline = SplineTrajectory.from_path(np.stack([start, goal]), TrajectoryOptions(
-            joint_velocity=speed, min_segment_duration_s=0.1, respect_velocity_limit=True))
-        params = self._executor_params()
-        return Motion(mid, label, "trajectory", spline=spline, arm="right", params=params, q_measured=q0,
-                      note=f"head to yaw {math.degrees(pose[0]):.1f}, pitch {math.degrees(pose[1]):.1f} deg")
+        note = f"head to yaw {math.degrees(pose[0]):.1f}, pitch {math.degrees(pose[1]):.1f} deg"
+        return Motion(mid, label, "trajectory", spline=self._look_spline(start, goal), arm="right",
+                      params=self._executor_params(), q_measured=q0, note=note)
+
+    def _look_spline(self, start: np.ndarray, goal: np.ndarray):
+        """The reference of a look or gaze motion from ``start`` to ``goal``: a joint's peak speed
+        is ``head_speed_rad_s``, or the share of its URDF limit the executor may command
+        (``velocity_scale``) when that is lower. Why: Talos's head joints (1 rad/s, so 0.5 rad/s
+        commanded) lagged a 1 rad/s reference by 7-14 deg, and the motion ended (hand converged)
+        before the head arrived."""
+        from humanoid_reach_ros.geometry.trajectory import SplineTrajectory, TrajectoryOptions
+        v = np.minimum(float(self.p["head_speed_rad_s"]), float(self.p["velocity_scale"]) * self.robot.velocity_limit)
+        return SplineTrajectory.from_path(np.stack([start, goal]), TrajectoryOptions(
+            joint_velocity=v, min_segment_duration_s=0.1, respect_velocity_limit=True))
+
+    def gaze_solver(self):
+        """The robot's :class:`~humanoid_reach_ros.control.gaze.GazeSolver`, built on first use;
+        its calls are serialised by ``_GAZE_LOCK`` (it owns one pinocchio data)."""
+        solver = getattr(self, "_gaze_solver", None)
+        if solver is None:
+            from humanoid_reach_ros.control.gaze import GazeSolver
+            with self._fk_lock:
+                self.robot.stance_soles          # cached on the shared data now, never under a gaze
+            solver = self._gaze_solver = GazeSolver(self.robot)
+        return solver
+
+    def gaze(self, mid: int, label: str, point, joints: np.ndarray | None, reason: str):
+        """A whole-body motion that aims the head camera at ``point`` (3,) [m, world] from the
+        measured joints: (``Motion``, :class:`~humanoid_reach_ros.control.gaze.Gaze`). The goal is
+        the balanced gaze of ``control/gaze.py`` (``GazeSolver.balanced``): head first, the chest
+        where the head's limits cannot aim, the legs keeping the exact COG over the same point;
+        the arms' joints held. The executor runs it like :meth:`look` (feet and exact COG at
+        level 2, the right hand at level 3, the posture carrying the gaze at level 4), timed by
+        :meth:`_look_spline`. A point no gaze brings into view is still looked at (the best
+        effort; ``Gaze.visible`` False). ``INVALID_GOAL`` for a NaN/inf or malformed point,
+        ``NO_JOINT_STATES`` without joints."""
+        from humanoid_reach_ros.execution.supervisor import Motion
+        q0 = self.measured_start(joints, reason)
+        start = np.asarray(joints, float)
+        try:
+            with _GAZE_LOCK:
+                g = self.gaze_solver().balanced(start, point)
+        except ValueError as exc:
+            raise RequestError(C.INVALID_GOAL, f"gaze point {point!r}: {exc}") from None
+        yaw, pitch = self.head_targets(g.joints)
+        note = (f"gaze at {np.round(g.point, 3).tolist()}: head yaw {math.degrees(yaw):.1f}, pitch "
+                f"{math.degrees(pitch):.1f} deg, chest moved {math.degrees(g.chest_moved_rad):.1f} deg, "
+                f"{g.off_axis_deg:.2f} deg off the camera axis" + ("" if g.visible else f"; {g.unseen_reason}"))
+        return Motion(mid, label, "trajectory", spline=self._look_spline(start, g.joints), arm="right",
+                      params=self._executor_params(), q_measured=q0, note=note), g
+
+    def head_targets(self, joints: np.ndarray) -> tuple[float, float]:
+        """Head yaw and pitch [rad] of a joint vector (the ``Look`` feedback's fields)."""
+        yaw, pitch = (float(joints[self.robot.joint_index[n]]) for n in self.head_joints)
+        return yaw, pitch
 
     def _executor_params(self):
         from humanoid_reach_ros.control.executor import ExecutorParams

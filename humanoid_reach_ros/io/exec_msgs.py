@@ -26,6 +26,9 @@
   ``/dual_arm/targets`` ``geometry_msgs/PoseArray`` (exactly 2 poses, right then left):
   frame ``world`` or ``base_link`` (explicit), finite values, unit quaternion;
   :func:`targets_in_world` maps base_link targets through the waist pose.
+* :func:`look_goal_at` builds the ``Look`` goal that looks at world points with the executor's
+  balanced whole-body gaze (e.g. ``PlanReach``'s ``unobserved_points``: where the plan needs to
+  see); :func:`gaze_points` validates such a goal's ``gaze_points`` on the executor's side.
 
 Imports message types only (never ``rclpy.node``).
 """
@@ -37,8 +40,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Pose, PoseArray, PoseStamped
-from humanoid_reach_interfaces.action import ExecuteReach
+from geometry_msgs.msg import Point, Pose, PoseArray, PoseStamped
+from humanoid_reach_interfaces.action import ExecuteReach, Look
 from humanoid_reach_interfaces.msg import ExecutorMetrics
 from trajectory_msgs.msg import JointTrajectory
 
@@ -232,3 +235,52 @@ def array_hand_targets(msg: PoseArray) -> tuple[HandTarget, HandTarget]:
     frame = msg.header.frame_id
     return (hand_target(msg.poses[0], frame, "poses[0] (right hand)"),
             hand_target(msg.poses[1], frame, "poses[1] (left hand)"))
+
+
+# ---------------------------------------------------------------- look at points
+def _point_rows(points) -> np.ndarray:
+    """(K, 3) float array of ``geometry_msgs/Point`` s or of an array-like (K, 3) / (3,)."""
+    pts = list(points) if not isinstance(points, np.ndarray) else points
+    if len(pts) and all(hasattr(p, "x") for p in pts):
+        return np.array([[p.x, p.y, p.z] for p in pts], dtype=float)
+    return np.asarray(pts, dtype=float)
+
+
+def look_goal_at(points, dwell_s: float = 0.0) -> Look.Goal:
+    """The ``/look`` goal that looks at each of ``points`` in turn -- (K, 3) [m, world] as an
+    array-like or ``geometry_msgs/Point`` s, e.g. ``PlanReach``'s ``unobserved_points`` -- with the
+    executor's balanced whole-body gaze (chest and head aimed, feet and exact COG held;
+    ``control/gaze.py``), holding each ``dwell_s`` (<= 0: the executor's ``scan_dwell_s``).
+    ``yaw_rad`` / ``pitch_rad`` stay empty, as the action requires. ``ValueError`` for no points,
+    a shape other than (K, 3) (one point (3,) is taken as K = 1) or NaN/inf: the executor would
+    refuse such a goal (``INVALID_GOAL``)."""
+    P = _point_rows(points)
+    if P.ndim == 1 and P.shape == (3,):
+        P = P[None]
+    if P.ndim != 2 or P.shape[1] != 3 or len(P) == 0:
+        raise ValueError(f"gaze points must have shape (K, 3) with K >= 1, got {P.shape}")
+    if not np.all(np.isfinite(P)):
+        raise ValueError("gaze points contain NaN or inf")
+    if not math.isfinite(dwell_s):
+        raise ValueError(f"dwell_s must be finite, got {dwell_s}")
+    return Look.Goal(gaze_points=[Point(x=float(x), y=float(y), z=float(z)) for x, y, z in P],
+                     dwell_s=float(dwell_s))
+
+
+def gaze_points(goal: Look.Goal) -> np.ndarray | None:
+    """The ``gaze_points`` (K, 3) [m, world] of a ``Look`` goal, None when it has none (a head
+    pose goal). ``ExecInputError`` (``INVALID_GOAL``) when it also gives ``yaw_rad`` /
+    ``pitch_rad`` (one or the other) or a point has NaN/inf coordinates, naming the point."""
+    if not goal.gaze_points:
+        return None
+    bad = Look.Result.INVALID_GOAL
+    if len(goal.yaw_rad) or len(goal.pitch_rad):
+        raise ExecInputError(bad, f"the goal gives {len(goal.gaze_points)} gaze_points and {len(goal.yaw_rad)} yaw / "
+                                  f"{len(goal.pitch_rad)} pitch angles: give gaze_points or yaw_rad/pitch_rad, "
+                                  "not both")
+    P = _point_rows(goal.gaze_points)
+    finite = np.all(np.isfinite(P), axis=1)
+    if not finite.all():
+        k = int(np.argmin(finite))
+        raise ExecInputError(bad, f"gaze point {k} has NaN/inf coordinates ({P[k].tolist()})")
+    return P

@@ -17,6 +17,7 @@ import time
 import traceback
 from typing import Callable
 
+import numpy as np
 from humanoid_reach_interfaces.action import ExecuteReach, Look
 
 from humanoid_reach_ros.codes import ExecuteCode as C, RequestError
@@ -195,13 +196,18 @@ def execute_goal(node, goal_handle) -> ExecuteReach.Result:
 
 
 def look_goal(node, goal_handle) -> Look.Result:
-    """``/look``: one whole-body motion per head pose, each followed by ``dwell_s`` of holding
-    (the loop holds after a motion); feedback names the pose."""
+    """``/look``: one whole-body motion per head pose, or per gaze point (``gaze_points``: the
+    balanced whole-body gaze of ``control/gaze.py``, chest and head, computed from the joints
+    measured when its turn comes), each followed by ``dwell_s`` of holding (the loop holds
+    after a motion); feedback names the pose and the head joints' targets. A gaze point no
+    reachable gaze brings into view is still looked at (the best effort) and the result's
+    message says so."""
     node.counters.goals = max(node.counters.goals, n := next(node.goal_ids))
     label, req, t0 = f"look #{n}", goal_handle.request, time.monotonic()
     result = Look.Result(error_code=int(C.SUCCESS))
     try:
-        poses = node.requests.head_poses(list(req.yaw_rad), list(req.pitch_rad))
+        points = exec_msgs.gaze_points(req)
+        poses = node.requests.head_poses(list(req.yaw_rad), list(req.pitch_rad)) if points is None else None
         dwell = float(req.dwell_s) if math.isfinite(req.dwell_s) and req.dwell_s > 0 else node.p["scan_dwell_s"]
         if dwell > 60.0:
             raise RequestError(C.INVALID_GOAL, f"dwell_s {dwell:g} s is longer than 60 s")
@@ -210,21 +216,31 @@ def look_goal(node, goal_handle) -> Look.Result:
         goal_handle.abort()
         return Look.Result(error_code=exc.code, message=str(exc))
     log = node.get_logger()
-    log.info(f"{label}: accepted: {len(poses)} head poses, {dwell:g} s each")
-    fb = Look.Feedback(pose_count=len(poses))
-    for k, (yaw, pitch) in enumerate(poses):
+    count, what, item = (len(poses), "head poses", "pose") if points is None else (len(points), "gaze points", "point")
+    log.info(f"{label}: accepted: {count} {what}, {dwell:g} s each")
+    fb = Look.Feedback(pose_count=count)
+    unseen = []
+    for k in range(count):
+        try:
+            if points is None:
+                yaw, pitch = poses[k]
+                motion = node.requests.look(next(node.motion_ids), f"{label} pose {k}", (yaw, pitch),
+                                            *node.current_joints())
+            else:
+                motion, gaze = node.requests.gaze(next(node.motion_ids), f"{label} point {k}", points[k],
+                                                  *node.current_joints())
+                yaw, pitch = node.requests.head_targets(gaze.joints)
+                if not gaze.visible:
+                    unseen.append(f"point {k} {np.round(points[k], 3).tolist()} {gaze.unseen_reason}")
+        except RequestError as exc:
+            result.error_code, result.message = exc.code, f"{item} {k}: {exc}"
+            break
         fb.pose_index, fb.yaw_rad, fb.pitch_rad, fb.holding = k, float(yaw), float(pitch), False
         goal_handle.publish_feedback(fb)
-        try:
-            motion = node.requests.look(next(node.motion_ids), f"{label} pose {k}", (yaw, pitch),
-                                        *node.current_joints())
-        except RequestError as exc:
-            result.error_code, result.message = exc.code, f"pose {k}: {exc}"
-            break
         pend = node.tracker.follow(goal_handle, motion, lambda st: None)
         result.max_com_error_m = max(result.max_com_error_m, float(pend.summary.get("max_com_error_m", 0.0)))
         if pend.code != C.SUCCESS:
-            result.error_code, result.message = pend.code, f"pose {k}: {pend.message}"
+            result.error_code, result.message = pend.code, f"{item} {k}: {pend.message}"
             break
         fb.holding = True
         goal_handle.publish_feedback(fb)
@@ -232,13 +248,16 @@ def look_goal(node, goal_handle) -> Look.Result:
         while time.monotonic() < end and not goal_handle.is_cancel_requested and node.context.ok():
             time.sleep(min(0.05, max(0.0, end - time.monotonic())))
         if goal_handle.is_cancel_requested:
-            result.error_code, result.message = int(C.CANCELED), f"canceled at pose {k} (holding there)"
+            result.error_code, result.message = int(C.CANCELED), f"canceled at {item} {k} (holding there)"
             break
         result.poses_done = k + 1
     result.success = result.error_code == C.SUCCESS
     result.duration_s = time.monotonic() - t0
-    if result.success:
-        result.message = f"{len(poses)} head poses reached and held {dwell:g} s each"
+    if result.success and points is None:
+        result.message = f"{count} head poses reached and held {dwell:g} s each"
+    elif result.success:
+        result.message = (f"{count} gaze points looked at and held {dwell:g} s each"
+                          + (f"; {'; '.join(unseen)}" if unseen else ": every point in view"))
     line = (f"{label}: {RESULT_NAMES.get(result.error_code, result.error_code)}: {result.message} "
             f"[{result.duration_s:.1f} s, max COG error {result.max_com_error_m * 1e3:.2f} mm]")
     if result.error_code in (C.SUCCESS, C.CANCELED):   # one severity per call site (rclpy's rule)

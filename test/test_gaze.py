@@ -1,0 +1,262 @@
+"""Tests of humanoid_reach_ros.control.gaze (the whole-body gaze of ``/look``'s gaze_points and
+of the planner's UNOBSERVABLE_SPACE), its request (``ExecutionRequests.gaze``) run through the
+5 ms executor, and the ``Look`` goal helpers of ``io/exec_msgs.py``.
+
+No timing assertions."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pinocchio as pin
+import pytest
+import yaml
+
+from humanoid_reach_ros.control.gaze import DEFAULT_IMAGE, DEFAULT_MIN_RANGE_M, GazeCamera, GazeSolver
+from humanoid_reach_ros.robot.model import RobotModel
+from nodetools import REPO_ROOT
+
+ROBOTS = ("hrp2", "talos")
+AHEAD = np.array([1.5, 0.0, 1.2])        # in front, a little below both cameras (1.45 / 1.61 m)
+HIP = np.array([0.25, -0.29, 0.66])      # beside the right hip: steeply down and to the side
+LOW = np.array([0.5, 0.0, 0.2])          # low in front: the head's 45 deg down are not enough
+BEHIND = np.array([-0.4, 0.0, 0.9])      # behind the back
+AIMED_DEG = 1.0
+
+
+@pytest.fixture(scope="module", params=ROBOTS)
+def solver(request) -> GazeSolver:
+    return GazeSolver(RobotModel(request.param))
+
+
+def off_axis_deg(robot: RobotModel, joints: np.ndarray, point: np.ndarray) -> float:
+    """The camera's off-axis angle to ``point`` by forward kinematics, independently of the solver."""
+    M = robot.frame_pose(robot.config(joints, robot.base_on_feet(joints)), robot.camera_frame)
+    d = point - M.translation
+    return math.degrees(math.acos(np.clip(M.rotation[:, 2] @ d / np.linalg.norm(d), -1.0, 1.0)))
+
+
+def only_gaze_joints_moved(solver: GazeSolver, joints: np.ndarray, start: np.ndarray) -> bool:
+    others = np.ones(len(start), bool)
+    others[solver.index] = False
+    return bool(np.array_equal(joints[others], start[others]))
+
+
+# ---------------------------------------------------------------- the camera
+def test_camera_defaults_are_the_sensors() -> None:
+    """The default camera is scene_sim's (image, field of view, minimum range) and its range
+    ends where the voxel mapper truncates rays."""
+    sim = yaml.safe_load((REPO_ROOT / "config/scene_sim.yaml").read_text())["/**"]["ros__parameters"]
+    mapper = yaml.safe_load((REPO_ROOT / "config/voxel_mapper.yaml").read_text())["/**"]["ros__parameters"]
+    assert DEFAULT_IMAGE == (sim["width"], sim["height"], pytest.approx(sim["horizontal_fov_rad"]))
+    assert DEFAULT_MIN_RANGE_M == sim["min_range_m"]
+    cam = GazeCamera()
+    assert cam.max_range_m == mapper["max_range_m"]
+    # inscribed cone: the image's half height, 240 px at fx = 320 / tan(30 deg)
+    assert math.degrees(cam.half_fov_rad) == pytest.approx(math.degrees(math.atan(240 / (320 / math.tan(math.pi / 6)))))
+    with pytest.raises(ValueError):
+        GazeCamera(min_range_m=5.0, max_range_m=4.0)
+
+
+def test_the_aimed_point_projects_to_the_image_centre(solver) -> None:
+    """The optical axis is the camera frame's +z as the simulated camera renders it: after a
+    gaze the point lands on the principal point of the pinhole model (geometry/camera.py)."""
+    from humanoid_reach_ros.perception.markers import camera_pose
+
+    robot = solver.robot
+    for point in (AHEAD, LOW, np.array([0.8, 0.5, 1.0])):
+        g = solver.solve(robot.half_sitting_joints, point)
+        T = camera_pose(robot, g.joints, robot.camera_frame)
+        p_c = T[:3, :3].T @ (point - T[:3, 3])
+        uv, z = solver.camera.camera.project(p_c)
+        assert z[0] > 0.0
+        np.testing.assert_allclose(uv[0], [solver.camera.camera.cx, solver.camera.camera.cy], atol=0.5)
+
+
+# ---------------------------------------------------------------- aiming
+def test_a_point_ahead_moves_the_head_only(solver) -> None:
+    robot = solver.robot
+    j0 = robot.half_sitting_joints
+    g = solver.solve(j0, AHEAD)
+    assert g.visible and g.chest_moved_rad == 0.0 and not g.balanced
+    assert g.off_axis_deg < AIMED_DEG and off_axis_deg(robot, g.joints, AHEAD) == pytest.approx(g.off_axis_deg, abs=1e-6)
+    np.testing.assert_array_equal(g.joints[solver.index[:2]], j0[solver.index[:2]])
+    assert only_gaze_joints_moved(solver, g.joints, j0)
+    assert g.range_m == pytest.approx(np.linalg.norm(AHEAD - g.camera_position))
+
+
+def test_low_points_use_the_chest(solver) -> None:
+    """The low point in front and the one beside the hip: the head's limits cannot aim, the
+    chest moves (as little as it can) and the head saturates; the joints stay in their limits.
+    HRP-2 aims at both; Talos's pitch limits (45 + 45 deg) leave the hip point a few degrees
+    off the axis, well inside the field of view."""
+    robot = solver.robot
+    j0 = robot.half_sitting_joints
+    for point in (LOW, HIP):
+        head_only = solver._head_aim(robot.config(j0, robot.base_on_feet(j0)), point, j0[solver.index[:2]])
+        assert math.degrees(head_only[1]) > 5.0                  # the head alone cannot
+        g = solver.solve(j0, point)
+        print(f"{robot.name} {point}: chest moved {g.chest_moved_rad:.3f} rad, off axis {g.off_axis_deg:.4f} deg, "
+              f"chest/head {np.round(np.degrees(g.joints[solver.index]), 1).tolist()} deg")
+        assert g.visible and g.chest_moved_rad > 0.3
+        assert np.all(g.joints >= robot.lower) and np.all(g.joints <= robot.upper)
+        assert only_gaze_joints_moved(solver, g.joints, j0)
+        assert off_axis_deg(robot, g.joints, point) == pytest.approx(g.off_axis_deg, abs=1e-6)
+        if robot.name == "hrp2" or point is LOW:
+            assert g.off_axis_deg < AIMED_DEG
+        else:
+            assert g.off_axis_deg < math.degrees(g.half_fov_rad)
+    if robot.name == "hrp2":   # 0.743 rad: the best of a brute-force 25 x 25 chest grid
+        assert solver.solve(j0, HIP).chest_moved_rad < 0.76
+
+
+def test_a_point_behind_is_not_visible(solver) -> None:
+    g = solver.solve(solver.robot.half_sitting_joints, BEHIND)
+    assert not g.visible and g.off_axis_rad > g.half_fov_rad
+    assert g.unseen_reason.startswith("not in view (") and "half field of view 23.4 deg" in g.unseen_reason
+    assert not solver.observable(solver.robot.half_sitting_joints, BEHIND)
+
+
+def test_random_reachable_gazes_are_found_with_the_least_chest(solver) -> None:
+    """Points on the optical axis of random chest/head postures within the limits: every one is
+    aimed, and the chest moves no more than in the posture that made the point."""
+    robot, rng = solver.robot, np.random.default_rng(7)
+    j0 = robot.half_sitting_joints
+    for _ in range(25):
+        x = rng.uniform(solver.lower, solver.upper)
+        j = j0.copy()
+        j[solver.index] = x
+        M = robot.frame_pose(robot.config(j, robot.base_on_feet(j)), robot.camera_frame)
+        point = M.translation + rng.uniform(0.4, 3.0) * M.rotation[:, 2]
+        g = solver.solve(j0, point)
+        assert g.off_axis_deg < 0.1, (x, point)
+        assert g.chest_moved_rad <= np.linalg.norm(x[:2] - j0[solver.index[:2]]) + 0.02
+
+
+def test_out_of_range_is_not_visible(solver) -> None:
+    far = solver.solve(solver.robot.half_sitting_joints, [6.0, 0.0, 1.3])
+    assert far.off_axis_deg < AIMED_DEG and not far.visible and "m away" in far.unseen_reason
+
+
+# ---------------------------------------------------------------- sets of points
+def test_best_gaze_and_observable(solver) -> None:
+    robot = solver.robot
+    j0 = robot.half_sitting_joints
+    near = np.array([[0.7, 0.0, 0.9], [0.7, 0.15, 1.0], [0.75, -0.1, 0.85]])
+    s = solver.best_gaze(j0, near)
+    assert s.in_view.all() and s.off_axis_rad.max() < s.gaze.half_fov_rad
+    np.testing.assert_allclose(s.gaze.point, near.mean(axis=0))
+    pts = np.vstack([near, HIP, BEHIND])
+    s = solver.best_gaze(j0, pts)
+    assert not s.in_view[-1]
+    np.testing.assert_array_equal(solver.observable(j0, pts), [True, True, True, True, False])
+    assert solver.observable(j0, AHEAD) is True
+    assert solver.sees(j0, AHEAD[None]).shape == (1,)
+
+
+def test_bad_inputs_raise_value_error(solver) -> None:
+    j0 = solver.robot.half_sitting_joints
+    bad_joints = j0.copy()
+    bad_joints[3] = math.nan
+    for call in (lambda: solver.solve(bad_joints, AHEAD), lambda: solver.solve(j0[:-1], AHEAD),
+                 lambda: solver.solve(j0, [1.0, math.nan, 1.0]), lambda: solver.solve(j0, [1.0, 0.0]),
+                 lambda: solver.solve(j0, np.ones((2, 3))), lambda: solver.balanced(j0, [math.inf, 0, 1]),
+                 lambda: solver.observable(j0, np.ones((4, 2))), lambda: solver.best_gaze(j0, np.zeros((0, 3))),
+                 lambda: solver.observable(j0, [[1.0, 0.0, math.nan]])):
+        with pytest.raises(ValueError):
+            call()
+
+
+# ---------------------------------------------------------------- balance
+def test_balanced_gaze_keeps_the_cog_and_the_feet(solver) -> None:
+    robot = solver.robot
+    j0 = robot.half_sitting_joints
+    q0 = robot.half_sitting()
+    for point in (HIP, LOW):
+        g = solver.balanced(j0, point)
+        q = robot.config(g.joints, robot.base_on_feet(g.joints))
+        assert g.balanced and g.visible
+        assert np.linalg.norm(robot.com(q)[:2] - robot.com(q0)[:2]) < 1e-6
+        for frame, ref in zip(robot.sole_frames, robot.stance_soles):
+            M = robot.frame_pose(q, frame)
+            assert np.linalg.norm(M.translation - ref.translation) < 1e-6
+            assert np.linalg.norm(pin.log3(ref.rotation.T @ M.rotation)) < 1e-6
+        assert np.linalg.norm(pin.log3(robot.base_pose(q).rotation.T @ robot.base_pose(q0).rotation)) < 1e-6
+        assert np.all(g.joints >= robot.lower - 1e-9) and np.all(g.joints <= robot.upper + 1e-9)
+        arms = [i for limb in ("right_arm", "left_arm") for i in robot.limbs[limb].joint_index]
+        np.testing.assert_array_equal(g.joints[arms], j0[arms])
+        assert off_axis_deg(robot, g.joints, point) == pytest.approx(g.off_axis_deg, abs=1e-6)
+        assert g.off_axis_deg < (AIMED_DEG if point is LOW or robot.name == "hrp2" else 2.0)
+
+
+# ---------------------------------------------------------------- through the executor
+def test_gaze_motion_through_the_executor(solver) -> None:
+    """``ExecutionRequests.gaze`` at the point beside the hip, run by the 5 ms executor as the
+    control loop runs it (its parameters, from the measured start): feet fixed, the exact COG
+    within 1 mm, the joints in their limits, and the camera on the point at the end (< 2 deg)."""
+    from humanoid_reach_ros.control.executor import WholeBodyExecutor
+    from humanoid_reach_ros.execution.requests import ExecutionRequests
+    from humanoid_reach_ros.nodes import reach_executor_params
+    from humanoid_reach_ros.robot.shapes import load_collision_model
+
+    robot = solver.robot
+    p = {k: spec.default for k, spec in reach_executor_params.PARAMETERS.items()}
+    p["scene_file"] = ""
+    req = ExecutionRequests(robot, p)
+    j0 = robot.half_sitting_joints
+    motion, g = req.gaze(1, "look #1 point 0", HIP, j0, "")
+    assert motion.kind == "trajectory" and "gaze at" in motion.note and g.balanced
+    np.testing.assert_allclose(motion.spline.position(motion.spline.duration), g.joints, atol=1e-12)
+    v = np.minimum(p["head_speed_rad_s"], p["velocity_scale"] * robot.velocity_limit)
+    assert np.all(motion.spline.max_velocity <= v + 1e-9)
+    assert req.head_targets(g.joints) == tuple(g.joints[[robot.joint_index[n] for n in robot.spec.head_joints]])
+
+    ex = WholeBodyExecutor(robot, load_collision_model(None, robot), motion.params)
+    q0 = motion.q_measured
+    ex.start(q0, motion.spline, motion.arm)
+    com0 = robot.com(q0)[:2]
+    soles0 = [robot.frame_pose(q0, f) for f in robot.sole_frames]
+    drift, steps = 0.0, 0
+    while True:
+        r = ex.step()
+        steps += 1
+        drift = max(drift, float(np.linalg.norm(robot.com(r.q)[:2] - com0)))
+        assert np.all(r.joints >= robot.lower - 1e-9) and np.all(r.joints <= robot.upper + 1e-9)
+        if r.done or steps > 4000:
+            break
+    q = r.q
+    feet = max(float(np.linalg.norm(robot.frame_pose(q, f).translation - s.translation)) for f, s in
+               zip(robot.sole_frames, soles0))
+    M = robot.frame_pose(q, robot.camera_frame)
+    d = HIP - M.translation
+    final = math.degrees(math.acos(np.clip(M.rotation[:, 2] @ d / np.linalg.norm(d), -1.0, 1.0)))
+    print(f"{robot.name}: {steps} steps ({motion.spline.duration:.2f} s reference), COG drift {drift * 1e3:.4f} mm, "
+          f"feet {feet * 1e3:.2e} mm, off axis {g.off_axis_deg:.3f} deg planned, {final:.3f} deg at the end")
+    assert r.done and drift <= 1e-3 and feet < 1e-4
+    assert final < 2.0
+
+
+# ---------------------------------------------------------------- Look goals (io/exec_msgs.py)
+def test_look_goal_helpers() -> None:
+    from geometry_msgs.msg import Point
+    from humanoid_reach_interfaces.action import Look
+
+    from humanoid_reach_ros.codes import RequestError
+    from humanoid_reach_ros.io import exec_msgs
+
+    goal = exec_msgs.look_goal_at([[0.7, 0.0, 0.9], [0.6, -0.2, 0.8]], dwell_s=0.5)
+    assert len(goal.gaze_points) == 2 and not len(goal.yaw_rad) and goal.dwell_s == 0.5
+    np.testing.assert_allclose(exec_msgs.gaze_points(goal), [[0.7, 0.0, 0.9], [0.6, -0.2, 0.8]])
+    msgs_in = [Point(x=1.0, y=2.0, z=3.0)]                    # e.g. PlanReach's unobserved_points
+    np.testing.assert_allclose(exec_msgs.gaze_points(exec_msgs.look_goal_at(msgs_in)), [[1.0, 2.0, 3.0]])
+    assert len(exec_msgs.look_goal_at([0.7, 0.0, 0.9]).gaze_points) == 1
+    for bad in ([], [[0.0, 1.0]], [[math.nan, 0.0, 1.0]]):
+        with pytest.raises(ValueError):
+            exec_msgs.look_goal_at(bad)
+    assert exec_msgs.gaze_points(Look.Goal(yaw_rad=[0.1], pitch_rad=[0.2])) is None
+    both = Look.Goal(yaw_rad=[0.1], pitch_rad=[0.2], gaze_points=[Point(x=1.0)])
+    with pytest.raises(RequestError, match="not both") as e:
+        exec_msgs.gaze_points(both)
+    assert e.value.code == Look.Result.INVALID_GOAL
+    with pytest.raises(RequestError, match=r"gaze point 1 has NaN/inf"):
+        exec_msgs.gaze_points(Look.Goal(gaze_points=[Point(x=1.0), Point(x=math.inf)]))
