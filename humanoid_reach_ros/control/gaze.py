@@ -64,6 +64,8 @@ some reachable gaze sees each point; :meth:`GazeSolver.best_gaze` aims at a set'
 
 Simplifications: the robot's own body is not an occluder (a point seen "through" the arm or
 the chest counts as seen), neither is the environment (a point behind a wall counts as seen);
+the voxel mapper's box (``extent_min_m`` / ``extent_max_m``) is not a limit here (the caller's
+points are expected inside it);
 collisions of the gaze posture are left to the executor's dampers; the camera's intrinsics are
 the defaults of ``config/scene_sim.yaml`` unless a :class:`GazeCamera` is given; the field of
 view is the inscribed cone, so a point in an image corner outside it counts as unseen;
