@@ -114,7 +114,10 @@ def in_process_planner():
         ros_p = yaml.safe_load(f)["/**"]["ros__parameters"]
     fields = {k: ros_p[k] for k in PlannerParams.__dataclass_fields__ if k in ros_p}
     rp = ReachPlanner(params=PlannerParams(**fields))
-    rp.set_map_from_scene("scenes/plant.yaml", exclude_groups=tuple(ros_p.get("scene_exclude_groups", ["valve"])))
+    from humanoid_reach_ros.nodes.common import scene_file_voxels
+    from humanoid_reach_ros.paths import config_path
+    rp.set_map(scene_file_voxels(config_path("scenes/plant.yaml"), rp.params.resolution_m,
+                                 tuple(ros_p.get("scene_exclude_groups", ["valve"]))))
     rp.warm_up()
     return rp
 

@@ -26,19 +26,18 @@ import math
 import signal
 import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
 from humanoid_reach_ros.codes import ARM_REQUESTS
-from humanoid_reach_ros.graph import STOP_DEADLINE_S, NodeProcess, allocate_domain, graph_env, wait_for
+from humanoid_reach_ros.graph import (  # noqa: F401  (Graph, GRAPH_NODES: also for benches and tools)
+    GRAPH_NODES, STOP_DEADLINE_S, Graph, allocate_domain, graph_env, wait_for)
 from humanoid_reach_ros.nodes.reach_executor_params import PARAMETERS
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT, robots
 
-GRAPH_NODES = ("joint_driver", "scene_sim", "voxel_mapper", "marker_localizer", "reach_planner", "reach_executor")
 # the topics the MCAP recording keeps (camera images are left out: 10 Hz of 640x480 RGB is 9 MB/s)
 RECORDED_TOPICS = ("/joint_states", "/joint_command", "/base_pose", "/robot_description", "/target_pose",
                    "/markers", "/voxel_map", "/reach_trajectory", "/planning/markers", "/executor/metrics",
@@ -53,44 +52,6 @@ SIM_JOINT_STATES_ABORT_S = 5.0     # executor: abort a motion when /joint_states
 
 def arm_code(arm: str) -> int:
     return ARM_REQUESTS[arm]
-
-
-@dataclass
-class Graph:
-    """The node processes of one run; ``stop()`` shuts them down in reverse order."""
-
-    out: Path
-    env: dict[str, str]
-    procs: list[NodeProcess] = field(default_factory=list)
-
-    def start(self, module: str, params: dict[str, Any] | None = None) -> NodeProcess:
-        name = module.rsplit(".", 1)[-1]
-        params_file = config_path(f"{name}.yaml")
-        proc = NodeProcess.start(module, self.out, self.env, params_file if params_file.is_file() else None,
-                                 params)
-        self.procs.append(proc)
-        return proc
-
-    def start_command(self, name: str, cmd: list[str]) -> NodeProcess:
-        import subprocess
-
-        log_path = self.out / f"{name}.log"
-        with open(log_path, "wb") as log:
-            p = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=self.env)
-        proc = NodeProcess(name, p, log_path, cmd)
-        self.procs.append(proc)
-        return proc
-
-    def check_alive(self) -> None:
-        for p in self.procs:
-            if not p.alive():
-                raise RuntimeError(f"{p.name} exited with code {p.proc.returncode}\n{p.log_tail(30)}")
-
-    def log_tails(self) -> str:
-        return "\n".join(p.log_tail(15) for p in self.procs)
-
-    def stop(self) -> dict[str, int]:
-        return {p.name: p.stop() for p in reversed(self.procs)}
 
 
 class Operator:
@@ -147,11 +108,16 @@ class Operator:
         while time.monotonic() < end:
             self.executor.spin_once(0.01)
 
-    def look(self, yaw_deg: list[float], pitch_deg: list[float], dwell_s: float, timeout: float = 120.0):
+    def look(self, yaw_deg: list[float], pitch_deg: list[float], dwell_s: float, timeout: float = 120.0,
+             gaze_points=None):
         """The executor's ``/look`` action (the operator's ``reach_operator --scan`` / ``--look``):
-        the head through the poses (empty: the executor's scan pattern), each held ``dwell_s``."""
+        the head through the poses (empty: the executor's scan pattern), each held ``dwell_s``;
+        ``gaze_points`` (K, 3) [m, world]: a whole-body gaze at each instead (the automatic look)."""
         goal = self.Look.Goal(yaw_rad=np.radians(yaw_deg).tolist(), pitch_rad=np.radians(pitch_deg).tolist(),
                               dwell_s=dwell_s)
+        if gaze_points is not None:
+            from humanoid_reach_ros.io.msgs import points_list
+            goal.gaze_points = points_list(gaze_points)
         self.spin_until(lambda: self.look_client.server_is_ready(), 30.0, "/look")
         held = set()
 
@@ -199,25 +165,14 @@ def scan_plant(op: Operator, settle_s: float) -> int:
 
 
 def aim_head_deg(robot_name: str, point, step_deg: float = 1.0) -> tuple[float, float]:
-    """Head yaw and pitch [deg] (within the head's limits, on a ``step_deg`` grid) that point the
-    camera's optical axis closest to ``point`` [m, world] from half-sitting: where the operator
-    turns the head to find a marker they know roughly where to look for."""
+    """Head yaw and pitch [deg] that point the camera closest to ``point`` [m, world] from
+    half-sitting (``robot.head_aim``): where the operator turns the head to find a marker they
+    know roughly where to look for. For the plant's valve on HRP-2 this is the executor's
+    ``marker_look_deg`` (yaw 2, pitch 40), the look the README gives."""
+    from humanoid_reach_ros.robot.head_aim import aim_head_deg as aim
     from humanoid_reach_ros.robot.model import RobotModel
 
-    robot = RobotModel(robot_name)
-    idx = [robot.joint_index[n] for n in robot.spec.head_joints]
-    lo, hi = np.degrees(robot.lower[idx]), np.degrees(robot.upper[idx])
-    joints = robot.half_sitting_joints.copy()
-    best = (-2.0, 0.0, 0.0)
-    for yaw in np.arange(math.ceil(lo[0] / step_deg), math.floor(hi[0] / step_deg) + 1) * step_deg:
-        for pitch in np.arange(math.ceil(lo[1] / step_deg), math.floor(hi[1] / step_deg) + 1) * step_deg:
-            joints[idx] = np.radians([yaw, pitch])
-            cam = robot.frame_pose(robot.config(joints, robot.base_on_feet(joints)), robot.camera_frame)
-            d = np.asarray(point, float) - cam.translation
-            c = float(cam.rotation[:, 2] @ d) / max(float(np.linalg.norm(d)), 1e-9)
-            if c > best[0]:
-                best = (c, float(yaw), float(pitch))
-    return best[1], best[2]
+    return aim(RobotModel(robot_name), point, step_deg=step_deg)
 
 
 def wait_marker(op: Operator, look_at: tuple[float, float], timeout: float = 30.0):
@@ -237,7 +192,10 @@ def wait_marker(op: Operator, look_at: tuple[float, float], timeout: float = 30.
     return op.targets[-1]
 
 
-def plan(op: Operator, args: argparse.Namespace):
+def plan(op: Operator, args: argparse.Namespace, home: bool = False, max_looks: int = 3):
+    """``/plan_reach`` as ``reach_operator`` asks it: while the answer is UNOBSERVED_SPACE with the
+    points to look at, a whole-body gaze there (``/look``), then plan again (at most
+    ``max_looks``). ``(response, operator wait [s] without the looks, region, looks)``."""
     from humanoid_reach_ros.io import msgs
     from humanoid_reach_ros.planning.wgr import valve_region
 
@@ -248,33 +206,70 @@ def plan(op: Operator, args: argparse.Namespace):
         R = pin.rpy.rpyToMatrix(*np.radians(args.rpy)) if args.rpy is not None else region.target_R
         region = type(region)(np.asarray(args.target, dtype=float), R, region.lower, region.upper)
     req = msgs.plan_reach_request(region, "world", arm=arm_code(args.arm), planner=args.planner,
-                                  use_marker_target=args.target is None, time_budget_s=args.budget, seed=args.seed)
+                                  use_marker_target=args.target is None and not home, time_budget_s=args.budget,
+                                  seed=args.seed, home=home)
     op.spin_until(lambda: op.plan_client.service_is_ready(), 30.0, "/plan_reach")
-    t0 = time.monotonic()
-    future = op.plan_client.call_async(req)
-    op.spin_until(future.done, args.budget + 30.0, "the /plan_reach response")
-    return future.result(), time.monotonic() - t0, region
+    wait_s, looks = 0.0, 0
+    while True:
+        t0 = time.monotonic()
+        future = op.plan_client.call_async(req)
+        op.spin_until(future.done, args.budget + 30.0, "the /plan_reach response")
+        wait_s += time.monotonic() - t0
+        resp = future.result()
+        if resp.error_code != op.PlanReach.Response.UNOBSERVED_SPACE or not resp.unobserved_points \
+                or looks >= max_looks:
+            return resp, wait_s, region, looks
+        looks += 1
+        pts = msgs.points_array(resp.unobserved_points)
+        print(f"[demo] the plan needs to see {np.round(pts, 2).tolist()} m (unobserved): looking there "
+              f"(automatic look {looks}/{max_looks})")
+        op.look([], [], args.settle, gaze_points=pts)
+
+
+class ProgressBar:
+    """The demo's execution bar from the ``/execute_reach`` feedback: in place on a terminal,
+    else a line per 20 %. The feedback is the control loop's status (10 Hz), whose last message
+    comes before the motion's end with a progress below 1: a log's bar stopped at its 80 % line
+    (80.1 %). A successful result draws the bar at 100 % with the result's figures."""
+
+    def __init__(self, out) -> None:
+        self.out = out
+        self.tty = bool(getattr(out, "isatty", lambda: False)())
+        self.last = -1
+
+    def line(self, progress: float, min_distance_m: float, com_error_m: float) -> str:
+        pct = int(min(1.0, max(0.0, progress)) * 20)
+        return (f"[demo] executing [{'#' * pct}{'.' * (20 - pct)}] {progress * 100:5.1f} %  "
+                f"min distance {min_distance_m * 100:5.2f} cm  COG {com_error_m * 1e3:5.2f} mm")
+
+    def _write(self, text: str) -> None:
+        self.out.write(("\r" + text) if self.tty else (text + "\n"))
+        self.out.flush()
+
+    def update(self, f) -> None:
+        pct = int(min(1.0, max(0.0, f.progress)) * 20)
+        if pct != self.last and (self.tty or pct % 4 == 0):
+            self.last = pct
+            self._write(self.line(f.progress, f.min_distance_m, f.com_error_m))
+
+    def finish(self, result) -> None:
+        """The last line: 100 % on success (min distance and max COG drift of the whole motion)."""
+        if result is not None and result.success and self.last < 20:
+            self.last = 20
+            self._write(self.line(1.0, result.min_distance_m, result.max_com_error_m))
+        if self.tty:
+            self.out.write("\n")
+            self.out.flush()
 
 
 def execute(op: Operator, trajectory, arm: int):
     goal = op.ExecuteReach.Goal(mode=op.ExecuteReach.Goal.MODE_TRAJECTORY, trajectory=trajectory, arm=arm)
     op.spin_until(lambda: op.action_client.server_is_ready(), 30.0, "/execute_reach")
-    last = [-1]
-    tty = sys.stdout.isatty()
-    lead = "\r" if tty else ""
-
-    def feedback(fb) -> None:
-        f = fb.feedback
-        pct = int(f.progress * 20)
-        if pct != last[0] and (tty or pct % 4 == 0):
-            last[0] = pct
-            print(f"{lead}[demo] executing [{'#' * pct}{'.' * (20 - pct)}] {f.progress * 100:5.1f} %  "
-                  f"min distance {f.min_distance_m * 100:5.2f} cm  COG {f.com_error_m * 1e3:5.2f} mm",
-                  end="" if tty else "\n", flush=True)
+    bar = ProgressBar(sys.stdout)
     t0 = time.monotonic()
     op.samples.clear()
     op.recording = True
-    send = op.action_client.send_goal_async(goal, feedback_callback=feedback)
+    send = op.action_client.send_goal_async(goal, feedback_callback=lambda fb: bar.update(fb.feedback))
     op.spin_until(send.done, 30.0, "/execute_reach to accept the goal")
     handle = send.result()
     if not handle.accepted:
@@ -283,9 +278,9 @@ def execute(op: Operator, trajectory, arm: int):
     duration = trajectory.points[-1].time_from_start.sec + trajectory.points[-1].time_from_start.nanosec * 1e-9
     op.spin_until(result.done, duration + 60.0, "the /execute_reach result")
     op.recording = False
-    if tty:
-        print()
-    return result.result().result, time.monotonic() - t0
+    res = result.result().result
+    bar.finish(res)
+    return res, time.monotonic() - t0
 
 
 def final_hand_in_region(op: Operator, region, arm: str, tol: float = 2e-3, robot_name: str | None = None) -> bool:
@@ -396,7 +391,7 @@ def run(args: argparse.Namespace) -> dict:
 
             p = msgs.se3_from_pose(target.pose).translation
             print(f"[demo] marker target (valve centre) at {np.round(p, 4).tolist()} m in world")
-        resp, wait_s, region = plan(op, args)
+        resp, wait_s, region, looks = plan(op, args)
         E = op.PlanReach.Response
         names_by_code = {getattr(E, n): n for n in dir(E) if n.isupper() and isinstance(getattr(E, n), int)}
         if not resp.success:
@@ -444,6 +439,24 @@ def run(args: argparse.Namespace) -> dict:
         if op.metrics:
             plot_metrics(out / "demo_execution.png", op.metrics, arm)
             report["metrics_messages"] = len(op.metrics)
+        report["automatic_looks"] = looks
+        # the session ends where it began: the arm home (a retreat from the valve first)
+        home, home_wait_s, _, _ = plan(op, args, home=True)
+        if not home.success:
+            raise RuntimeError(f"/plan_reach home failed: {names_by_code.get(home.error_code, home.error_code)}: "
+                               f"{home.message}")
+        print(f"[demo] planned the way home in {home_wait_s * 1e3:.0f} ms: {home.message}")
+        home_result, home_exec_s = execute(op, home.trajectory, home.arm)
+        if not home_result.success:
+            raise RuntimeError(f"/execute_reach (home) failed ({home_result.error_code}): {home_result.message}")
+        op.spin_for(0.5)
+        from humanoid_reach_ros.robot.model import RobotModel
+        robot = RobotModel(args.robot)
+        js = op.joint_states
+        at_rest = (float(np.max(np.abs(robot.joints_from_dict(dict(zip(js.name, js.position)))
+                                       - robot.half_sitting_joints))) if js is not None else math.inf)
+        report.update(home_wait_s=round(home_wait_s, 3), home_retreat=home.retreat, home_execution_wall_s=round(
+            home_exec_s, 3), home_overruns=int(home_result.overruns), home_max_joint_error_rad=at_rest)
         return report
     finally:
         if op is not None:
@@ -457,7 +470,7 @@ def run(args: argparse.Namespace) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False,  # it moves a robot
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--arm", choices=("auto", "right", "left"), default="auto")
     ap.add_argument("--target", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
@@ -500,7 +513,7 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     (out / "demo_report.json").write_text(json.dumps(report, indent=2))
     ok = (report["min_distance_m"] >= 0.0 and report["final_hand_in_wgr"] and report["max_com_drift_m"] <= 1e-3
-          and report["feet_drift_m"] <= 1e-4)
+          and report["feet_drift_m"] <= 1e-4 and report["home_max_joint_error_rad"] <= 0.01)
     print("[demo] report:")
     for k, v in report.items():
         print(f"  {k:24s} {v}")

@@ -27,6 +27,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("", "codes", "paths", "yaml_checks", "machine"),  # "" is the package itself (__init__: __version__)
     ("robot",),
     ("geometry",),
+    ("scene",),                          # the planning scene: the one world model
     ("perception", "reach", "sim"),      # sim: the scene description and simulated sensors
     ("control",),                        # the HQP, tasks, limits, the whole-body executor
     ("planning",),                       # smooth reshaping solves with control's HQP
@@ -34,10 +35,10 @@ LAYERS: list[tuple[str, ...]] = [
     ("io",),                             # numpy <-> ROS messages, MCAP
     ("graph", "graph_metrics"),          # process orchestration and figures of a running graph
     ("nodes",),                          # thin rclpy nodes (and the executor's loop process)
-    ("demo", "warmup"),                  # whole-package entry points
+    ("demo", "warmup", "graph_up"),      # whole-package entry points (graph_up: hr_graph)
 ]
 RANK = {unit: i for i, layer in enumerate(LAYERS) for unit in layer}
-CORE = ("robot", "geometry", "perception", "reach", "sim", "control", "planning", "execution")
+CORE = ("robot", "geometry", "scene", "perception", "reach", "sim", "control", "planning", "execution")
 
 #: known cycles, each an import edge (importer, imported) whose removal breaks it (none left: the
 #: planning/path <-> rrt_connect / prm cycle went with planning/space.py).

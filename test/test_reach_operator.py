@@ -5,9 +5,11 @@ from __future__ import annotations
 import io
 import json
 import math
+import re
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -34,12 +36,21 @@ def test_every_error_code_has_a_name_class_and_hint() -> None:
     assert {k: v[0] for k, v in op.PLAN_CODES.items()} == plan
     execute = constants(ExecuteReach.Result)
     assert {k: v[0] for k, v in op.EXECUTE_CODES.items()} == execute
-    for codes in (op.PLAN_CODES, op.EXECUTE_CODES):
+    # no hint of the operator's own where the server's message says what to do (said once)
+    own_words = {("plan", PlanReach.Response.NO_GOAL_FOUND), ("execute", ExecuteReach.Result.CANCELED),
+                 ("plan", PlanReach.Response.START_IN_COLLISION), ("plan", PlanReach.Response.UNOBSERVED_SPACE),
+                 ("plan", PlanReach.Response.UNOBSERVABLE_SPACE)}
+    for kind, codes in (("plan", op.PLAN_CODES), ("execute", op.EXECUTE_CODES)):
         for code, (name, cls, hint) in codes.items():
-            assert cls in op.EXIT and hint
+            assert cls in op.EXIT, name
+            assert not hint or (kind, code) not in own_words, (name, hint)
             text = op.code_text(codes, code, "server says why")
             assert text.startswith(f"{name} ({code}): server says why")
+            assert (" -- " in text) == bool(hint and code != 0)
             assert (op.exit_class(codes, code) == 0) == (code == 0)
+    cancel = op.code_text(op.EXECUTE_CODES, ExecuteReach.Result.CANCELED, "canceled by the client; holding the last "
+                          "command")
+    assert cancel == "CANCELED (4): canceled by the client; holding the last command"
     # failure classes are told apart by the exit code
     assert op.exit_class(op.PLAN_CODES, PlanReach.Response.INVALID_BOUNDS) == 4
     assert op.exit_class(op.PLAN_CODES, PlanReach.Response.NO_PATH) == 5
@@ -107,6 +118,9 @@ def test_progress_bar_and_printer() -> None:
     (["--look", "nan", "20"], "'nan' is not a finite number"),
     (["--dwell", "1"], "--dwell needs --scan or --look"),
     (["--scan", "--dwell", "0"], "must be > 0"),
+    # no abbreviations on a command that moves a robot
+    (["--target", "0.7", "0", "0.9", "--exec"], "unrecognized arguments: --exec"),
+    (["--tar", "0.7", "0", "0.9"], "unrecognized arguments: --tar"),
 ])
 def test_bad_arguments(argv, message, capsys) -> None:
     with pytest.raises(SystemExit) as exc:
@@ -198,6 +212,33 @@ def test_no_planner_is_unavailable(ros_env) -> None:
     r = run_operator(["--target", "0.71", "0.03", "0.9", "--timeout", "2"], ros_env)
     assert r.returncode == 3, (r.stdout, r.stderr)
     assert "/plan_reach not available after 2 s" in r.stderr
+
+
+def test_waiting_for_a_server_is_visible_and_ctrl_c_ends_it(ros_env, tmp_path: Path) -> None:
+    """Before the graph is up: a line on stderr after 1 s and every 5 s names what is awaited,
+    with the seconds left; Ctrl-C ends the wait at once with 130 (issue 22, point 4)."""
+    r = run_operator(["--scan", "--timeout", "7"], ros_env)
+    assert r.returncode == 3, (r.stdout, r.stderr)
+    notes = re.findall(r"waiting for /look \(reach_executor\) \.\.\. (\d+) s left", r.stderr)
+    assert notes == ["6", "2"], r.stderr
+    assert "/look not available after 7 s" in r.stderr and "scanning with the head" in r.stdout
+
+    err = tmp_path / "operator.err"
+    with open(err, "w") as e:
+        proc = subprocess.Popen([sys.executable, "-m", MODULE, "--target", "0.71", "0.03", "0.9", "--json"],
+                                env=dict(ros_env), cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=e, text=True)
+    try:
+        wait_for(lambda: "waiting for /plan_reach (reach_planner)" in err.read_text() or proc.poll() is not None,
+                 30.0, "the waiting line", on_timeout=err.read_text)
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=10.0)
+        stop_s = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err.read_text()
+    assert stop_s < 3.0 and json.loads(out)["exit_code"] == 130, (stop_s, out)
 
 
 @pytest.mark.node

@@ -272,7 +272,8 @@ def test_voxel_map_switch_collision_busy_and_malformed(start_node, ros_probe, mo
     resp = ros_probe.spin_until(lambda: (r := planner.call(valve_request())).error_code == E.UNOBSERVED_SPACE
                                 and "lies in space the head has not observed" in r.message and r, 20.0,
                                 "the unobserved target refused", on_timeout=proc.log_tail)
-    assert "scan first" in resp.message and "0.1 m block around" in resp.message, resp.message
+    assert "scan (--scan)" in resp.message and "0.1 m block around" in resp.message, resp.message
+    assert len(resp.unobserved_points) == 1, resp.unobserved_points   # where to look
     blocks_pub.publish(msgs.cloud_from_points(np.array([[5.0, 5.0, 5.0]]), "world"))   # the target is observed
     resp = ros_probe.spin_until(lambda: (r := planner.call(valve_request())).error_code != E.UNOBSERVED_SPACE
                                 and r, 20.0, "the target observed", on_timeout=proc.log_tail)

@@ -364,7 +364,10 @@ def test_talos_reaches_the_plant_valve(talos, planner):
     from humanoid_reach_ros.planning.reach import PlanRequest
     from humanoid_reach_ros.planning.wgr import valve_region
 
-    planner.set_map_from_scene("scenes/plant.yaml")
+    from humanoid_reach_ros.nodes.common import scene_file_voxels
+    from humanoid_reach_ros.paths import config_path
+
+    planner.set_map(scene_file_voxels(config_path("scenes/plant.yaml"), planner.params.resolution_m, ("valve",)))
     out = planner.plan(talos.half_sitting_joints, PlanRequest(valve_region(), seed=0, time_budget_s=10.0))
     assert out.success, out.message
     check = planner.collision

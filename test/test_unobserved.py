@@ -80,7 +80,8 @@ def test_a_level_look_is_not_enough(planner, scene) -> None:
     m = scanned(planner, scene, [(0.0, 0.0)])
     out = plan_on(planner, scene, m, with_unobserved=True)
     assert not out.success and out.error == PlanError.UNOBSERVED_SPACE, out.message
-    assert "Scan first" in out.message and "would enter it around [" in out.message, out.message
+    assert "look there" in out.message and "would enter it around [" in out.message, out.message
+    assert out.unobserved_points is not None and len(out.unobserved_points) >= 1   # where to look
     free = plan_on(planner, scene, m, with_unobserved=False)   # unobserved_space: free
     assert free.success, free.message
 

@@ -6,10 +6,11 @@ ROS-free (the node converts messages with ``io/exec_msgs.py`` first):
   of level 3) and the check that a requested arm is the one the trajectory moves;
 * dual-arm hand targets in ``world`` or ``base_link`` (:func:`targets_in_world` through the
   waist of the measured joints);
-* the collision map: the scene file's voxels until a measured ``/voxel_map`` arrives, the
+* the collision map, from the planning scene (``scene/planning_scene.py``, the one world
+  model; the node feeds it the scene file's voxels until a measured ``/voxel_map`` arrives): the
   voxels within ``target_exclusion_radius_m`` of the motion's start and final hand positions
-  left out (the object to be reached, or left; ``geometry.voxels.without_target``), the sphere tree built
-  here, outside the control loop;
+  left out (the object to be reached, or left), the sphere tree built here, outside the control
+  loop;
 * smooth reshaping (Yoshida et al., ``planning/reshape.py``) of a goal that asks for it,
   seconds, in the caller's thread while the loop keeps running or holding;
 * the ``/look`` motions: head poses (:meth:`ExecutionRequests.look`) and balanced whole-body
@@ -33,9 +34,8 @@ import pinocchio as pin
 
 from humanoid_reach_ros.codes import ARM_AUTO, ARM_NAMES, ExecuteCode as C, RequestError
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree
-from humanoid_reach_ros.geometry.voxels import without_target
-from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.scene.planning_scene import PlanningScene, SceneParams
 
 HAND_LIMBS = {"right": "right_arm", "left": "left_arm"}
 #: serialises the gaze solves of every ExecutionRequests (a GazeSolver owns one pinocchio data)
@@ -153,10 +153,10 @@ class ExecutionRequests:
         self.p = p
         self.counters = Counters()
         self._fk_lock = threading.Lock()
-        self._map_points: np.ndarray | None = None
-        self._scene_voxels: np.ndarray | None = None
+        # the executor avoids occupied voxels only: unobserved space is the planner's concern
+        self.scene = PlanningScene(robot, self._scene_params())
         self._target_p: np.ndarray | None = None
-        self._tree: SphereTree | None = None
+        self._tree_cache: SphereTree | None = None
         self._reshaper = None
         self._reshape_lock = threading.Lock()
         self._sampler = None
@@ -167,24 +167,32 @@ class ExecutionRequests:
         sphere_tree.warm_up()    # the first /voxel_map must not pay the tree kernels' first call (1.3 s seen)
 
     # ------------------------------------------------------------ map
-    def _build(self, voxels: np.ndarray) -> SphereTree:
-        V = np.ascontiguousarray(np.asarray(voxels, dtype=float).reshape(-1, 3))
-        t0 = time.perf_counter()
-        tree = SphereTree.from_voxels(V, self.p["resolution_m"], self.p["safety_margin_m"])
-        self.counters.map_voxels, self.counters.map_build_ms = len(V), (time.perf_counter() - t0) * 1e3
-        self._tree = tree
+    def _scene_params(self) -> SceneParams:
+        return SceneParams(resolution_m=self.p["resolution_m"], safety_margin_m=self.p["safety_margin_m"],
+                           target_exclusion_radius_m=float(self.p["target_exclusion_radius_m"]),
+                           unobserved_space="free")
+
+    def _tree(self, exclude: np.ndarray | None) -> SphereTree:
+        """The scene's sphere tree without the voxels around ``exclude`` (cached per version)."""
+        wanted = self._scene_params()
+        if wanted != self.scene.params:   # a parameter changed at run time
+            self.scene.set_params(wanted)
+        snap = self.scene.snapshot()
+        tree, dt = snap.tree(exclude if snap.source == "/voxel_map" else None)
+        self.counters.map_voxels = int(tree.n_spheres)
+        if dt > 0:
+            self.counters.map_build_ms = dt * 1e3
+        self._tree_cache = tree
         return tree
 
-    def scene_map(self) -> tuple[SphereTree | None, str]:
-        """The scene file's map (until a /voxel_map arrives) and a log line."""
-        if not self.p["scene_file"]:
+    def scene_map(self, voxels: np.ndarray | None, path: str = "") -> tuple[SphereTree | None, str]:
+        """The scene file's map (``voxels``, read by the node; None: no scene file) until a
+        /voxel_map arrives, and a log line."""
+        if voxels is None:
             return None, ("map source: none yet (scene_file is empty): executing without environment until "
                           "/voxel_map arrives")
-        from humanoid_reach_ros.sim.scene import load_scene
-        path = config_path(self.p["scene_file"])
-        voxels = load_scene(str(path)).voxelize(self.p["resolution_m"],
-                                                exclude_groups=tuple(self.p["scene_exclude_groups"]))
-        tree = self._build(voxels)
+        self.scene.set_occupied(voxels, source=f"scene file {path}")
+        tree = self._tree(None)
         self.counters.map_source = f"scene file {path}"
         return tree, (f"map source: scene file {path} ({len(voxels)} voxels without groups "
                       f"{list(self.p['scene_exclude_groups'])}, sphere tree built in "
@@ -195,9 +203,8 @@ class ExecutionRequests:
         if cloud.frame_id not in ("", self.p["map_frame"]):
             raise ValueError(f"frame_id {cloud.frame_id!r} is not the map frame {self.p['map_frame']!r}")
         with self._map_lock:
-            self._map_points = cloud.points
-            kept = self._carved(cloud.points)
-            tree = self._build(kept)
+            self.scene.set_occupied(cloud.points, source="/voxel_map")
+            tree = self._tree(self._target_p)
         c = self.counters
         previous, changed = c.map_source, c.map_source != "/voxel_map"
         c.maps_received += 1
@@ -210,11 +217,6 @@ class ExecutionRequests:
         self.counters.maps_rejected += 1
         self.counters.last_rejection = f"/voxel_map: {type(exc).__name__}: {exc}"
 
-    def _carved(self, points: np.ndarray) -> np.ndarray:
-        if self._target_p is None:
-            return points
-        return without_target(points, self._target_p, float(self.p["target_exclusion_radius_m"]))
-
     def _aim_map_at(self, positions: np.ndarray, arm: str, log: Callable[[str], None] | None) -> None:
         """Before a motion: leave the voxels around its hand's start and final positions out of
         a measured map (the object to be reached, or the one the hand leaves: a motion back from
@@ -226,14 +228,15 @@ class ExecutionRequests:
                 ends.append(self.robot.frame_pose(q, self.robot.limbs[HAND_LIMBS[arm]].tip).translation.copy())
         target = np.array(ends)
         with self._map_lock:
-            self._target_p, points = target, self._map_points
-            if points is None:
+            self._target_p = target
+            snap = self.scene.snapshot()
+            if snap.source != "/voxel_map":
                 return
-            kept = self._carved(points)
-            tree = self._build(kept)
+            tree = self._tree(target)
         self.send_map(tree)
-        if len(kept) < len(points) and log is not None:
-            log(f"/voxel_map: {len(points) - len(kept)} of {len(points)} voxels within "
+        kept, total = tree.n_spheres, len(snap.occupied)
+        if kept < total and log is not None:
+            log(f"/voxel_map: {total - kept} of {total} voxels within "
                 f"{self.p['target_exclusion_radius_m']:g} m of the hand's start {np.round(target[0], 3).tolist()} "
                 f"or final position {np.round(target[1], 3).tolist()} left out (the object reached or left)")
 
@@ -426,7 +429,7 @@ class ExecutionRequests:
     def _reshape(self, spline, arm: str):
         """Smooth reshaping of ``spline`` against the current map (one at a time)."""
         from humanoid_reach_ros.robot.shapes import load_collision_model
-        tree = self._tree
+        tree = self._tree_cache
         if tree is None or tree.n_spheres == 0:
             return spline, "smooth reshaping: no map, trajectory unchanged"
         t0 = time.perf_counter()

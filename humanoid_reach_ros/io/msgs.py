@@ -529,6 +529,7 @@ class ReachRequest:
     seed: int | None
     use_marker_target: bool
     execute: bool
+    home: bool = False          # plan back to the rest posture (region ignored: None)
 
 
 def _pose_arrays(p: Pose) -> np.ndarray:
@@ -593,30 +594,49 @@ def reach_request(req: PlanReach.Request, waist: pin.SE3 | None = None) -> Reach
     if req.goal_count > MAX_GOAL_COUNT:
         raise RequestError(E.INVALID_REQUEST, f"goal_count must be at most {MAX_GOAL_COUNT} (0 = node default), "
                                               f"got {req.goal_count}")
-    if req.use_marker_target:
+    if req.home:   # the way back to the rest posture: no region, no marker
+        region = None
+    elif req.use_marker_target:
         target = pin.SE3.Identity()
     else:
         target = target_in_world(req.region.target, waist)
-    try:
-        region = WorkspaceGoalRegion.from_pose(target, lower, upper)
-    except ValueError as exc:
-        raise RequestError(E.INVALID_BOUNDS, str(exc)) from None
+    if not req.home:
+        try:
+            region = WorkspaceGoalRegion.from_pose(target, lower, upper)
+        except ValueError as exc:
+            raise RequestError(E.INVALID_BOUNDS, str(exc)) from None
     return ReachRequest(
         region=region, arm=ARM_NAMES[req.arm], goal_count=int(req.goal_count) or None,
         planner=planner or None, time_budget_s=float(req.time_budget_s) or None,
         seed=int(req.seed) if req.seed >= 0 else None,
-        use_marker_target=bool(req.use_marker_target), execute=bool(req.execute),
+        use_marker_target=bool(req.use_marker_target) and not req.home, execute=bool(req.execute),
+        home=bool(req.home),
     )
+
+
+def points_list(points) -> list:
+    """``geometry_msgs/Point`` list of points (K, 3) [m] (e.g. PlanReach's ``unobserved_points``)."""
+    P = np.asarray(points, dtype=float).reshape(-1, 3)
+    return [Point(x=float(x), y=float(y), z=float(z)) for x, y, z in P]
+
+
+def points_array(points) -> np.ndarray:
+    """(K, 3) array of ``geometry_msgs/Point`` s (ValueError on NaN/inf)."""
+    P = np.array([[p.x, p.y, p.z] for p in points], dtype=float).reshape(-1, 3)
+    if not np.all(np.isfinite(P)):
+        raise ValueError("points contain NaN or inf")
+    return P
 
 
 def plan_reach_request(region: WorkspaceGoalRegion, frame_id: str = "world", arm: int = 0, goal_count: int = 0,
                        planner: str = "", time_budget_s: float = 0.0, use_marker_target: bool = False,
-                       execute: bool = False, seed: int = -1) -> PlanReach.Request:
+                       execute: bool = False, seed: int = -1, home: bool = False) -> PlanReach.Request:
     """A ``PlanReach`` request for a region whose target is expressed in ``frame_id``
-    (the client side of :func:`reach_request`; 0 / "" / -1 = the node's defaults)."""
+    (the client side of :func:`reach_request`; 0 / "" / -1 = the node's defaults); ``home``:
+    the way back to the rest posture (the region is then ignored)."""
     req = PlanReach.Request(arm=int(arm), goal_count=int(goal_count), planner=str(planner),
                             time_budget_s=float(time_budget_s), use_marker_target=bool(use_marker_target),
-                            execute=bool(execute), seed=int(seed))
+                            execute=bool(execute), seed=int(seed), home=bool(home))
     req.region.target = pose_stamped(pin.SE3(np.asarray(region.target_R), np.asarray(region.target_p)), frame_id)
     req.region.lower = np.asarray(region.lower, dtype=float)
     req.region.upper = np.asarray(region.upper, dtype=float)

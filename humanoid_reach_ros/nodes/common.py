@@ -200,3 +200,10 @@ def current_joints(joint_states: LatestOnDemand, timeout_s: float, robot) -> tup
         return None, f"/joint_states is stale ({age:.2f} s > {timeout_s:g} s)"
     return msgs.model_joints(msg, robot)
 
+
+def scene_file_voxels(path: str, resolution_m: float, exclude_groups) -> Any:
+    """A scene file's voxels (N, 3), the map until a /voxel_map arrives: the nodes read the
+    file, the planning scene (scene/planning_scene.py) only ever gets points."""
+    from humanoid_reach_ros.sim.scene import load_scene
+    return load_scene(str(path)).voxelize(resolution_m, exclude_groups=tuple(exclude_groups))
+

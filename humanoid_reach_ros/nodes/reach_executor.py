@@ -54,12 +54,13 @@ from humanoid_reach_ros.execution.requests import ExecutionRequests
 from humanoid_reach_ros.execution.supervisor import IDLE
 from humanoid_reach_ros.io import exec_msgs, msgs
 from humanoid_reach_ros.nodes.common import (LATCHED, RELIABLE_LATEST, LatestOnDemand, current_joints,
-                                             declare_parameters, run_node)
+                                             declare_parameters, run_node, scene_file_voxels)
 from humanoid_reach_ros.nodes.reach_executor_diagnostics import LoopWindow, executor_statuses
 from humanoid_reach_ros.nodes.reach_executor_goals import MotionTracker, execute_goal, look_goal, reject
 from humanoid_reach_ros.nodes.reach_executor_loop import LoopConfig, LoopProcess
 from humanoid_reach_ros.nodes.reach_executor_params import (MAX_SEQUENTIAL, PARAMETERS, SOLVERS, executor_params,
                                                             supervisor_config)
+from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.robot.model import RobotModel
 
 NODE_NAME = "reach_executor"
@@ -109,7 +110,11 @@ class ReachExecutorNode(Node):
                                             if k in ("tick", "solver")):
             self.get_logger().warning(f"the control loop runs WITHOUT real-time priority: {info.get('tick')}")
         self.requests.send_map = lambda tree: self.loop.send(("map", tree))
-        tree, note = self.requests.scene_map()
+        scene_voxels = None
+        if p["scene_file"]:
+            scene_path = config_path(p["scene_file"])
+            scene_voxels = scene_file_voxels(str(scene_path), p["resolution_m"], tuple(p["scene_exclude_groups"]))
+        tree, note = self.requests.scene_map(scene_voxels, str(scene_path) if scene_voxels is not None else "")
         if tree is not None:
             self.loop.send(("map", tree))
         self.get_logger().info(note)

@@ -51,6 +51,8 @@ EXIT = {"success": 0, "internal": 1, "usage": 2, "unavailable": 3, "invalid": 4,
         "no_input": 6, "execution": 7, "canceled": 130}
 
 SCAN_POSES_ASSUMED = 20   # for the result deadline of a scan: poses of the executor's scan_poses_deg at most
+WAIT_NOTE_FIRST_S = 1.0   # waiting for a server: the first line after this long [s] (none when it is up) ...
+WAIT_NOTE_EVERY_S = 5.0   # ... then one every this long, with the seconds left
 ARMS = ARM_REQUESTS                     # --arm name -> PlanReach.Request.ARM_*
 ARM_LABELS = {code: name for name, code in ARM_REQUESTS.items()}
 
@@ -64,8 +66,8 @@ _PLAN_HINTS = {
         "base_link"),
     PlanError.TARGET_OUT_OF_REACH: ("no_motion", "proven out of the arms' reach from any stance-keeping trunk pose: "
         "move the target closer (or the robot nearer)"),
-    PlanError.START_IN_COLLISION: ("no_motion", "the robot's current posture collides with the map: check /voxel_map "
-        "or move the robot"),
+    # the planner's message names the links, the nearest voxels and the retreats it tried
+    PlanError.START_IN_COLLISION: ("no_motion", ""),
     PlanError.NO_MAP: ("no_input", "the planner has no environment model: start voxel_mapper (or give reach_planner "
         "a scene_file)"),
     PlanError.TIMED_OUT: ("no_motion", "the time budget ran out: raise --budget"),
@@ -74,10 +76,11 @@ _PLAN_HINTS = {
         "marker in view? Or give --target"),
     PlanError.NO_JOINT_STATES: ("no_input", "no recent /joint_states: is joint_driver running?"),
     PlanError.BUSY: ("no_input", "another request is being planned: try again"),
-    PlanError.UNOBSERVED_SPACE: ("no_input", "the target or the way to it lies in space the head has not observed: "
-         "scan first (--scan) or look there (--look YAW PITCH)"),
-    PlanError.NO_GOAL_FOUND: ("no_motion", "no goal posture found within the budget (not proven unreachable): raise "
-         "--budget, widen the WGR (--wgr-deg) or try the other arm (--arm)"),
+    # the planner's message names the place and the remedies (the automatic look ran out, or was off)
+    PlanError.UNOBSERVED_SPACE: ("no_input", ""),
+    PlanError.UNOBSERVABLE_SPACE: ("no_motion", ""),
+    # the planner's message says which arms were tried and what to change: no hint of our own
+    PlanError.NO_GOAL_FOUND: ("no_motion", ""),
     PlanError.INTERNAL_ERROR: ("internal", "the planner failed internally: see its log"),
 }
 
@@ -87,7 +90,7 @@ _EXECUTE_HINTS = {
     ExecuteCode.INVALID_GOAL: ("execution", "the executor refused the trajectory or targets"),
     ExecuteCode.NO_JOINT_STATES: ("execution", "the executor has no current /joint_states: is joint_driver running?"),
     ExecuteCode.PREEMPTED: ("execution", "replaced by a newer goal or /reach_trajectory"),
-    ExecuteCode.CANCELED: ("canceled", "the executor holds the robot at the last command"),
+    ExecuteCode.CANCELED: ("canceled", ""),   # the executor's message says it holds the last command
     ExecuteCode.ABORTED: ("execution", "the executor stopped the motion and holds the robot (e.g. stale joint states)"),
     ExecuteCode.TARGET_NOT_REACHED: ("execution", "the hand was held off the trajectory's end (a collision damper or a "
         "joint limit); the robot holds there: plan again from here"),
@@ -97,12 +100,12 @@ EXECUTE_CODES: dict[int, tuple[str, str, str]] = {int(c): (c.name, *v) for c, v 
 
 
 def code_text(codes: dict[int, tuple[str, str, str]], code: int, message: str) -> str:
-    """``NAME (code): server message -- hint``."""
+    """``NAME (code): server message -- hint`` (no hint where the server's message gives it)."""
     name, _, hint = codes.get(code, (f"UNKNOWN_CODE_{code}", "internal", "a code this client does not know"))
     text = f"{name} ({code})"
     if message:
         text += f": {message}"
-    return text if code == 0 else f"{text} -- {hint}"
+    return text if code == 0 or not hint else f"{text} -- {hint}"
 
 
 def exit_class(codes: dict[int, tuple[str, str, str]], code: int) -> int:
@@ -210,7 +213,7 @@ def planner_names() -> list[str]:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="reach_operator",
+        prog="reach_operator", allow_abbrev=False,   # it moves a robot: --exec is not taken for --execute
         description="Plan (and with --execute, execute) a whole-body reaching motion to the AR marker or a "
                     "given pose through /plan_reach and /execute_reach.",
         epilog="Exit codes: 0 success, 1 internal error, 2 bad arguments, 3 server unavailable / no answer, "
@@ -219,6 +222,8 @@ def build_parser() -> argparse.ArgumentParser:
     tgt = p.add_mutually_exclusive_group()
     tgt.add_argument("--marker", action="store_true", help="reach the AR marker's /target_pose (default)")
     tgt.add_argument("--target", nargs=3, type=_finite, metavar=("X", "Y", "Z"), help="target position [m]")
+    tgt.add_argument("--home", action="store_true", help="plan back to the rest posture (half-sitting), from any "
+                     "posture, a hand resting on something included (a retreat comes first)")
     rpy = p.add_mutually_exclusive_group()
     rpy.add_argument("--rpy-deg", nargs=3, type=_finite, metavar=("R", "P", "Y"),
                      help="target orientation, fixed-axis roll pitch yaw in DEGREES (with --target; default 0 0 0)")
@@ -246,11 +251,16 @@ def build_parser() -> argparse.ArgumentParser:
                       help="first turn the head to YAW PITCH in DEGREES (pitch > 0 looks down); alone: only that")
     p.add_argument("--dwell", type=_positive, help="hold each head pose this long [s] (default: the executor's)")
     p.add_argument("--execute", action="store_true", help="execute the plan through /execute_reach")
+    p.add_argument("--no-auto-look", action="store_true", help="when the only plans cross unobserved space, fail "
+                   "(UNOBSERVED_SPACE) instead of looking there with a balanced whole-body gaze and planning again")
+    p.add_argument("--max-looks", type=_int_in(0, 10, "10"), default=3,
+                   help="automatic looks per request at most (default 3)")
     p.add_argument("--no-collision-avoidance", action="store_true", help="execute without velocity dampers")
     p.add_argument("--no-com-compensation", action="store_true", help="execute without the exact-COG task")
     p.add_argument("--smooth-reshaping", action="store_true", help="reshape colliding segments before executing")
     p.add_argument("--timeout", type=_positive, default=60.0,
-                   help="wait at most this long [s] for each server and for the plan (default 60)")
+                   help="wait at most this long [s] for each server and for the plan (default 60); while waiting "
+                        "for a server, a line every few seconds says which one and how long is left")
     p.add_argument("--json", action="store_true", help="print a machine-readable JSON summary on stdout")
     return p
 
@@ -286,10 +296,12 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     if a.target is None and (a.rpy is not None or a.frame is not None):
         p.error("--rpy/--rpy-deg and --frame need --target (the marker's pose comes with its own frame)")
     # --scan / --look alone move the head only; with --marker, --target or --execute a plan follows
-    a.plan = not (a.scan or a.look is not None) or a.marker or a.target is not None or a.execute
+    a.plan = not (a.scan or a.look is not None) or a.marker or a.target is not None or a.execute or a.home
     if a.dwell is not None and not (a.scan or a.look is not None):
         p.error("--dwell needs --scan or --look")
-    if a.target is None:
+    if a.home and (a.rpy is not None or a.wgr is not None or a.arm != "auto"):
+        p.error("--home takes no --rpy/--wgr/--arm: it goes back to the rest posture")
+    if a.target is None and not a.home:
         a.marker = True
     if not a.execute and (a.no_collision_avoidance or a.no_com_compensation or a.smooth_reshaping):
         p.error("--no-collision-avoidance, --no-com-compensation and --smooth-reshaping need --execute")
@@ -316,7 +328,7 @@ def plan_request(args: argparse.Namespace) -> Any:
 
     req = PlanReach.Request(arm=ARMS[args.arm], goal_count=args.goals or 0, planner=args.planner or "",
                             time_budget_s=float(args.budget or 0.0), use_marker_target=bool(args.marker),
-                            execute=False, seed=-1 if args.seed is None else args.seed)
+                            execute=False, seed=-1 if args.seed is None else args.seed, home=bool(args.home))
     if args.target is not None:
         R = rpy_matrix(np.asarray(args.rpy or (0.0, 0.0, 0.0), float))
         req.region.target = msgs.pose_stamped(pin.SE3(R, np.asarray(args.target, float)), args.frame or "world")
@@ -372,9 +384,29 @@ class Operator:
             self.executor.spin_once(timeout_sec=0.02)
         return True
 
+    def wait_for_server(self, ready: Callable[[], bool], name: str, owner: str) -> bool:
+        """Spin until ``ready()`` (a service or action server is there), at most ``timeout_s``;
+        after ``WAIT_NOTE_FIRST_S`` and then every ``WAIT_NOTE_EVERY_S`` a line on stderr says what
+        is awaited: ``waiting for /look (reach_executor) ... 55 s left``. False on timeout;
+        ``Canceled`` on Ctrl-C."""
+        t0 = time.monotonic()
+        note = [t0 + WAIT_NOTE_FIRST_S]
+
+        def done() -> bool:
+            if ready():
+                return True
+            now = time.monotonic()
+            if now >= note[0]:   # at 1 s, then at 5, 10, 15 ... s
+                note[0] = t0 + WAIT_NOTE_EVERY_S * (math.floor((now - t0) / WAIT_NOTE_EVERY_S) + 1)
+                self.err.write(f"reach_operator: waiting for {name} ({owner}) ... "
+                               f"{max(0.0, self.timeout_s - (now - t0)):.0f} s left\n")
+                self.err.flush()
+            return False
+        return self.spin_until(done, self.timeout_s)
+
     def plan(self, req: Any) -> Any | None:
         """The response, or None if the service is missing / does not answer."""
-        if not self.spin_until(self.plan_client.service_is_ready, self.timeout_s):
+        if not self.wait_for_server(self.plan_client.service_is_ready, "/plan_reach", "reach_planner"):
             self.err.write(f"reach_operator: /plan_reach not available after {self.timeout_s:g} s: is reach_planner "
                            "running (same ROS_DOMAIN_ID)?\n")
             return None
@@ -388,7 +420,11 @@ class Operator:
     def execute(self, trajectory: Any, arm: int, args: argparse.Namespace,
                 on_feedback: Callable[[Progress], None]) -> tuple[str, Any]:
         """("done", result) | ("unavailable" | "rejected" | "timeout", None) | ("canceled", result or None)."""
-        if not self.spin_until(self.exec_client.server_is_ready, self.timeout_s):
+        try:
+            up = self.wait_for_server(self.exec_client.server_is_ready, "/execute_reach", "reach_executor")
+        except Canceled:
+            return "canceled", None
+        if not up:
             self.err.write(f"reach_operator: /execute_reach not available after {self.timeout_s:g} s: is "
                            "reach_executor running?\n")
             return "unavailable", None
@@ -403,15 +439,23 @@ class Operator:
         return self._await(send, duration + self.timeout_s)
 
     def look(self, yaw_rad: list[float], pitch_rad: list[float], dwell_s: float,
-             on_feedback: Callable[[Any], None]) -> tuple[str, Any]:
-        """The /look action: same outcomes as :meth:`execute`."""
-        if not self.spin_until(self.look_client.server_is_ready, self.timeout_s):
+             on_feedback: Callable[[Any], None], gaze_points: np.ndarray | None = None) -> tuple[str, Any]:
+        """The /look action (head angles, or ``gaze_points`` (K, 3) [m, world] for a whole-body
+        gaze at each): same outcomes as :meth:`execute`."""
+        try:
+            up = self.wait_for_server(self.look_client.server_is_ready, "/look", "reach_executor")
+        except Canceled:
+            return "canceled", None
+        if not up:
             self.err.write(f"reach_operator: /look not available after {self.timeout_s:g} s: is reach_executor "
                            "running?\n")
             return "unavailable", None
         goal = self.Look.Goal(yaw_rad=list(yaw_rad), pitch_rad=list(pitch_rad), dwell_s=float(dwell_s))
+        if gaze_points is not None:
+            from humanoid_reach_ros.io.msgs import points_list
+            goal.gaze_points = points_list(gaze_points)
         send = self.look_client.send_goal_async(goal, feedback_callback=lambda m: on_feedback(m.feedback))
-        poses = len(yaw_rad) or SCAN_POSES_ASSUMED   # the scan's length is the executor's parameter
+        poses = len(yaw_rad) or (len(gaze_points) if gaze_points is not None else SCAN_POSES_ASSUMED)
         return self._await(send, self.timeout_s + poses * ((dwell_s or 1.0) + 5.0))
 
     def _await(self, send: Any, result_timeout_s: float) -> tuple[str, Any]:
@@ -492,20 +536,28 @@ def execution_report(e: dict[str, Any]) -> str:
             f"error {f('final_hand_error_m', 1e3, 'mm', 1)} / {f('final_hand_error_rad', 1.0, 'rad', 3)}")
 
 
-def look(op: Operator, args: argparse.Namespace, text: TextIO, err: TextIO, summary: dict[str, Any]) -> int:
-    """``--scan`` / ``--look``: the /look action with a line per head pose; the exit code."""
-    yaw, pitch = ([], []) if args.scan else ([math.radians(args.look[0])], [math.radians(args.look[1])])
-    text.write("scanning with the head (the executor's scan pattern) ...\n" if args.scan else
-               f"turning the head to yaw {args.look[0]:g}, pitch {args.look[1]:g} deg ...\n")
-    text.flush()
+def look(op: Operator, args: argparse.Namespace, text: TextIO, err: TextIO, summary: dict[str, Any],
+         gaze_points: np.ndarray | None = None) -> int:
+    """``--scan`` / ``--look`` (or an automatic look at ``gaze_points``): the /look action with a
+    line per head pose; the exit code."""
+    yaw, pitch = ([], []) if args.scan or gaze_points is not None else (
+        [math.radians(args.look[0])], [math.radians(args.look[1])])
+    if gaze_points is None:
+        text.write("scanning with the head (the executor's scan pattern) ...\n" if args.scan else
+                   f"turning the head to yaw {args.look[0]:g}, pitch {args.look[1]:g} deg ...\n")
+        text.flush()
 
     def feedback(fb: Any) -> None:
         state = "holding" if fb.holding else "moving"
         text.write(f"  head pose {fb.pose_index + 1}/{fb.pose_count}: yaw {math.degrees(fb.yaw_rad):+.1f}, pitch "
                    f"{math.degrees(fb.pitch_rad):+.1f} deg ({state})\n")
         text.flush()
-    outcome, result = op.look(yaw, pitch, args.dwell or 0.0, feedback)
-    summary["look"] = execution_summary(outcome, result, LOOK_FIELDS)
+    outcome, result = op.look(yaw, pitch, args.dwell or 0.0, feedback, gaze_points)
+    looked = execution_summary(outcome, result, LOOK_FIELDS)
+    if gaze_points is None:
+        summary["look"] = looked
+    else:
+        summary.setdefault("auto_looks", []).append(looked)
     if outcome == "unavailable":
         return EXIT["unavailable"]
     if outcome == "timeout":
@@ -524,6 +576,170 @@ def look(op: Operator, args: argparse.Namespace, text: TextIO, err: TextIO, summ
               f"{code_text(EXECUTE_CODES, result.error_code, result.message)}\n")
     return EXIT["canceled"] if outcome == "canceled" else (exit_class(EXECUTE_CODES, result.error_code)
                                                            or EXIT["execution"])
+
+
+# ---------------------------------------------------------------- look where the plan needs to see
+def plan_with_looks(op: Operator, args: argparse.Namespace, req: Any, text: TextIO, err: TextIO,
+                    summary: dict[str, Any]) -> tuple[Any | None, int]:
+    """``/plan_reach``; while it answers UNOBSERVED_SPACE with the points where the target or the
+    best path meets unobserved space, look there (a balanced whole-body gaze through /look,
+    head and chest) and plan again, at most ``--max-looks`` times (``--no-auto-look``: never).
+    ``(response, exit code)``; the response is None when the planner could not be asked."""
+    looks = 0
+    while True:
+        try:
+            resp = op.plan(req)
+        except Canceled:
+            err.write("reach_operator: canceled while planning\n")
+            return None, EXIT["canceled"]
+        if resp is None:
+            return None, EXIT["unavailable"]
+        if resp.error_code != PlanError.UNOBSERVED_SPACE or not resp.unobserved_points:
+            return resp, EXIT["success"]
+        pts = np.array([[p.x, p.y, p.z] for p in resp.unobserved_points], dtype=float)
+        where = ", ".join(str(np.round(p, 2).tolist()) for p in pts)
+        if args.no_auto_look or looks >= args.max_looks:
+            if not args.no_auto_look:
+                err.write(f"reach_operator: still unobserved after {looks} automatic look(s) at {where}\n")
+            return resp, EXIT["success"]
+        looks += 1
+        text.write(f"the plan needs to see {where} m (unobserved): looking there, automatic look {looks}/"
+                   f"{args.max_looks} (--no-auto-look turns this off) ...\n")
+        text.flush()
+        code = look(op, args, text, err, summary, gaze_points=pts)
+        if code != EXIT["success"]:
+            return None, code
+        text.write("planning again ...\n")
+        text.flush()
+
+
+# ---------------------------------------------------------------- the marker, fresh
+MARKER_FRESH_WAIT_S = 2.0    # a /target_pose within this long counts as seen now (marker_localizer: >= 2 Hz in view)
+MARKER_WAIT_S = 15.0         # after turning the head toward the marker: wait this long for a /target_pose
+MARKER_LOOK_DWELL_S = 0.1    # the head's hold there (the wait for the marker follows)
+EXECUTOR_NODE = "/reach_executor"
+
+
+def executor_parameters(op: Operator, names: list[str], timeout_s: float = 2.0) -> dict[str, Any]:
+    """``names`` of the executor's parameters (``/reach_executor/get_parameters``); the declared
+    defaults (``reach_executor_params.PARAMETERS``) for those it does not answer in time."""
+    from rcl_interfaces.srv import GetParameters
+    from rclpy.parameter import parameter_value_to_python
+
+    from humanoid_reach_ros.nodes.reach_executor_params import PARAMETERS
+
+    values = {n: PARAMETERS[n].default for n in names}
+    client = op.node.create_client(GetParameters, f"{EXECUTOR_NODE}/get_parameters")
+    try:
+        if op.spin_until(client.service_is_ready, timeout_s):
+            future = client.call_async(GetParameters.Request(names=names))
+            if op.spin_until(future.done, timeout_s) and future.result() is not None:
+                for n, v in zip(names, future.result().values):
+                    if v.type != 0:   # PARAMETER_NOT_SET
+                        values[n] = parameter_value_to_python(v)
+    finally:
+        op.node.destroy_client(client)
+    return values
+
+
+def ensure_marker_target(op: Operator, args: argparse.Namespace, text: TextIO, err: TextIO,
+                         summary: dict[str, Any]) -> int:
+    """``--marker``: the planner takes the marker's ``/target_pose`` only while it is recent (1 s,
+    its ``target_timeout_s``), and ``marker_localizer`` publishes only while the marker is in the
+    camera's view. When no ``/target_pose`` comes within ``MARKER_FRESH_WAIT_S``, the head is turned
+    (``/look``) toward the marker's last known position (from ``marker_localizer``'s diagnostics,
+    aimed from the current posture) or, with none known, to the executor's ``marker_look_deg``;
+    then a fresh pose is awaited for ``MARKER_WAIT_S`` with a countdown. Returns the exit code to
+    stop with, or ``EXIT["success"]`` to plan. Without a ``marker_localizer`` or an executor it
+    leaves the answer to the planner (``NO_TARGET`` with its hint)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import JointState
+
+    seen: dict[str, Any] = {"pose_t": -math.inf, "pose": None, "last": None, "joints": None}
+
+    def on_pose(m: Any) -> None:
+        seen["pose_t"], seen["pose"] = time.monotonic(), m
+
+    def on_diagnostics(m: Any) -> None:
+        for st in m.status:
+            v = {kv.key: kv.value for kv in st.values}
+            if st.name.startswith("marker_localizer") and "target_x_m" in v:
+                seen["last"] = [float(v["target_x_m"]), float(v["target_y_m"]), float(v["target_z_m"])]
+
+    def since(t: float) -> Callable[[], bool]:
+        return lambda: seen["pose_t"] >= t
+
+    subs = [op.node.create_subscription(PoseStamped, "/target_pose", on_pose, qos_profile_sensor_data),
+            op.node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 20),
+            op.node.create_subscription(JointState, "/joint_states", lambda m: seen.__setitem__("joints", m),
+                                        qos_profile_sensor_data)]
+    report: dict[str, Any] = {"fresh": False, "looked_deg": None, "toward": None}
+    summary["marker"] = report
+    t0 = time.monotonic()
+    try:
+        op.spin_until(lambda: since(t0)() or time.monotonic() > t0 + MARKER_FRESH_WAIT_S, None)
+        if since(t0)():
+            report["fresh"] = True
+            return EXIT["success"]
+        if op.node.count_publishers("/target_pose") == 0 or not op.look_client.server_is_ready():
+            return EXIT["success"]   # nothing to look with or for: the planner answers (NO_TARGET and its hint)
+        params = executor_parameters(op, ["marker_look_deg", "robot_config"])
+        if seen["last"] is not None and seen["joints"] is not None:
+            from humanoid_reach_ros.io import msgs
+            from humanoid_reach_ros.robot.head_aim import aim_head_deg
+            from humanoid_reach_ros.robot.model import RobotModel
+
+            robot = RobotModel(params["robot_config"])
+            js = msgs.parse_joint_state(seen["joints"])
+            yaw, pitch = aim_head_deg(robot, seen["last"], robot.joints_from_dict(dict(zip(js.names, js.positions))))
+            report["toward"] = seen["last"]
+            where = (f"toward the marker's last known position ({', '.join(f'{v:.2f}' for v in seen['last'])}) m: "
+                     f"yaw {yaw:g}, pitch {pitch:g} deg")
+        else:
+            yaw, pitch = (float(v) for v in params["marker_look_deg"])
+            where = f"where the executor looks for it (marker_look_deg): yaw {yaw:g}, pitch {pitch:g} deg"
+        report["looked_deg"] = [yaw, pitch]
+        text.write(f"no /target_pose within {MARKER_FRESH_WAIT_S:g} s (the marker is out of view): turning the head "
+                   f"{where} ...\n")
+        text.flush()
+        outcome, result = op.look([math.radians(yaw)], [math.radians(pitch)], MARKER_LOOK_DWELL_S, lambda fb: None)
+        if outcome == "canceled" or (result is not None and result.error_code == ExecuteCode.CANCELED):
+            err.write("reach_operator: canceled while turning the head toward the marker\n")
+            return EXIT["canceled"]
+        if outcome != "done" or result is None or not result.success:
+            why = code_text(EXECUTE_CODES, result.error_code, result.message) if result is not None else outcome
+            err.write(f"look toward the marker failed: {why}\n")
+            return EXIT["unavailable"] if outcome in ("unavailable", "timeout") else EXIT["execution"]
+        t1 = time.monotonic()
+        note = [t1]
+
+        def fresh() -> bool:
+            if since(t1)():
+                return True
+            now = time.monotonic()
+            if now >= note[0]:
+                note[0] += WAIT_NOTE_EVERY_S
+                err.write(f"reach_operator: waiting for /target_pose (marker_localizer) ... "
+                          f"{max(0.0, MARKER_WAIT_S - (now - t1)):.0f} s left\n")
+                err.flush()
+            return False
+        if not op.spin_until(fresh, MARKER_WAIT_S):
+            err.write(f"reach_operator: no /target_pose within {MARKER_WAIT_S:g} s after turning the head {where}: "
+                      "is the marker in view? Scan (--scan), look (--look YAW PITCH) or give --target\n")
+            return EXIT["no_input"]
+        report["fresh"] = True
+        p = seen["pose"].pose.position
+        text.write(f"marker seen at ({p.x:.3f}, {p.y:.3f}, {p.z:.3f}) m\n")
+        text.flush()
+        return EXIT["success"]
+    except Canceled:
+        err.write("reach_operator: canceled while waiting for the marker\n")
+        return EXIT["canceled"]
+    finally:
+        for sub in subs:
+            op.node.destroy_subscription(sub)
 
 
 def run(args: argparse.Namespace, out: TextIO = sys.stdout, err: TextIO = sys.stderr) -> int:
@@ -545,17 +761,15 @@ def run(args: argparse.Namespace, out: TextIO = sys.stdout, err: TextIO = sys.st
             code = look(op, args, text, err, summary)
             if code != EXIT["success"] or not args.plan:
                 return finish(code)
-        target = "the marker's /target_pose" if args.marker else \
+        if args.marker and (code := ensure_marker_target(op, args, text, err, summary)) != EXIT["success"]:
+            return finish(code)
+        target = "the rest posture (home)" if args.home else "the marker's /target_pose" if args.marker else \
             f"({', '.join(f'{v:g}' for v in args.target)}) in {args.frame or 'world'}"
-        text.write(f"planning to {target}, arm {args.arm} ...\n")
+        text.write(f"planning to {target}" + ("" if args.home else f", arm {args.arm}") + " ...\n")
         text.flush()
-        try:
-            resp = op.plan(req)
-        except Canceled:
-            err.write("reach_operator: canceled while planning\n")
-            return finish(EXIT["canceled"])
+        resp, code = plan_with_looks(op, args, req, text, err, summary)
         if resp is None:
-            return finish(EXIT["unavailable"])
+            return finish(code)
         summary["plan"] = plan_summary(resp)
         if not resp.success or resp.error_code != 0:
             err.write(f"plan failed: {code_text(PLAN_CODES, resp.error_code, resp.message)}\n")
@@ -603,7 +817,11 @@ def main(argv: list[str] | None = None) -> int:
 
     argv = sys.argv if argv is None else argv
     args = parse_args(remove_ros_args(argv)[1:])
-    return run(args)
+    try:
+        return run(args)
+    except (KeyboardInterrupt, Canceled):   # Ctrl-C before run() took the signal over, or between its steps
+        sys.stderr.write("\nreach_operator: canceled (Ctrl-C)\n")
+        return EXIT["canceled"]
 
 
 if __name__ == "__main__":

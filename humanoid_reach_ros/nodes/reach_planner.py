@@ -62,14 +62,14 @@ from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from humanoid_reach_ros.codes import ARM_CODES, ARM_NAMES, ARM_NONE, ARMS
-from humanoid_reach_ros.geometry.voxels import without_target
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes.common import (LATCHED, RELIABLE_LATEST, LatestOnDemand, ParamSpec, current_joints,
-                                             declare_parameters, run_node)
+                                             declare_parameters, run_node, scene_file_voxels)
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
+from humanoid_reach_ros.scene.planning_scene import UNOBSERVED_POLICIES, PlanningScene, SceneParams
 
 NODE_NAME = "reach_planner"
 E = PlanReach.Response
@@ -115,6 +115,8 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
                                   constraints="one of: occupied, free", read_only=False),
     "unobserved_block_m": ParamSpec(0.1, "edge of the blocks of /voxel_map/unobserved_blocks [m] (voxel_mapper's "
                                     "unobserved_block_voxels * resolution_m)", (0.001, 10.0)),
+    "body_clearance_m": ParamSpec(0.25, "the robot's shapes grown by this, at the start of every request, count as "
+                                  "observed free space in the planning scene [m]", (0.0, 1.0)),
     "joint_states_timeout_s": ParamSpec(0.5, "/joint_states older than this [s] -> NO_JOINT_STATES",
                                         (0.001, 3600.0), read_only=False),
     "target_timeout_s": ParamSpec(1.0, "/target_pose older than this [s] -> NO_TARGET for use_marker_target",
@@ -126,13 +128,20 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
 
 PARAMETERS: dict[str, ParamSpec] = {**PLANNER_PARAMETERS, **NODE_PARAMETERS}
 HAND_LIMBS = {"right": "right_arm", "left": "left_arm"}
-UNOBSERVED_POLICIES = ("occupied", "free")
 
 
 def planner_params(values: dict[str, Any]) -> PlannerParams:
     """``PlannerParams`` from the declared parameters (fields ``PlannerParams`` lacks are left out)."""
     known = {f.name for f in dataclasses.fields(PlannerParams)}
     return PlannerParams(**{k: values[k] for k in PLANNER_PARAMETERS if k in known})
+
+
+def scene_params(values: dict[str, Any]) -> SceneParams:
+    """The planning scene's policies from the declared parameters."""
+    return SceneParams(resolution_m=values["resolution_m"], safety_margin_m=values["safety_margin_m"],
+                       target_exclusion_radius_m=values["target_exclusion_radius_m"],
+                       unobserved_space=values["unobserved_space"], unobserved_block_m=values["unobserved_block_m"],
+                       body_clearance_m=values["body_clearance_m"])
 
 
 @dataclass
@@ -175,7 +184,12 @@ class ReachPlannerNode(Node):
             raise ValueError("goal_count must be >= 1 and marker_path_points >= 2")
         self.map_frame: str = p["map_frame"]
         self.model = RobotModel(p["robot_config"])            # node-side FK (waist, markers)
-        self.planner = ReachPlanner(RobotModel(p["robot_config"]), planner_params(p))
+        robot = RobotModel(p["robot_config"])
+        self.scene = PlanningScene(robot, scene_params(p))      # the world model, fed by the subscriptions
+        from humanoid_reach_ros.control.gaze import GazeSolver   # UNOBSERVABLE_SPACE: no reachable gaze sees it
+        gaze = GazeSolver(RobotModel(p["robot_config"]))
+        self.planner = ReachPlanner(robot, planner_params(p), scene=self.scene,
+                                    observable=lambda joints, points: gaze.observable(joints, points))
         t0 = time.perf_counter()
         warm = self.planner.warm_up()  # compiled kernels before the first request (cache: tools/setup.sh)
         self.get_logger().info(f"planning kernels warmed up in {1e3 * (time.perf_counter() - t0):.0f} ms; goal "
@@ -186,11 +200,6 @@ class ReachPlannerNode(Node):
         self.hardware_id = self.model.name
 
         self._plan_lock = threading.Lock()   # one request at a time; a second one gets BUSY
-        self._state_lock = threading.Lock()  # the map layers (occupied, frontier, blocks) and what was carved
-        self._map_points: np.ndarray | None = None   # the last /voxel_map (uncarved)
-        self._frontier: np.ndarray | None = None     # the last /voxel_map/unobserved
-        self._blocks: np.ndarray | None = None       # the last /voxel_map/unobserved_blocks
-        self._carved_for: tuple | None = None          # (map, target, ...) the planner's map is prepared for
         self.map_info = MapInfo()
         self.requests = self.successes = self.busy_rejections = 0
         self.last: PlanResult | None = None
@@ -198,8 +207,10 @@ class ReachPlannerNode(Node):
 
         if p["scene_file"]:
             path = config_path(p["scene_file"])
-            build_s = self.planner.set_map_from_scene(str(path), exclude_groups=tuple(p["scene_exclude_groups"]))
-            self.map_info = MapInfo(f"scene file {path}", int(self.planner.map_voxels), float(build_s))
+            voxels = scene_file_voxels(str(path), p["resolution_m"], tuple(p["scene_exclude_groups"]))
+            self.scene.set_occupied(voxels, source=f"scene file {path}")
+            build_s = self.scene.snapshot().tree()[1]
+            self.map_info = MapInfo(f"scene file {path}", int(len(voxels)), float(build_s))
             self.get_logger().info(
                 f"map source: scene file {path} ({self.map_info.voxels} voxels without groups "
                 f"{list(p['scene_exclude_groups'])}, built in {build_s * 1e3:.1f} ms); a /voxel_map replaces it")
@@ -245,9 +256,8 @@ class ReachPlannerNode(Node):
             cloud = msgs.points_from_cloud(msg)
             if cloud.frame_id not in ("", self.map_frame):
                 raise ValueError(f"frame_id {cloud.frame_id!r} is not the map frame {self.map_frame!r}")
-            build_s = float(self.planner.set_map(cloud.points))
-            with self._state_lock:
-                self._map_points, self._carved_for = cloud.points, None
+            self.scene.set_occupied(cloud.points, source="/voxel_map")
+            build_s = 0.0   # the sphere trees are built per request (the target's object left out), then cached
         except Exception as exc:  # malformed cloud or a map the planner refuses: keep the old one
             self.map_info.rejected += 1
             self.map_info.last_rejection = f"{type(exc).__name__}: {exc}"
@@ -259,8 +269,8 @@ class ReachPlannerNode(Node):
         self.map_info = MapInfo("/voxel_map", int(len(cloud.points)), build_s, info.received + 1, info.rejected,
                                 cloud.dropped_nonfinite, info.last_rejection)
         dropped = f", {cloud.dropped_nonfinite} NaN/inf points dropped" if cloud.dropped_nonfinite else ""
-        line = (f"map source: /voxel_map ({self.map_info.voxels} voxels{dropped}, sphere tree built in "
-                f"{build_s * 1e3:.1f} ms; replaces {info.source})")
+        line = (f"map source: /voxel_map ({self.map_info.voxels} voxels{dropped}, planning scene version "
+                f"{self.scene.version}; replaces {info.source})")
         if info.source != "/voxel_map":   # state changes at INFO, repetition at DEBUG
             log.info(line)
         else:
@@ -270,8 +280,8 @@ class ReachPlannerNode(Node):
         self._publish_diagnostics()
 
     def _on_unobserved(self, topic: str, attr: str, msg: PointCloud2) -> None:
-        """/voxel_map/unobserved (the frontier, into ``_frontier``) or /voxel_map/unobserved_blocks
-        (``_blocks``): kept for the next request."""
+        """/voxel_map/unobserved (the frontier) or /voxel_map/unobserved_blocks into the planning
+        scene, for the next request."""
         topic = self.resolve_topic_name(topic)
         try:
             cloud = msgs.points_from_cloud(msg)
@@ -283,57 +293,10 @@ class ReachPlannerNode(Node):
             self.get_logger().warning(f"rejected {topic}: {exc}; keeping the previous one",
                                       throttle_duration_sec=self._p["warn_throttle_s"])
             return
-        with self._state_lock:
-            setattr(self, attr, cloud.points)
-
-    def _unobserved_target(self, target_p: np.ndarray) -> str:
-        """Why the target lies in unobserved space ('' if it does not, or the policy is 'free')."""
-        if self._p["unobserved_space"] != "occupied" or self.map_info.source != "/voxel_map":
-            return ""
-        with self._state_lock:
-            frontier, blocks = self._frontier, self._blocks
-        if frontier is None or blocks is None:
-            return ("no /voxel_map/unobserved(_blocks) received: the map cannot tell observed from unobserved "
-                    "space (is voxel_mapper running? a mapper without them: set unobserved_space:=free)")
-        half = 0.5 * float(self._p["unobserved_block_m"])
-        inside = np.all(np.abs(blocks - target_p) <= half, axis=1) if len(blocks) else np.zeros(0, bool)
-        if np.any(inside):
-            c = np.round(blocks[int(np.argmax(inside))], 2).tolist()
-            return (f"the target {np.round(target_p, 3).tolist()} lies in space the head has not observed (the "
-                    f"{2 * half:g} m block around {c} m): scan first (reach_operator --scan) or look at it (--look)")
-        return ""
-
-    def _carve_target(self, target_p: np.ndarray) -> None:
-        """The planner's map for a request: a measured map without the object at the target
-        (``geometry.voxels.without_target``) and, with ``unobserved_space: occupied``, the
-        frontier of unobserved space (the mapper leaves the robot's own surroundings out of it)
-        without the same object. The sphere trees are rebuilt only when one of these changed."""
-        p = self._p
-        radius = float(p["target_exclusion_radius_m"])
-        with self._state_lock:
-            points, frontier, done = self._map_points, self._frontier, self._carved_for
-        if points is None:
-            return
-        if p["unobserved_space"] != "occupied":
-            frontier = None
-        key = (id(points), id(frontier), radius, *np.round(target_p, 3))
-        if key == done:
-            return
-        kept = without_target(points, target_p, radius)
-        unobserved = None
-        if frontier is not None:
-            unobserved = without_target(frontier, target_p, radius)
-        build_s = float(self.planner.set_map(kept, unobserved))
-        with self._state_lock:
-            if self._map_points is points:
-                self._carved_for = key
-        self.map_info.voxels, self.map_info.build_time_s = int(len(kept)), build_s
-        extra = (f" (and of the {len(frontier)} voxels of the unobserved frontier, {len(unobserved)} kept)"
-                 if unobserved is not None else "")
-        self.get_logger().info(f"/voxel_map: {len(points) - len(kept)} of {len(points)} voxels within "
-                               f"{radius:g} m of the target {np.round(target_p, 3).tolist()} left out (the object "
-                               f"to be reached){extra}; sphere trees rebuilt in {build_s * 1e3:.1f} ms",
-                               throttle_duration_sec=p["warn_throttle_s"])
+        if attr == "_frontier":
+            self.scene.set_unobserved(frontier=cloud.points)
+        else:
+            self.scene.set_unobserved(blocks=cloud.points)
 
     # ------------------------------------------------------------ inputs
     def current_joints(self) -> tuple[np.ndarray | None, str]:
@@ -404,7 +367,7 @@ class ReachPlannerNode(Node):
         result = PlanResult(region=rr.region, joints=joints, waist=waist, execute=rr.execute)
         # Inputs in the order an operator fixes them: the target they asked for, then the robot state.
         target = None
-        if rr.use_marker_target:
+        if rr.use_marker_target and not rr.home:
             target, reason = self.current_target()
             if target is None:
                 result.code, result.message = E.NO_TARGET, reason
@@ -422,13 +385,8 @@ class ReachPlannerNode(Node):
             result.code = E.NO_MAP
             result.message = "no environment map: no /voxel_map received and no scene_file"
             return result
-        why = self._unobserved_target(result.region.target_p)
-        if why:
-            result.code, result.message = E.UNOBSERVED_SPACE, why
-            return result
-        self._carve_target(result.region.target_p)
         plan_request = PlanRequest(region=result.region, arm=rr.arm, goal_count=rr.goal_count, planner=rr.planner,
-                                   time_budget_s=rr.time_budget_s, seed=rr.seed)
+                                   time_budget_s=rr.time_budget_s, seed=rr.seed, home=rr.home)
         outcome = self.planner.plan(joints, plan_request)
         result.outcome = outcome
         result.code, result.message = int(outcome.error), str(outcome.message)
@@ -453,6 +411,9 @@ class ReachPlannerNode(Node):
         if resp.success:
             resp.trajectory = msgs.joint_trajectory(out.joint_names, out.times, out.positions, out.velocities,
                                                     out.accelerations, self.map_frame, stamp)
+        resp.retreat = str(getattr(out, "retreat", "") or "")
+        pts = getattr(out, "unobserved_points", None)
+        resp.unobserved_points = msgs.points_list(pts) if pts is not None else []
 
     def _log_request(self, n: int, resp: PlanReach.Response, total_s: float, published: bool, ran: bool) -> None:
         """One INFO line per request (ERROR for INTERNAL_ERROR): outcome, times, sizes, message."""
@@ -583,6 +544,7 @@ class ReachPlannerNode(Node):
     def _apply_parameters(self, params) -> None:
         for prm in params:
             self._p[prm.name] = prm.value
+        self.scene.set_params(scene_params(self._p))   # the scene's policies follow (a new version)
 
 
 def main(args: list[str] | None = None) -> int:

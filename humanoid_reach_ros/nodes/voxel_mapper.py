@@ -134,7 +134,7 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
                                             "integrated depth map, integrate at most one per this period [s] (a "
                                             "static view adds nothing new; a changed scene still shows within it); "
                                             "0 = every depth map", (0.0, 60.0)),
-    "unobserved_region_min_m": ParamSpec([0.0, -1.0, 0.1], "box where the frontier of unobserved space is "
+    "unobserved_region_min_m": ParamSpec([-1.0, -1.0, 0.1], "box where the frontier of unobserved space is "
                                          "published (/voxel_map/unobserved): the robot's reach [m, map_frame]"),
     "unobserved_region_max_m": ParamSpec([1.3, 1.0, 2.0], "... its upper corner [m, map_frame]"),
     "unobserved_robot_clearance_m": ParamSpec(0.25, "space within this distance of the robot's collision shapes, at "

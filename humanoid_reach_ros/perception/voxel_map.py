@@ -83,7 +83,7 @@ class FusionParams:
     """
 
     resolution_m: float = 0.02
-    extent_min_m: Vec3 = (-0.5, -1.0, -0.05)
+    extent_min_m: Vec3 = (-1.0, -1.0, -0.05)
     extent_max_m: Vec3 = (1.5, 1.0, 2.0)
     hit_weight: float = 1.0
     free_weight: float = 0.5

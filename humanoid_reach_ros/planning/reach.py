@@ -47,13 +47,13 @@ import numpy as np
 import pinocchio as pin
 
 from humanoid_reach_ros.geometry.distance import RobotCollision
-from humanoid_reach_ros.geometry.sphere_tree import SphereTree
 from humanoid_reach_ros.planning.goal_sampler import Goals, sample_goals
 from humanoid_reach_ros.planning.trunk_region import TrunkRegion, TrunkSampler
 from humanoid_reach_ros.planning.path import (
     PLANNER_NAMES, PlanningSpace, PlanStatus, ShortcutOptions, plan as run_planner, shortcut_path,
 )
 from humanoid_reach_ros.planning.plan_check import PlanChecker
+from humanoid_reach_ros.planning.retreat import Retreat, RetreatParams, RetreatPlanner
 from humanoid_reach_ros.codes import ARM_CODES, ARM_LEFT, ARM_NAMES, ARM_REQUESTS, ARM_RIGHT, PlanError
 from humanoid_reach_ros.planning.projector import LEGS, Projector, quat_xyzw_matrix
 from humanoid_reach_ros.geometry.trajectory import SplineTrajectory, TrajectoryOptions
@@ -61,6 +61,7 @@ from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion, matrix_rpy
 from humanoid_reach_ros.robot.limb_ik import LimbIKSet
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 from humanoid_reach_ros.robot.shapes import load_collision_model
+from humanoid_reach_ros.scene.planning_scene import PlanningScene, SceneParams, SceneSnapshot
 
 STAT_KEYS = (
     "goal_sampling_time_s", "goals_requested", "goals_found", "goals_right_arm", "goals_left_arm", "samples",
@@ -187,12 +188,14 @@ class PlanRequest:
     """One reach request. ``region`` is in the world frame; ``None`` fields take the
     :class:`PlannerParams` value."""
 
-    region: WorkspaceGoalRegion
+    region: WorkspaceGoalRegion | None
     arm: str = "auto"
     goal_count: int | None = None
     planner: str | None = None
     time_budget_s: float | None = None
     seed: int | None = None
+    home: bool = False              # plan back to the rest posture (region, arm, goal_count ignored)
+    approach: np.ndarray | None = None   # (3,) the hand's last approach direction (retreat: reverse it first)
 
 
 @dataclass
@@ -223,6 +226,9 @@ class PlanOutcome:
     goal_arms: np.ndarray | None = None
     goal_index: int | None = None
     trajectory: SplineTrajectory | None = None
+    retreat: str = ""                        # the retreat planned first when the start touched the map
+    unobserved_points: np.ndarray | None = None   # (K, 3) where the target / best path meets unobserved space
+    scene_version: int = 0
 
 
 def _empty_stats() -> dict:
@@ -237,10 +243,11 @@ def _finite(a) -> bool:
 
 
 class _Failure(Exception):
-    def __init__(self, error: PlanError, message: str) -> None:
+    def __init__(self, error: PlanError, message: str, **extra) -> None:
         super().__init__(message)
         self.error = error
         self.message = message
+        self.extra = extra
 
 
 class ReachPlanner:
@@ -256,20 +263,29 @@ class ReachPlanner:
     """
 
     def __init__(self, robot: RobotModel | None = None, params: PlannerParams = PlannerParams(),
-                 compiled_kinematics: bool = True, early_exit_checks: bool = True) -> None:
+                 compiled_kinematics: bool = True, early_exit_checks: bool = True,
+                 scene: PlanningScene | None = None, retreat: RetreatParams = RetreatParams(),
+                 observable=None) -> None:
         self.robot = RobotModel() if robot is None else robot
         self.params = params
-        self.collision_model = load_collision_model(None, self.robot)
+        if scene is None:
+            self.collision_model = load_collision_model(None, self.robot)
+            scene = PlanningScene(self.robot, SceneParams(resolution_m=params.resolution_m,
+                                                          safety_margin_m=params.safety_margin_m),
+                                  self.collision_model)
+        else:
+            self.collision_model = scene.collision_model
+        self.scene = scene
+        self.retreat_planner = RetreatPlanner(self.robot, self.collision_model, retreat)
+        #: ``observable(joints (n,), points (K, 3)) -> (K,) bool``: whether some reachable gaze of the
+        #: head camera sees each point (control/gaze.py); None: every point counts as observable
+        self.observable = observable
+        self._last_plan_end: tuple[np.ndarray, np.ndarray] | None = None   # (joints, hand approach direction)
         self.projector = Projector(self.robot, LimbIKSet(self.robot, compiled=compiled_kinematics))
         self.trunk_region = TrunkRegion(self.projector, params.trunk_z_m, params.trunk_pitch_rad,
                                         params.trunk_roll_rad, params.trunk_yaw_rad)
         self.early_exit_checks = bool(early_exit_checks)
-        self._collision: RobotCollision | None = None
-        self._collision_known: RobotCollision | None = None   # occupied voxels only, when unobserved ones are set
-        self._unobserved_voxels = 0
-        self._map_voxels = 0
         self._tree_build_s = 0.0
-        self._map_lock = threading.Lock()
         self._plan_lock = threading.Lock()
         self._checker_lock = threading.Lock()
         self._checkers: dict = {}   # arm -> (collision, PlanChecker) of the last map used
@@ -278,61 +294,61 @@ class ReachPlanner:
 
     # ------------------------------------------------------------ map
     def set_map(self, voxels: np.ndarray, unobserved: np.ndarray | None = None) -> float:
-        """Occupied voxel centres (N, 3) in the world -> sphere tree; returns its build
-        time [s]. ValueError on a non-(N, 3) or non-finite array; N = 0 is free space.
+        """Occupied voxel centres (N, 3) in the world into the planning scene; returns the build
+        time [s] of its sphere tree. ValueError on a non-(N, 3) or non-finite array; N = 0 is
+        free space. (The scene is the world model; this is the library's shortcut to it.)
 
-        ``unobserved`` (K, 3): voxels of unobserved space the robot must not enter (the
-        mapper's frontier, less the robot's own surroundings), same resolution. Plans avoid
-        them like occupied voxels; a plan that fails only because of them is answered
-        ``UNOBSERVED_SPACE`` (checked against the occupied voxels alone, see :meth:`plan`)."""
+        ``unobserved`` (K, 3): voxels of unobserved space the robot must not enter (a mapper's
+        frontier), same resolution. Plans avoid them like occupied voxels; a plan that fails
+        only because of them is answered ``UNOBSERVED_SPACE`` (checked against the occupied
+        voxels alone, see :meth:`plan`)."""
         V = _voxel_array(voxels, "voxels")
         U = None if unobserved is None else _voxel_array(unobserved, "unobserved voxels")
-        t0 = time.perf_counter()
-        h, margin = self.params.resolution_m, self.params.safety_margin_m
-        tree = SphereTree.from_voxels(np.ascontiguousarray(V), h, margin)
-        known = None
-        if U is not None and len(U):
-            known = RobotCollision(self.robot, self.collision_model, tree)
-            tree = SphereTree.from_voxels(np.ascontiguousarray(np.vstack([V, U])), h, margin)
-        dt = time.perf_counter() - t0
-        collision = RobotCollision(self.robot, self.collision_model, tree)
-        with self._map_lock:
-            self._collision = collision
-            self._collision_known = known
-            self._map_voxels = len(V)
-            self._unobserved_voxels = 0 if known is None else len(U)
-            self._tree_build_s = dt
+        self.scene.set_occupied(V, source="set_map")
+        if U is None:
+            self.scene.forget_unobserved()
+        else:
+            self.scene.set_unobserved(U, np.zeros((0, 3)))
+        snap = self.scene.snapshot()
+        _, dt = snap.tree(None, snap.avoids_unobserved)
+        self._tree_build_s = dt
         return dt
 
-    def set_map_from_scene(self, scene_path: str, exclude_groups=("valve",)) -> float:
-        """Voxelize a scene YAML at ``resolution_m`` (without ``exclude_groups``) and :meth:`set_map`."""
-        from humanoid_reach_ros.sim.scene import load_scene
-
-        scene = load_scene(scene_path)
-        return self.set_map(scene.voxelize(self.params.resolution_m, exclude_groups=tuple(exclude_groups)))
-
     def clear_map(self) -> None:
-        with self._map_lock:
-            self._collision = self._collision_known = None
-            self._map_voxels = self._unobserved_voxels = 0
+        self.scene.clear()
 
     @property
     def has_map(self) -> bool:
-        return self._collision is not None
+        return self.scene.has_map
 
     @property
     def map_voxels(self) -> int:
-        return self._map_voxels
+        return int(len(self.scene.snapshot().occupied))
 
     @property
     def unobserved_voxels(self) -> int:
         """Unobserved voxels the current map makes the robot avoid (0: none)."""
-        return self._unobserved_voxels
+        snap = self.scene.snapshot()
+        return int(len(snap.frontier)) if snap.avoids_unobserved else 0
 
     @property
     def collision(self) -> RobotCollision | None:
         """The current robot-vs-map checker (``None`` without a map)."""
-        return self._collision
+        snap = self.scene.snapshot()
+        if not snap.has_map:
+            return None
+        return snap.collision(self.robot, self.collision_model, None, snap.avoids_unobserved)[0]
+
+    def _scene_collision(self, snap: SceneSnapshot, target: np.ndarray | None,
+                         ) -> tuple[RobotCollision, RobotCollision | None, float]:
+        """The plan's checker (occupied voxels, and the unobserved frontier when avoided, without
+        the object at ``target``), the occupied-only checker when they differ, the build time."""
+        full, dt = snap.collision(self.robot, self.collision_model, target, snap.avoids_unobserved)
+        known = None
+        if snap.avoids_unobserved and len(snap.frontier):
+            known, dt2 = snap.collision(self.robot, self.collision_model, target, False)
+            dt += dt2
+        return full, known, dt
 
     # ------------------------------------------------------------ start
     def start_config(self, start_joints: np.ndarray) -> np.ndarray:
@@ -357,7 +373,7 @@ class ReachPlanner:
     def colliding_shapes(self, q: np.ndarray, collision: RobotCollision | None = None) -> list[str]:
         """Names of the robot shapes in collision at ``q``: ``"shape"`` (environment) and
         ``"a<->b"`` (self pairs)."""
-        collision = self._collision if collision is None else collision
+        collision = self.collision if collision is None else collision
         if collision is None:
             return []
         P0, P1 = collision.world_shapes(q)
@@ -374,7 +390,7 @@ class ReachPlanner:
         current map? ``(ok, reason)``."""
         try:
             j = self._validate_joints(start_joints)
-            collision = self._collision
+            collision = self.collision
             if collision is None:
                 return False, "no map received yet"
             q = self.start_config(j)
@@ -541,60 +557,119 @@ class ReachPlanner:
 
     # ------------------------------------------------------------ plan
     def plan(self, start_joints: np.ndarray, request: PlanRequest) -> PlanOutcome:
-        """Plan a reach from ``start_joints`` (30,) for ``request``; never raises."""
+        """Plan a reach (or, with ``request.home``, the way back to the rest posture) from
+        ``start_joints`` (30,) in the planning scene as it is now; never raises. The start
+        posture's body is marked in the scene as observed free space first."""
         if not self._plan_lock.acquire(blocking=False):
             return self._fail(PlanError.BUSY, "another plan is running", _empty_stats())
         t0 = time.perf_counter()
         stats = _empty_stats()
-        with self._map_lock:   # the plan and its unobserved-space check use the maps it started with
-            full, known = self._collision, self._collision_known
+        snap = None
         try:
             try:
-                outcome = self._plan(start_joints, request, stats, t0, collision=full)
+                self._request_values(request)
+                joints = self._validate_joints(start_joints)
+                self.scene.mark_body(joints)
+                snap = self.scene.snapshot()   # the plan and its unobserved-space check use this one
+                outcome = self._plan(joints, request, stats, t0, snap)
             except _Failure as e:
-                outcome = self._fail(e.error, e.message, stats, t0)
-            return self._unobserved_check(outcome, start_joints, request, t0, full, known)
+                outcome = self._fail(e.error, e.message, stats, t0, **e.extra)
+            if snap is not None:
+                outcome = self._unobserved_check(outcome, start_joints, request, t0, snap)
+                outcome.scene_version = snap.version
+            if outcome.success:
+                self._remember_end(outcome)
+            return outcome
         except _Failure as e:
-            return self._fail(e.error, e.message, stats, t0)
+            return self._fail(e.error, e.message, stats, t0, **e.extra)
         except Exception as e:  # noqa: BLE001 -- the service must answer
             return self._fail(PlanError.INTERNAL_ERROR,
                               f"internal error: {type(e).__name__}: {e} ({traceback.format_exc(limit=3)!r})", stats, t0)
         finally:
             self._plan_lock.release()
 
+    def _remember_end(self, outcome: PlanOutcome) -> None:
+        """The end of a successful plan and its hand's last approach direction (the reverse is the
+        first retreat tried when the next plan starts there)."""
+        if outcome.arm is None or outcome.positions is None or len(outcome.positions) < 2:
+            return
+        tip = self.robot.limbs[f"{outcome.arm}_arm"].tip
+        end = np.asarray(outcome.positions[-1], float)
+        p_end = self.robot.frame_pose(self.start_config(end), tip).translation
+        for j in np.asarray(outcome.positions, float)[::-1]:
+            d = p_end - self.robot.frame_pose(self.start_config(j), tip).translation
+            if np.linalg.norm(d) >= 0.03:
+                self._last_plan_end = (end.copy(), d / np.linalg.norm(d))
+                return
+
+    def _approach_at(self, joints: np.ndarray, request: PlanRequest) -> np.ndarray | None:
+        if request.approach is not None:
+            return np.asarray(request.approach, float)
+        last = self._last_plan_end
+        if last is not None and np.max(np.abs(last[0] - joints)) < 0.02:
+            return last[1]
+        return None
+
     def _unobserved_check(self, outcome: PlanOutcome, start_joints, request: PlanRequest, t0: float,
-                          full: RobotCollision | None, known: RobotCollision | None) -> PlanOutcome:
+                          snap: SceneSnapshot) -> PlanOutcome:
         """A plan that failed (no goal, no path, budget spent) while unobserved voxels were
         avoided is tried again on the occupied voxels alone (``unobserved_check_budget_s``):
         if that succeeds, unobserved space is what stands in the way: ``UNOBSERVED_SPACE``,
-        naming the robot shapes and where the permissive plan would cross it. ``full`` is the
-        map the plan used (occupied + unobserved voxels), ``known`` the occupied voxels alone."""
-        if known is None or outcome.success or outcome.error not in (PlanError.NO_GOAL_FOUND, PlanError.NO_PATH):
+        naming the robot shapes and where the permissive plan crosses it (``unobserved_points``:
+        where to look). When no reachable gaze sees any of those points: ``UNOBSERVABLE_SPACE``."""
+        if outcome.success or outcome.error not in (PlanError.NO_GOAL_FOUND, PlanError.NO_PATH):
             return outcome
+        if not (snap.avoids_unobserved and len(snap.frontier)):
+            return outcome
+        joints = self._validate_joints(start_joints)
+        target = None if request.home or request.region is None else request.region.target_p
+        full, known, _ = self._scene_collision(snap, target)
         check = replace(request, time_budget_s=self.params.unobserved_check_budget_s)
         try:
-            other = self._plan(start_joints, check, _empty_stats(), time.perf_counter(), collision=known)
+            other = self._plan(joints, check, _empty_stats(), time.perf_counter(), snap, collisions=(known, None))
         except _Failure:
             return outcome
         if not other.success:
             return outcome
-        where = "somewhere along it"
+        names = list(self.collision_model.names)
+        points, where = [], "somewhere along it"
         for j in other.positions:
             q = self.start_config(j)
-            if not full.check(q):
-                occupied = set(self.colliding_shapes(q, known))
-                shapes = [n for n in self.colliding_shapes(q, full) if n not in occupied]
-                P0, P1 = full.world_shapes(q)
-                names = list(self.collision_model.names)
-                mids = [(P0[names.index(n)] + P1[names.index(n)]) / 2 for n in shapes if n in names]
-                at = f" around {np.round(np.mean(mids, axis=0), 2).tolist()} m" if mids else ""
-                where = f"the {', '.join(shapes) or 'robot'} would enter it{at}"
-                break
+            if full.check(q):
+                continue
+            occupied = set(self.colliding_shapes(q, known))
+            shapes = [n for n in self.colliding_shapes(q, full) if n not in occupied and n in names]
+            if not shapes:
+                continue
+            P0, P1 = full.world_shapes(q)
+            mid = np.mean([(P0[names.index(n)] + P1[names.index(n)]) / 2 for n in shapes], axis=0)
+            if not points:
+                where = f"the {', '.join(shapes)} would enter it around {np.round(mid, 2).tolist()} m"
+            if all(np.linalg.norm(mid - p) > 0.1 for p in points):
+                points.append(mid)
+        pts = np.array(points).reshape(-1, 3)
+        what = "the way home" if request.home else f"a {other.arm}-arm plan"
+        return self._unobserved_failure(
+            joints, pts, f"{outcome.error.name} while avoiding unobserved space ({len(snap.frontier)} frontier "
+                         f"voxels), but {what} exists through it: {where}", outcome.message,
+            dict(outcome.stats or {}), t0)
+
+    def _unobserved_failure(self, joints: np.ndarray, points: np.ndarray, what: str, was: str, stats: dict,
+                            t0: float) -> PlanOutcome:
+        """``UNOBSERVED_SPACE`` with the points to look at, or ``UNOBSERVABLE_SPACE`` when no
+        reachable gaze of the head camera sees any of them."""
+        seen = None if self.observable is None or not len(points) else np.asarray(self.observable(joints, points))
+        was = f" (was: {was})" if was else ""
+        if seen is not None and not np.any(seen):
+            return self._fail(PlanError.UNOBSERVABLE_SPACE,
+                              f"{what}; no reachable gaze of the head camera (head and chest within their limits) "
+                              f"sees {np.round(points, 2).tolist()} m: the robot cannot observe that space from "
+                              f"where it stands. Move the target or the robot, or plan through it with "
+                              f"unobserved_space:=free at your own risk{was}", stats, t0, unobserved_points=points)
         return self._fail(PlanError.UNOBSERVED_SPACE,
-                          f"{outcome.error.name} while avoiding unobserved space ({self._unobserved_voxels} frontier "
-                          f"voxels), but a {other.arm}-arm plan exists through it: {where}. Scan first (reach_operator "
-                          f"--scan) or look there (--look); unobserved_space:=free plans through it "
-                          f"(was: {outcome.message})", dict(outcome.stats or {}), t0)
+                          f"{what}: look there (reach_operator looks by itself unless --no-auto-look; by hand "
+                          f"--look YAW PITCH) or scan (--scan); unobserved_space:=free plans through it{was}",
+                          stats, t0, unobserved_points=points)
 
     def _fail(self, error: PlanError, message: str, stats: dict, t0: float | None = None, **kw) -> PlanOutcome:
         if t0 is not None:
@@ -606,11 +681,15 @@ class ReachPlanner:
         if not isinstance(request, PlanRequest):
             raise _Failure(PlanError.INVALID_REQUEST, "request must be a PlanRequest")
         region = request.region
-        if not isinstance(region, WorkspaceGoalRegion):
+        if request.approach is not None and not (_finite(request.approach) and np.shape(request.approach) == (3,)):
+            raise _Failure(PlanError.INVALID_REQUEST, "request.approach must be a finite 3-vector or None")
+        if request.home:
+            region = None
+        elif not isinstance(region, WorkspaceGoalRegion):
             raise _Failure(PlanError.INVALID_REQUEST, "request.region must be a WorkspaceGoalRegion")
-        if not all(_finite(a) for a in (region.target_p, region.target_R, region.lower, region.upper)):
+        elif not all(_finite(a) for a in (region.target_p, region.target_R, region.lower, region.upper)):
             raise _Failure(PlanError.INVALID_REQUEST, "target region contains NaN/inf")
-        if np.any(np.asarray(region.lower) > np.asarray(region.upper)):
+        elif np.any(np.asarray(region.lower) > np.asarray(region.upper)):
             raise _Failure(PlanError.INVALID_BOUNDS, "target region has lower > upper")
         arm = "auto" if request.arm in (None, "") else request.arm
         if arm not in ARM_REQUESTS:
@@ -629,28 +708,43 @@ class ReachPlanner:
             raise _Failure(PlanError.INVALID_REQUEST, f"seed must be a non-negative integer, got {seed!r}")
         return region, arm, planner, int(n_goals), float(budget), int(seed)
 
-    def _plan(self, start_joints, request: PlanRequest, stats: dict, t0: float,
-              collision: RobotCollision | None = None) -> PlanOutcome:
+    def _plan(self, start_joints, request: PlanRequest, stats: dict, t0: float, snap: SceneSnapshot,
+              collisions: tuple[RobotCollision, RobotCollision | None] | None = None) -> PlanOutcome:
+        """One plan in ``snap`` (``collisions``: the checkers to use instead of the scene's, as
+        ``_unobserved_check`` does): checks, the retreat from a contact, then a reach (goal
+        sampling + path) or the way home."""
         p = self.params
         region, arm_req, planner, n_goals, budget, seed = self._request_values(request)
         joints = self._validate_joints(start_joints)
-        out_of_reach = self.trunk_region.out_of_reach(region, arm_req)
-        if out_of_reach:
-            raise _Failure(PlanError.TARGET_OUT_OF_REACH,
-                           f"target out of reach ({out_of_reach}): move the target closer or walk the robot nearer")
-        with self._map_lock:
-            n_vox, build_s = self._map_voxels, self._tree_build_s
-            collision = self._collision if collision is None else collision
-        stats["map_voxels"] = n_vox
-        stats["sphere_tree_build_time_s"] = build_s
-        if collision is None:
+        if region is not None:
+            out_of_reach = self.trunk_region.out_of_reach(region, arm_req)
+            if out_of_reach:
+                raise _Failure(PlanError.TARGET_OUT_OF_REACH,
+                               f"target out of reach ({out_of_reach}): move the target closer or walk the robot nearer")
+        stats["map_voxels"] = int(len(snap.occupied))
+        if not snap.has_map:
             raise _Failure(PlanError.NO_MAP, "no map received yet")
+        if region is not None and collisions is None:
+            why = snap.unobserved_target(region.target_p)
+            if why and not snap.knows_unobserved:
+                raise _Failure(PlanError.UNOBSERVED_SPACE, why)
+            if why:
+                block = snap.unobserved_block_at(region.target_p)
+                pts = np.asarray(region.target_p, float)[None] if block is None else block[None]
+                out = self._unobserved_failure(joints, pts, why, "", stats, t0)
+                raise _Failure(out.error, out.message, unobserved_points=out.unobserved_points)
+        if collisions is None:
+            collision, known, build_s = self._scene_collision(snap, None if region is None else region.target_p)
+        else:
+            collision, known, build_s = collisions[0], None, 0.0
+        stats["sphere_tree_build_time_s"] = build_s
+        stats["map_voxels"] = int((known or collision).tree.n_spheres)   # occupied, the target's object left out
         c0 = replace(collision.counters)
+        q_first = self.start_config(joints)
+        retreat, joints = self._start_or_retreat(joints, q_first, collision, snap, self._approach_at(joints, request))
         q_start = self.start_config(joints)
-        if not collision.check(q_start):
-            shapes = self.colliding_shapes(q_start, collision)
-            raise _Failure(PlanError.START_IN_COLLISION,
-                           "start posture in collision: " + (", ".join(shapes) if shapes else "unknown shapes"))
+        prefix = q_first[None] if retreat is None else np.array([self.start_config(j) for j in retreat.joints])
+        retreat_kw = {} if retreat is None else {"retreat": retreat.describe()}
         deadline = t0 + budget
         rng = np.random.default_rng(seed)
 
@@ -658,6 +752,10 @@ class ReachPlanner:
             c1 = collision.counters
             stats["collision_checks"] = c1.checks - c0.checks
             stats["collision_time_s"] = (c1.check_time_s - c0.check_time_s) + (c1.fk_time_s - c0.fk_time_s)
+
+        if region is None:
+            return self._plan_home(joints, q_start, prefix, collision, rng, planner, deadline, stats, t0,
+                                   collision_stats, retreat_kw)
 
         # ---- goal postures (Algorithm 1)
         tg = time.perf_counter()
@@ -681,11 +779,15 @@ class ReachPlanner:
         goal_kw = dict(goals=goals.q if len(goals) else None, goal_arms=goals.arm if len(goals) else None)
         if len(goals) == 0:
             f = gs.ik_failures
+            tried = "either arm (right and left tried)" if arm_req == "auto" else f"the {arm_req} arm"
+            other = "" if arm_req == "auto" else \
+                f", try the other arm (--arm {'left' if arm_req == 'right' else 'right'})"
             hint = (f"all {gs.n_in_collision} postures the IK found collide: the target may be enclosed "
                     "(check /voxel_map there) or the region too tight (--wgr-deg)" if gs.n_in_collision else
-                    "widen the region (--wgr-deg), try the other arm (--arm) or raise --budget")
+                    f"widen the region (--wgr-deg){other} or raise --budget")
             raise _Failure(PlanError.NO_GOAL_FOUND,
-                           f"no balanced, collision-free goal posture found in {stats['goal_sampling_time_s']:.2f} s "
+                           f"no balanced, collision-free goal posture for {tried} found in "
+                           f"{stats['goal_sampling_time_s']:.2f} s "
                            f"({gs.n_samples} samples over {trunk.describe()}; IK failures arm right/left "
                            f"{f['right_arm']}/{f['left_arm']}, leg right/left {f['right_leg']}/{f['left_leg']}; "
                            f"{gs.n_in_collision} in collision): the target was not proven out of reach; {hint}")
@@ -726,7 +828,7 @@ class ReachPlanner:
             stats["path_planning_time_s"] = time.perf_counter() - tp
             stats["tree_nodes"] = nodes
             Q = self.full_configs(path_plan, arm)
-            Q = np.vstack([q_start[None], pre[1:], Q[1:]]) if len(pre) else np.vstack([q_start[None], Q[1:]])
+            Q = np.vstack([prefix, pre[1:], Q[1:]]) if len(pre) else np.vstack([prefix, Q[1:]])
             out = self._trajectory(Q)
             stats["path_waypoints"] = len(Q)
             collision_stats()
@@ -735,10 +837,11 @@ class ReachPlanner:
             return PlanOutcome(
                 True, PlanError.SUCCESS,
                 f"planned {arm}-arm reach: {len(Q)} waypoints, {out.duration:.1f} s "
-                f"({len(goals)} goals, planning {1e3 * stats['total_time_s']:.0f} ms)",
+                f"({len(goals)} goals, planning {1e3 * stats['total_time_s']:.0f} ms)"
+                + (f"; first a {retreat.describe()}" if retreat is not None else ""),
                 arm, self.robot.joint_names, out.times_out, out.positions, out.velocities, out.accelerations,
-                Q, goals.q, self.robot.base_pose(q_start), stats, waypoint_times=out.waypoint_times,
-                waypoints_plan=path_plan, goal_arms=goals.arm, goal_index=g_idx, trajectory=out.spline)
+                Q, goals.q, self.robot.base_pose(q_first), stats, waypoint_times=out.waypoint_times,
+                waypoints_plan=path_plan, goal_arms=goals.arm, goal_index=g_idx, trajectory=out.spline, **retreat_kw)
         stats["path_planning_time_s"] = time.perf_counter() - tp
         stats["tree_nodes"] = nodes
         collision_stats()
@@ -753,7 +856,117 @@ class ReachPlanner:
                 "the search ended without connecting them: try rrt_connect (--planner) or more --goals")
         stats["total_time_s"] = time.perf_counter() - t0
         return self._fail(PlanError.NO_PATH, f"{len(goals)} goal postures found but no path to any within "
-                                             f"{budget:.2f} s ({why}): {hint}", stats, **goal_kw)
+                                             f"{budget:.2f} s ({why}): {hint}", stats, **goal_kw, **retreat_kw)
+
+    # ------------------------------------------------------------ start, retreat, home
+    def _start_or_retreat(self, joints: np.ndarray, q_start: np.ndarray, collision: RobotCollision,
+                          snap: SceneSnapshot, approach: np.ndarray | None) -> tuple[Retreat | None, np.ndarray]:
+        """The start as it is, or, when a hand touches the map, the end of a retreat
+        (planning/retreat.py). START_IN_COLLISION names the links and the nearest voxels when
+        something else collides, or when no retreat works; a colliding start is never moved at
+        random."""
+        margin = snap.params.safety_margin_m
+        contact, hit = self.retreat_planner.classify_start(q_start, collision.tree, margin)
+        if hit is not None:
+            more = f"; also {contact.describe()}" if contact is not None else ""
+            raise _Failure(PlanError.START_IN_COLLISION,
+                           f"start posture in collision: {hit.describe()}{more}. Only a hand may rest on the map "
+                           "(a retreat is planned for it); move the robot clear (e.g. reach_executor with "
+                           "--no-collision-avoidance is NOT a remedy: check /voxel_map there)")
+        if contact is None:
+            if not collision.check(q_start):
+                shapes = self.colliding_shapes(q_start, collision)
+                raise _Failure(PlanError.START_IN_COLLISION,
+                               "start posture in collision: " + (", ".join(shapes) if shapes else "unknown shapes"))
+            return None, joints
+        retreat, reasons = self.retreat_planner.plan(joints, contact, collision.tree, margin, approach)
+        if retreat is None:
+            raise _Failure(PlanError.START_IN_COLLISION,
+                           f"{contact.describe()} and no retreat of {1e3 * self.retreat_planner.params.min_distance_m:.0f}"
+                           f"-{1e3 * self.retreat_planner.params.max_distance_m:.0f} mm frees it: "
+                           + "; ".join(reasons))
+        end = retreat.joints[-1]
+        if not collision.check(self.start_config(end)):
+            shapes = self.colliding_shapes(self.start_config(end), collision)
+            raise _Failure(PlanError.START_IN_COLLISION,
+                           f"{contact.describe()}; the retreat's end still collides ({', '.join(shapes)})")
+        return retreat, end
+
+    def _plan_home(self, joints, q_start, prefix, collision, rng, planner, deadline, stats, t0, collision_stats,
+                   retreat_kw) -> PlanOutcome:
+        """The way back to the rest posture (the robot description's half-sitting): each arm
+        that is away from it in turn (the farther first) plans in its q_plan space (eq. 2) to
+        the rest posture's plan configuration; the pre-segment brings the other joints to the
+        reference, which is the rest posture's, so the path ends there (a last checked linear
+        segment covers a projection that differs from it)."""
+        rest = np.clip(self.robot.half_sitting_joints, self.robot.lower, self.robot.upper)
+        q_rest = self.start_config(rest)
+        note = f"; first a {retreat_kw['retreat']}" if retreat_kw else ""
+        if np.max(np.abs(joints - rest)) < 1e-4:
+            Q = prefix if len(prefix) > 1 else np.vstack([prefix, prefix])
+            out = self._trajectory(Q)
+            stats["total_time_s"] = time.perf_counter() - t0
+            return PlanOutcome(True, PlanError.SUCCESS, "already at the rest posture" + note, None,
+                               self.robot.joint_names, out.times_out, out.positions, out.velocities,
+                               out.accelerations, Q, None, self.robot.base_pose(prefix[0]), stats,
+                               waypoint_times=out.waypoint_times, trajectory=out.spline, **retreat_kw)
+        away = {arm: float(np.max(np.abs((joints - rest)[list(self.robot.limbs[f"{arm}_arm"].joint_index)])))
+                for arm in ("right", "left")}
+        failures = []
+        tp = time.perf_counter()
+        nodes = 0
+        order = sorted(away, key=lambda a: -away[a])
+        for k_arm, arm in enumerate(order):
+            remaining = deadline - time.perf_counter()
+            if k_arm + 1 < len(order):
+                remaining *= self.params.first_arm_time_fraction
+            if remaining <= 0:
+                failures.append((arm, PlanStatus.TIMED_OUT))
+                break
+            goal_plan = self.projector.plan_config_of(q_rest, arm)
+            res = self.projector.project_plan_config(goal_plan, arm)
+            if not res.ok[0]:
+                failures.append((arm, "rest posture off the planning manifold"))
+                continue
+            tail = self._pre_segment(q_rest, res.q[0], collision)
+            if tail is None:
+                failures.append((arm, "last segment to the rest posture collides"))
+                continue
+            q_proj_start, start_plan = self._projected_start(q_start, arm)
+            if q_proj_start is None:
+                failures.append((arm, "start_projection"))
+                continue
+            pre = self._pre_segment(q_start, q_proj_start, collision)
+            if pre is None:
+                failures.append((arm, "pre_segment"))
+                continue
+            result, path_plan, n_nodes = self.search_path(
+                arm, start_plan, goal_plan, collision, rng, planner, remaining, None,
+                shortcut_s=lambda: min(self.params.shortcut_time_s, max(0.0, deadline - time.perf_counter())))
+            nodes += n_nodes
+            if path_plan is None:
+                failures.append((arm, result.status))
+                continue
+            Q = self.full_configs(path_plan, arm)
+            parts = [prefix] + [x[1:] for x in (pre, Q, tail[::-1]) if len(x)]
+            Q = np.vstack(parts)
+            Q[-1] = q_rest
+            out = self._trajectory(Q)
+            stats.update(path_planning_time_s=time.perf_counter() - tp, tree_nodes=nodes, path_waypoints=len(Q))
+            collision_stats()
+            stats["total_time_s"] = time.perf_counter() - t0
+            return PlanOutcome(
+                True, PlanError.SUCCESS, f"planned the way home ({arm} arm): {len(Q)} waypoints, "
+                                         f"{out.duration:.1f} s, planning {1e3 * stats['total_time_s']:.0f} ms{note}",
+                arm, self.robot.joint_names, out.times_out, out.positions, out.velocities, out.accelerations,
+                Q, None, self.robot.base_pose(prefix[0]), stats, waypoint_times=out.waypoint_times,
+                waypoints_plan=path_plan, trajectory=out.spline, **retreat_kw)
+        stats.update(path_planning_time_s=time.perf_counter() - tp, tree_nodes=nodes)
+        collision_stats()
+        why = "; ".join(f"{a} arm: {s.value if isinstance(s, PlanStatus) else s}" for a, s in failures)
+        code = PlanError.START_IN_COLLISION if failures and all(
+            s in ("start_projection", "pre_segment") for _, s in failures) else PlanError.NO_PATH
+        return self._fail(code, f"no way home within the budget ({why}): raise --budget", stats, t0, **retreat_kw)
 
     def _projected_start(self, q_start: np.ndarray, arm: str) -> tuple[np.ndarray | None, np.ndarray]:
         start_plan = self.projector.plan_config_of(q_start, arm)[0]
@@ -808,15 +1021,15 @@ class ReachPlanner:
         from humanoid_reach_ros.robot import limb_ik
 
         limb_ik.warm_up()
-        saved = (self._collision, self._map_voxels, self._tree_build_s)
-        try:
+        saved, last = self.scene, self._last_plan_end
+        try:   # a scene of its own: the shared one (fed by a node) is left alone
+            self.scene = PlanningScene(self.robot, saved.params, self.collision_model)
             self.set_map(np.array([[5.0, 5.0, 5.0]]))
             out = self.plan(self.robot.half_sitting_joints,
                             PlanRequest(valve_region(), goal_count=1, time_budget_s=float(budget_s)))
             return bool(out.success)
         finally:
-            with self._map_lock:
-                self._collision, self._map_voxels, self._tree_build_s = saved
+            self.scene, self._last_plan_end = saved, last
 
 
 @dataclass(frozen=True, eq=False)

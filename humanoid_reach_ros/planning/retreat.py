@@ -1,0 +1,305 @@
+"""Retreat from a contact: the first stage of a plan that starts with a hand on something.
+
+After a reach the hand rests on (or in) the object it reached: a valve whose voxels are in
+the map. Every plan from there used to fail with ``START_IN_COLLISION``, for either arm
+(the start check, or the pre-segment that moves the trunk and the other arm to the planning
+manifold dragging the hand through the object). MoveIt 2 refuses such a start
+(CheckStartStateCollision; its old random "jiggle" moved arms 10-40 cm); MoveIt Task
+Constructor plans an explicit retreat stage (MoveRelative, 0.12-0.25 m). This module is
+that stage for a humanoid:
+
+1. **Contact** (:meth:`RetreatPlanner.classify_start`): the start is *in contact* when a
+   shape of a hand (:func:`hand_shape_mask`: forearm, wrist and hand, the links below the
+   elbow) is within ``contact_distance_m`` (5 cm) of the occupied voxels, or penetrates them
+   (a hand at a valve's centre is 3.5 cm from the ring's voxels, enclosed by them). Any other shape that
+   penetrates the map makes the start a real collision: no retreat, the caller answers
+   ``START_IN_COLLISION`` naming the links and the nearest voxels.
+2. **Directions**, in order: the reverse of the approach (when the caller knows it), the
+   contact normal ``n = (p_hand - c) / |p_hand - c|`` with ``c`` the centroid of the
+   voxels within ``contact_radius_m`` of the hand, that normal tilted up, and straight
+   back toward the shoulder.
+3. **Motion** along a direction ``d``: the hand frame moves on the line ``p(s) = p_0 + s d``
+   with its orientation kept, ``s`` in steps of ``step_m`` up to ``max_distance_m``; the
+   arm's joints follow by damped least squares on the hand's 6-D error
+   (``dq = J^T (J J^T + lambda^2 I)^-1 e``, a few iterations a step), every other joint
+   and the base stay (feet fixed; the executor's exact-COG task compensates the arm's
+   mass). A named simplification: the trunk does not help the retreat.
+4. **Checks** at every step: joint limits; no shape other than the hand's penetrates the
+   map; the hand's shapes touch only the voxels within ``contact_radius_m`` of the contact
+   (the allowed contact) and their clearance to those voxels never decreases by more than
+   ``clearance_tolerance_m``; the motion ends at the first step beyond
+   ``min_distance_m`` where the whole robot is collision-free with the planning margin and the
+   retreating shapes have ``end_clearance_m`` beyond it.
+
+The result is a joint path (waypoints) that the planner puts before the normal plan; the
+executor follows it like any other part (it leaves the voxels around the hand's start out
+of its own map, as it always did for a motion starting at the object it reached).
+No ROS here.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from humanoid_reach_ros.geometry.sphere_tree import SphereTree
+from humanoid_reach_ros.robot.model import N_BASE_Q, N_BASE_V, RobotModel
+from humanoid_reach_ros.robot.shapes import CollisionModel
+
+ARM_LIMBS = {"right": "right_arm", "left": "left_arm"}
+
+
+@dataclass(frozen=True)
+class RetreatParams:
+    """Contact and retreat thresholds [m] (module doc)."""
+
+    contact_distance_m: float = 0.05
+    contact_radius_m: float = 0.15      # = the executor's target_exclusion_radius_m: the object it let the hand into
+    min_distance_m: float = 0.05
+    max_distance_m: float = 0.25
+    step_m: float = 0.01
+    end_clearance_m: float = 0.02
+    clearance_tolerance_m: float = 0.002
+    damping: float = 1e-3
+    iterations: int = 4
+
+    def __post_init__(self) -> None:
+        for name in ("contact_distance_m", "contact_radius_m", "min_distance_m", "max_distance_m", "step_m"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"RetreatParams.{name} must be finite and > 0, got {v}")
+        if self.min_distance_m > self.max_distance_m:
+            raise ValueError("RetreatParams.min_distance_m must be <= max_distance_m")
+
+
+@dataclass(frozen=True, eq=False)
+class Contact:
+    """The start touches the map with ``arm``'s hand: its shapes ``shapes`` (names), the hand
+    frame at ``hand_p``, the contact point ``point`` (nearest voxel centre), the outward
+    ``normal`` (unit) and the voxels within ``contact_radius_m`` of the hand."""
+
+    arm: str
+    shapes: tuple[str, ...]
+    hand_p: np.ndarray
+    point: np.ndarray
+    normal: np.ndarray
+    voxels: np.ndarray
+    distance_m: float
+
+    def describe(self) -> str:
+        return (f"the {self.arm} hand ({', '.join(self.shapes)}) touches the map at "
+                f"{np.round(self.point, 3).tolist()} m ({1e3 * self.distance_m:.0f} mm)")
+
+
+@dataclass(frozen=True, eq=False)
+class StartCollision:
+    """Shapes that collide at the start and are not a hand in contact: names and, per shape,
+    the nearest voxel centre [m] and the signed distance [m]."""
+
+    shapes: tuple[str, ...]
+    nearest: tuple[np.ndarray, ...]
+    distances: tuple[float, ...]
+
+    def describe(self) -> str:
+        return "; ".join(f"{n} {1e3 * d:.0f} mm from the voxel at {np.round(p, 3).tolist()} m"
+                         for n, p, d in zip(self.shapes, self.nearest, self.distances))
+
+
+@dataclass(frozen=True, eq=False)
+class Retreat:
+    """A retreat: joint waypoints (K, n) from the start, its direction and length."""
+
+    joints: np.ndarray
+    direction: np.ndarray
+    distance_m: float
+    label: str
+    clearance_m: float
+
+    def describe(self) -> str:
+        return (f"retreat {1e3 * self.distance_m:.0f} mm {self.label} (direction "
+                f"{np.round(self.direction, 2).tolist()}), clearance at its end {1e3 * self.clearance_m:.0f} mm")
+
+
+def hand_shape_mask(robot: RobotModel, cm: CollisionModel, arm: str) -> np.ndarray:
+    """(S,) bool: the shapes below the elbow (forearm, wrist, hand): those the arm's joints from
+    the fourth on move (HRP-2's elbow is its fourth joint, Talos's too). The forearm belongs to
+    the contact: a hand at a valve's centre puts its forearm through the ring's plane (measured
+    after ``make demo``'s reach: HRP-2's forearm 9 mm into the valve's voxels, its hand 28 mm)."""
+    m = robot.model
+    spec = robot.limbs[ARM_LIMBS[arm]]
+    elbow = m.getJointId(spec.joints[3])
+    sub = set(m.subtrees[elbow])
+    link_joint = [m.frames[int(f)].parentJoint for f in cm.frame_ids]
+    return np.array([link_joint[int(cm.shape_link[s])] in sub for s in range(cm.n_shapes)])
+
+
+class RetreatPlanner:
+    """Contact detection and retreat (module doc) for one robot and collision model."""
+
+    def __init__(self, robot: RobotModel, cm: CollisionModel, params: RetreatParams = RetreatParams()) -> None:
+        self.robot = robot
+        self.cm = cm
+        self.params = params
+        self.hand = {arm: hand_shape_mask(robot, cm, arm) for arm in ARM_LIMBS}
+        self._data = robot.model.createData()
+        self._fid = {arm: robot.model.getFrameId(robot.limbs[limb].tip) for arm, limb in ARM_LIMBS.items()}
+        self._cols = {arm: np.array(robot.limbs[limb].joint_index) for arm, limb in ARM_LIMBS.items()}
+
+    # ------------------------------------------------------------ contact
+    def classify_start(self, q: np.ndarray, tree: SphereTree, margin_m: float,
+                       ) -> tuple[Contact | None, StartCollision | None]:
+        """``(contact, collision)`` at the start ``q`` against ``tree`` (voxel spheres grown by
+        ``margin_m``): a hand in contact (None if none), and the other shapes that collide
+        (None if none). Shapes are compared with the map at zero margin for collisions and at
+        ``contact_distance_m`` for the contact."""
+        if tree.n_spheres == 0:
+            return None, None
+        P0, P1, R = self.cm.world_shapes(q)
+        dist, idx = tree.nearest_batch(P0, P1, R)
+        dist = dist + margin_m       # signed distance to the voxels themselves (without the margin)
+        names = self.cm.names
+        hand_any = self.hand["right"] | self.hand["left"]
+        bad = np.flatnonzero((dist < 0) & ~hand_any)
+        collision = None
+        if bad.size:
+            collision = StartCollision(tuple(names[s] for s in bad),
+                                       tuple(self._sphere_centre(tree, int(idx[s])) for s in bad),
+                                       tuple(float(dist[s]) for s in bad))
+        best = None
+        for arm in ARM_LIMBS:
+            hs = np.flatnonzero(self.hand[arm])
+            if not hs.size:
+                continue
+            d = float(np.min(dist[hs]))
+            if d < self.params.contact_distance_m and (best is None or d < best[1]):
+                best = (arm, d)
+        contact = None if best is None else self._contact(q, tree, best[0], P0, P1, R, dist, idx)
+        return contact, collision
+
+    @staticmethod
+    def _sphere_centre(tree: SphereTree, i: int) -> np.ndarray:
+        return np.asarray(tree.centers[i], float).copy()
+
+    def _contact(self, q, tree, arm, P0, P1, R, dist, idx) -> Contact:
+        hs = np.flatnonzero(self.hand[arm])
+        near = hs[dist[hs] < self.params.contact_distance_m]
+        k = near[int(np.argmin(dist[near]))]
+        point = self._sphere_centre(tree, int(idx[k]))
+        hand_p = self.robot.frame_pose(q, self.robot.limbs[ARM_LIMBS[arm]].tip).translation.copy()
+        C = np.asarray(tree.centers, float)
+        voxels = C[np.linalg.norm(C - hand_p, axis=1) <= self.params.contact_radius_m]
+        centroid = voxels.mean(axis=0) if len(voxels) else point
+        n = hand_p - centroid
+        if np.linalg.norm(n) < 1e-6:
+            n = hand_p - point
+        if np.linalg.norm(n) < 1e-6:
+            n = np.array([-1.0, 0.0, 0.0])
+        return Contact(arm, tuple(self.cm.names[s] for s in near), hand_p, point, n / np.linalg.norm(n), voxels,
+                       float(dist[k]))
+
+    # ------------------------------------------------------------ retreat
+    def directions(self, q: np.ndarray, contact: Contact, approach: np.ndarray | None = None,
+                   ) -> list[tuple[str, np.ndarray]]:
+        """Candidate unit directions, in the order they are tried (module doc, step 2)."""
+        out: list[tuple[str, np.ndarray]] = []
+        if approach is not None and np.linalg.norm(approach) > 1e-6:
+            out.append(("against the approach", -np.asarray(approach, float) / np.linalg.norm(approach)))
+        n = contact.normal
+        out.append(("along the contact normal", n))
+        up = n + np.array([0.0, 0.0, 0.7])
+        out.append(("along the normal, upward", up / np.linalg.norm(up)))
+        shoulder = self.robot.frame_pose(q, self.robot.limbs[ARM_LIMBS[contact.arm]].root).translation
+        back = shoulder - contact.hand_p
+        if np.linalg.norm(back) > 1e-6:
+            out.append(("toward the shoulder", back / np.linalg.norm(back)))
+        back_h = np.array([-1.0, 0.0, 0.3]) / math.hypot(1.0, 0.3)
+        out.append(("backward and up", back_h))
+        return out
+
+    def plan(self, joints: np.ndarray, contact: Contact, tree: SphereTree, margin_m: float,
+             approach: np.ndarray | None = None) -> tuple[Retreat | None, list[str]]:
+        """The first retreat that passes every check (module doc) and the reasons the other
+        directions failed."""
+        q0 = self.robot.config(joints, self.robot.base_on_feet(joints))
+        allowed = (SphereTree.from_voxels(contact.voxels, 2.0 * (float(tree.radii[0]) - margin_m))
+                   if len(contact.voxels) else None)
+        reasons = []
+        for label, d in self.directions(q0, contact, approach):
+            r, why = self._along(q0, contact, d, label, tree, margin_m, allowed)
+            if r is not None:
+                return r, reasons
+            reasons.append(f"{label}: {why}")
+        return None, reasons
+
+    def _along(self, q0, contact, d, label, tree, margin_m, allowed) -> tuple[Retreat | None, str]:
+        p = self.params
+        arm = contact.arm
+        fid, cols = self._fid[arm], self._cols[arm]
+        vcols = cols + N_BASE_V
+        qcols = cols + N_BASE_Q
+        model, data = self.robot.model, self._data
+        pin.framesForwardKinematics(model, data, q0)
+        M0 = data.oMf[fid].copy()
+        lo, hi = self.robot.lower[cols], self.robot.upper[cols]
+        hand, other = self.hand[arm], ~self.hand[arm]
+        q = q0.copy()
+        path = [q0[N_BASE_Q:].copy()]
+        prev_clear = self._hand_clearance(q0, allowed, hand)
+        n_steps = int(math.ceil(p.max_distance_m / p.step_m))
+        for k in range(1, n_steps + 1):
+            s = min(k * p.step_m, p.max_distance_m)
+            target = pin.SE3(M0.rotation, M0.translation + s * d)
+            for _ in range(p.iterations):
+                pin.framesForwardKinematics(model, data, q)
+                err = pin.log6(data.oMf[fid].actInv(target)).vector
+                if np.linalg.norm(err) < 1e-6:
+                    break
+                J = pin.computeFrameJacobian(model, data, q, fid, pin.ReferenceFrame.LOCAL)[:, vcols]
+                dq = J.T @ np.linalg.solve(J @ J.T + p.damping * np.eye(6), err)
+                q[qcols] = q[qcols] + dq
+            pin.framesForwardKinematics(model, data, q)
+            e = pin.log6(data.oMf[fid].actInv(target)).vector
+            if np.linalg.norm(e[:3]) > 2e-3 or np.linalg.norm(e[3:]) > 1e-2:
+                return None, f"the arm cannot follow the line beyond {1e3 * (s - p.step_m):.0f} mm (IK)"
+            if np.any(q[qcols] < lo - 1e-9) or np.any(q[qcols] > hi + 1e-9):
+                return None, f"a joint limit at {1e3 * s:.0f} mm"
+            P0, P1, R = self.cm.world_shapes(q)
+            dist = tree.nearest_batch(P0, P1, R)[0] + margin_m
+            if np.any(dist[other] < 0):
+                names = [self.cm.names[i] for i in np.flatnonzero(other & (dist < 0))]
+                return None, f"{', '.join(names)} would touch the map at {1e3 * s:.0f} mm"
+            clear = self._hand_clearance(q, allowed, hand)
+            if clear < prev_clear - p.clearance_tolerance_m:
+                return None, f"the hand's clearance would shrink at {1e3 * s:.0f} mm"
+            prev_clear = max(prev_clear, clear)
+            if np.any(dist[hand] < 0):
+                # the hand may still touch the voxels of the allowed contact, nothing else
+                outside = self._outside_contact(P0, P1, R, hand, tree, margin_m, contact)
+                if outside:
+                    return None, f"the hand would touch voxels away from the contact at {1e3 * s:.0f} mm"
+            path.append(q[N_BASE_Q:].copy())
+            arm_clear = float(np.min(dist[hand])) - margin_m   # the retreating shapes, with the planning margin
+            if s >= p.min_distance_m - 1e-9 and arm_clear >= p.end_clearance_m and np.all(dist >= margin_m):
+                return Retreat(np.array(path), d, s, label, arm_clear), ""
+        return None, f"no clearance of {1e3 * p.end_clearance_m:.0f} mm within {1e3 * p.max_distance_m:.0f} mm"
+
+    def _hand_clearance(self, q, allowed: SphereTree | None, hand: np.ndarray) -> float:
+        if allowed is None or allowed.n_spheres == 0:
+            return math.inf
+        P0, P1, R = self.cm.world_shapes(q)
+        return float(np.min(allowed.nearest_batch(P0[hand], P1[hand], R[hand])[0]))
+
+    def _outside_contact(self, P0, P1, R, hand, tree, margin_m, contact) -> bool:
+        hs = np.flatnonzero(hand)
+        for s in hs:
+            idx, dd = tree.spheres_within(P0[s], P1[s], R[s], 0.0)
+            for i in idx[dd < -1e-9]:
+                c = self._sphere_centre(tree, int(i))
+                if np.linalg.norm(c - contact.hand_p) > self.params.contact_radius_m:
+                    return True
+        return False
+
+
+__all__ = ["RetreatParams", "Contact", "StartCollision", "Retreat", "RetreatPlanner", "hand_shape_mask"]

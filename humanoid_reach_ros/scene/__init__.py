@@ -1,0 +1,1 @@
+"""The planning scene: the one world model (planning_scene.py)."""

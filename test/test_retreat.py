@@ -1,0 +1,90 @@
+"""A session from wherever the robot stands: retreat from a contact, the way home
+(planning/retreat.py, ReachPlanner with ``home``)."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from humanoid_reach_ros.codes import PlanError
+from humanoid_reach_ros.nodes.common import scene_file_voxels
+from humanoid_reach_ros.paths import config_path
+from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner
+from humanoid_reach_ros.planning.wgr import valve_region
+from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.scene.planning_scene import PlanningScene, SceneParams
+
+
+@pytest.fixture(scope="module")
+def planner() -> ReachPlanner:
+    robot = RobotModel()
+    pl = ReachPlanner(robot, PlannerParams(safety_margin_m=0.01))
+    pl.scene = PlanningScene(robot, SceneParams(safety_margin_m=0.01, target_exclusion_radius_m=0.15),
+                             pl.collision_model)
+    # a measured map holds the valve itself: the planner leaves it out around the target only
+    pl.scene.set_occupied(scene_file_voxels(config_path("scenes/plant.yaml"), 0.02, ()), "set_map")
+    return pl
+
+
+@pytest.fixture(scope="module")
+def at_valve(planner) -> np.ndarray:
+    out = planner.plan(planner.robot.half_sitting_joints, PlanRequest(valve_region(), seed=1, time_budget_s=5.0))
+    assert out.success, out.message
+    return out.positions[-1]
+
+
+def test_from_the_valve_a_retreat_comes_first(planner, at_valve) -> None:
+    region = dataclasses.replace(valve_region(), target_p=np.array([0.45, -0.22, 0.86]))
+    out = planner.plan(at_valve, PlanRequest(region, seed=2, time_budget_s=5.0))
+    assert out.success, out.message
+    assert out.retreat.startswith("retreat") and "first a retreat" in out.message
+    np.testing.assert_allclose(out.positions[0], at_valve, atol=1e-9)
+    # the hand leaves the valve first: its distance to where it rested grows over the first samples
+    arm = "right" if planner.robot.frame_pose(planner.start_config(at_valve), planner.robot.hand_frames["right"]
+                                              ).translation[0] > 0.5 else "left"
+    hand = [planner.robot.frame_pose(planner.start_config(j), planner.robot.hand_frames[arm]).translation
+            for j in out.positions[:4]]
+    d = [np.linalg.norm(h - hand[0]) for h in hand]
+    assert d[1] > 0 and d[2] > d[1] and d[3] > d[2], d
+    # and every sample keeps clear of the map but the two objects (the valve it leaves, the new target's)
+    snap = planner.scene.snapshot()
+    check, _ = snap.collision(planner.robot, planner.collision_model, np.vstack([hand[0], region.target_p]))
+    assert all(check.check(planner.start_config(j)) for j in out.positions)
+
+
+def test_home_from_the_valve_ends_at_half_sitting(planner, at_valve) -> None:
+    out = planner.plan(at_valve, PlanRequest(None, home=True, seed=3, time_budget_s=5.0))
+    assert out.success, out.message
+    np.testing.assert_allclose(out.positions[-1], planner.robot.half_sitting_joints, atol=1e-9)
+    assert out.retreat and out.positions[-1].shape == (planner.robot.n_joints,)
+    lo, hi = planner.robot.lower, planner.robot.upper
+    assert np.all((out.positions >= lo - 1e-9) & (out.positions <= hi + 1e-9))
+
+
+def test_home_from_home_is_a_trajectory_at_rest(planner) -> None:
+    out = planner.plan(planner.robot.half_sitting_joints, PlanRequest(None, home=True))
+    assert out.success and "already at the rest posture" in out.message, out.message
+    np.testing.assert_allclose(out.positions, planner.robot.half_sitting_joints[None].repeat(len(out.positions), 0))
+
+
+def test_a_body_in_collision_is_refused_with_links_and_voxels(planner) -> None:
+    robot = planner.robot
+    q = planner.start_config(robot.half_sitting_joints)
+    chest = robot.frame_pose(q, robot.spec.chest_link).translation
+    saved = planner.scene.snapshot().occupied
+    try:
+        planner.scene.set_occupied(np.vstack([saved, chest[None]]), "set_map")
+        out = planner.plan(robot.half_sitting_joints, PlanRequest(None, home=True))
+        assert out.error == PlanError.START_IN_COLLISION, out.message
+        assert "mm from the voxel at" in out.message and "chest" in out.message, out.message
+    finally:
+        planner.scene.set_occupied(saved, "set_map")
+
+
+def test_bad_requests(planner) -> None:
+    out = planner.plan(planner.robot.half_sitting_joints, PlanRequest(None))
+    assert out.error == PlanError.INVALID_REQUEST and "region" in out.message
+    out = planner.plan(planner.robot.half_sitting_joints,
+                       PlanRequest(valve_region(), approach=np.array([np.nan, 0.0, 0.0])))
+    assert out.error == PlanError.INVALID_REQUEST and "approach" in out.message
