@@ -422,6 +422,13 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
     traj_pub.publish(backward)
     line = wait_log(ros_probe, ex, r"/reach_trajectory #4: SUCCESS at progress 1\.00", 60.0)
     print(line)
+
+    def held_after_motion():   # the probe's queue may still hold motion commands when the log line arrives
+        Jm, _ = command_array(commands, model, n1)
+        return len(Jm) > 60 and np.max(np.abs(Jm[-40:] - Jm[-1])) < 1e-9
+
+    ros_probe.spin_until(held_after_motion, 30.0, "the robot to hold at the end of /reach_trajectory #4",
+                         on_timeout=ex.log_tail)
     Jt, _ = command_array(commands, model, n1)
     assert max_jump_ratio(np.vstack([Jc[-1:], Jt]), model, period) <= JUMP_PERIODS
     assert hand_distance(model, Jt[-1], valve_plan.positions[0]) < 0.005   # the hand task (level 3) is met

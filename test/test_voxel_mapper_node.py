@@ -203,7 +203,8 @@ def test_head_scan_map_clearing_bad_input_and_clear(start_node, ros_probe, model
     # unobserved_robot_clearance_m), and fewer unobserved blocks than the region holds
     frontier = msgs.points_from_cloud(f.frontier.last).points
     blocks = msgs.points_from_cloud(f.blocks.last).points
-    assert len(frontier) > 1000 and 0 < len(blocks) < 13 * 20 * 19
+    assert len(frontier) > 1000 and 0 < len(blocks) < 23 * 20 * 19   # the region: x -1.0..1.3, y -1..1, z 0.1..2
+    assert np.any(blocks[:, 0] < -0.1)   # behind the robot, where the head never looks, stays unobserved
     shapes = load_collision_model(None, model).world_shapes(model.config(f.joints(0.0, 0.0),
                                                                          model.base_on_feet(f.joints(0.0, 0.0))))
     d = np.min([np.linalg.norm(frontier - (a + np.clip((frontier - a) @ (b - a) / max((b - a) @ (b - a), 1e-12), 0, 1)

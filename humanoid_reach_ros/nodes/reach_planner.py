@@ -495,7 +495,8 @@ class ReachPlannerNode(Node):
         values = {"source": m.source, "voxels": m.voxels, "build_time_ms": m.build_time_s * 1e3,
                   "maps_received": m.received, "maps_rejected": m.rejected,
                   "dropped_nonfinite_points": m.dropped_nonfinite, "last_rejection": m.last_rejection,
-                  "frame_id": self.map_frame}
+                  "frame_id": self.map_frame,
+                  **{f"scene_{k}": v for k, v in self.scene.describe().items()}}   # the planning scene's layers
         if self.planner.has_map:
             level, message = msgs.LEVEL_OK, f"{m.voxels} voxels from {m.source}"
         else:

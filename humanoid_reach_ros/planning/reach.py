@@ -281,6 +281,7 @@ class ReachPlanner:
         #: head camera sees each point (control/gaze.py); None: every point counts as observable
         self.observable = observable
         self._last_plan_end: tuple[np.ndarray, np.ndarray] | None = None   # (joints, hand approach direction)
+        self._last_positions: np.ndarray | None = None   # the last successful plan's samples (its reverse: a retreat)
         self.projector = Projector(self.robot, LimbIKSet(self.robot, compiled=compiled_kinematics))
         self.trunk_region = TrunkRegion(self.projector, params.trunk_z_m, params.trunk_pitch_rad,
                                         params.trunk_roll_rad, params.trunk_yaw_rad)
@@ -589,9 +590,12 @@ class ReachPlanner:
             self._plan_lock.release()
 
     def _remember_end(self, outcome: PlanOutcome) -> None:
-        """The end of a successful plan and its hand's last approach direction (the reverse is the
-        first retreat tried when the next plan starts there)."""
-        if outcome.arm is None or outcome.positions is None or len(outcome.positions) < 2:
+        """The last successful plan's samples (:meth:`_reverse_of_last`) and its hand's last
+        approach direction (the reverse is the first Cartesian retreat tried after it)."""
+        if outcome.positions is None or len(outcome.positions) < 2:
+            return
+        self._last_positions = np.asarray(outcome.positions, float).copy()
+        if outcome.arm is None:
             return
         tip = self.robot.limbs[f"{outcome.arm}_arm"].tip
         end = np.asarray(outcome.positions[-1], float)
@@ -609,6 +613,23 @@ class ReachPlanner:
         if last is not None and np.max(np.abs(last[0] - joints)) < 0.02:
             return last[1]
         return None
+
+    def _reverse_of_last(self, joints: np.ndarray, tol_rad: float = 0.02) -> np.ndarray | None:
+        """The last plan's samples backwards from its end, when the robot stands there (every joint
+        but the head's within ``tol_rad``: a look since only turned the head, which the samples
+        then keep where it is now); None otherwise. The way the hand came in is a way out."""
+        P = self._last_positions
+        if P is None:
+            return None
+        head = [self.robot.joint_index[n] for n in self.robot.spec.head_joints]
+        keep = np.ones(self.robot.n_joints, bool)
+        keep[head] = False
+        if np.max(np.abs(P[-1] - joints)[keep]) > tol_rad:
+            return None
+        R = P[::-1].copy()
+        R[:, head] = joints[head]
+        R[0] = joints
+        return R
 
     def _unobserved_check(self, outcome: PlanOutcome, start_joints, request: PlanRequest, t0: float,
                           snap: SceneSnapshot) -> PlanOutcome:
@@ -879,7 +900,8 @@ class ReachPlanner:
                 raise _Failure(PlanError.START_IN_COLLISION,
                                "start posture in collision: " + (", ".join(shapes) if shapes else "unknown shapes"))
             return None, joints
-        retreat, reasons = self.retreat_planner.plan(joints, contact, collision.tree, margin, approach)
+        retreat, reasons = self.retreat_planner.plan(joints, contact, collision.tree, margin, approach,
+                                                     self._reverse_of_last(joints))
         if retreat is None:
             raise _Failure(PlanError.START_IN_COLLISION,
                            f"{contact.describe()} and no retreat of {1e3 * self.retreat_planner.params.min_distance_m:.0f}"
@@ -1021,7 +1043,7 @@ class ReachPlanner:
         from humanoid_reach_ros.robot import limb_ik
 
         limb_ik.warm_up()
-        saved, last = self.scene, self._last_plan_end
+        saved, last, positions = self.scene, self._last_plan_end, self._last_positions
         try:   # a scene of its own: the shared one (fed by a node) is left alone
             self.scene = PlanningScene(self.robot, saved.params, self.collision_model)
             self.set_map(np.array([[5.0, 5.0, 5.0]]))
@@ -1029,7 +1051,7 @@ class ReachPlanner:
                             PlanRequest(valve_region(), goal_count=1, time_budget_s=float(budget_s)))
             return bool(out.success)
         finally:
-            self.scene, self._last_plan_end = saved, last
+            self.scene, self._last_plan_end, self._last_positions = saved, last, positions
 
 
 @dataclass(frozen=True, eq=False)

@@ -18,16 +18,24 @@ that stage for a humanoid:
    contact normal ``n = (p_hand - c) / |p_hand - c|`` with ``c`` the centroid of the
    voxels within ``contact_radius_m`` of the hand, that normal tilted up, and straight
    back toward the shoulder.
-3. **Motion** along a direction ``d``: the hand frame moves on the line ``p(s) = p_0 + s d``
-   with its orientation kept, ``s`` in steps of ``step_m`` up to ``max_distance_m``; the
-   arm's joints follow by damped least squares on the hand's 6-D error
-   (``dq = J^T (J J^T + lambda^2 I)^-1 e``, a few iterations a step), every other joint
+3. **Motion**: first back along the last plan's own samples when the robot stands at its end
+   (the way the hand came in is a way out), else along a direction ``d``: the hand frame
+   moves on the line ``p(s) = p_0 + s d``, ``s`` in steps of ``step_m`` up to
+   ``max_distance_m``; the arm's joints follow by damped least squares on the hand's position
+   error and, weighted by ``orientation_weight``, its orientation error
+   (``dq = J^T (J J^T + lambda^2 I)^-1 e``, a few iterations a step, clipped to the joint
+   limits; the line must be kept within 2 mm), every other joint
    and the base stay (feet fixed; the executor's exact-COG task compensates the arm's
-   mass). A named simplification: the trunk does not help the retreat.
+   mass). The chest joints move with the arm; a named simplification: the legs and the
+   waist do not help the retreat.
 4. **Checks** at every step: joint limits; no shape other than the hand's penetrates the
    map; the hand's shapes touch only the voxels within ``contact_radius_m`` of the contact
-   (the allowed contact) and their clearance to those voxels never decreases by more than
-   ``clearance_tolerance_m``; the motion ends at the first step beyond
+   (the allowed contact) and never press into them deeper than at the start (never into them
+   at all when the start is clear of them; ``clearance_tolerance_m``), and the clearance is
+   ``end_clearance_m`` beyond the margin at the end. A named simplification of "clearance
+   grows along the retreat": it may dip on the way (the way back along the approach passes a
+   valve ring's edge: the planner left the ring out around the target, so the approach came
+   in through it), never into the object; the motion ends at the first step beyond
    ``min_distance_m`` where the whole robot is collision-free with the planning margin and the
    retreating shapes have ``end_clearance_m`` beyond it.
 
@@ -63,7 +71,8 @@ class RetreatParams:
     end_clearance_m: float = 0.02
     clearance_tolerance_m: float = 0.002
     damping: float = 1e-3
-    iterations: int = 4
+    iterations: int = 6
+    orientation_weight: float = 0.3     # the hand's orientation kept where the arm can, the line first
 
     def __post_init__(self) -> None:
         for name in ("contact_distance_m", "contact_radius_m", "min_distance_m", "max_distance_m", "step_m"):
@@ -145,7 +154,10 @@ class RetreatPlanner:
         self.hand = {arm: hand_shape_mask(robot, cm, arm) for arm in ARM_LIMBS}
         self._data = robot.model.createData()
         self._fid = {arm: robot.model.getFrameId(robot.limbs[limb].tip) for arm, limb in ARM_LIMBS.items()}
-        self._cols = {arm: np.array(robot.limbs[limb].joint_index) for arm, limb in ARM_LIMBS.items()}
+        # the arm's joints and the chest's: the chest moves the shoulder when the arm alone is at a
+        # limit (Talos at the plant valve: 1 of 8 reaches had no arm-only line out)
+        chest = [robot.joint_index[n] for n in robot.spec.chest_joints]
+        self._cols = {arm: np.array(list(robot.limbs[limb].joint_index) + chest) for arm, limb in ARM_LIMBS.items()}
 
     # ------------------------------------------------------------ contact
     def classify_start(self, q: np.ndarray, tree: SphereTree, margin_m: float,
@@ -216,16 +228,34 @@ class RetreatPlanner:
             out.append(("toward the shoulder", back / np.linalg.norm(back)))
         back_h = np.array([-1.0, 0.0, 0.3]) / math.hypot(1.0, 0.3)
         out.append(("backward and up", back_h))
+        # a fan around the normal (30 and 60 deg off it, 6 azimuths): a stretched arm cannot move
+        # its hand along itself at first order (measured: 1 of 20 plant valve reaches, every
+        # direction above failed at the first step), a tilted line it can
+        a = np.cross(n, [0.0, 0.0, 1.0] if abs(n[2]) < 0.9 else [1.0, 0.0, 0.0])
+        a /= np.linalg.norm(a)
+        b = np.cross(n, a)
+        for tilt in (math.radians(30), math.radians(60)):
+            for k in range(6):
+                phi = 2 * math.pi * k / 6
+                d = math.cos(tilt) * n + math.sin(tilt) * (math.cos(phi) * a + math.sin(phi) * b)
+                out.append((f"{math.degrees(tilt):.0f} deg off the normal", d / np.linalg.norm(d)))
         return out
 
     def plan(self, joints: np.ndarray, contact: Contact, tree: SphereTree, margin_m: float,
-             approach: np.ndarray | None = None) -> tuple[Retreat | None, list[str]]:
-        """The first retreat that passes every check (module doc) and the reasons the other
-        directions failed."""
+             approach: np.ndarray | None = None, reverse_path: np.ndarray | None = None,
+             ) -> tuple[Retreat | None, list[str]]:
+        """The first retreat that passes every check (module doc) and the reasons the others
+        failed. ``reverse_path`` (K, n): the last plan's samples backwards from where the robot
+        stands (the way the hand came in), tried first; then the Cartesian directions."""
         q0 = self.robot.config(joints, self.robot.base_on_feet(joints))
         allowed = (SphereTree.from_voxels(contact.voxels, 2.0 * (float(tree.radii[0]) - margin_m))
                    if len(contact.voxels) else None)
         reasons = []
+        if reverse_path is not None and len(reverse_path) > 1:
+            r, why = self._back_along(q0, contact, np.asarray(reverse_path, float), tree, margin_m, allowed)
+            if r is not None:
+                return r, reasons
+            reasons.append(f"back along the approach: {why}")
         for label, d in self.directions(q0, contact, approach):
             r, why = self._along(q0, contact, d, label, tree, margin_m, allowed)
             if r is not None:
@@ -251,29 +281,28 @@ class RetreatPlanner:
         for k in range(1, n_steps + 1):
             s = min(k * p.step_m, p.max_distance_m)
             target = pin.SE3(M0.rotation, M0.translation + s * d)
-            for _ in range(p.iterations):
+            for _ in range(p.iterations * (4 if k == 1 else 1)):   # the first step may start singular
                 pin.framesForwardKinematics(model, data, q)
-                err = pin.log6(data.oMf[fid].actInv(target)).vector
-                if np.linalg.norm(err) < 1e-6:
+                M = data.oMf[fid]
+                err = np.concatenate([target.translation - M.translation,
+                                      p.orientation_weight * pin.log3(M0.rotation @ M.rotation.T)])
+                if np.linalg.norm(err[:3]) < 1e-6:
                     break
-                J = pin.computeFrameJacobian(model, data, q, fid, pin.ReferenceFrame.LOCAL)[:, vcols]
+                J = pin.computeFrameJacobian(model, data, q, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)[:, vcols]
+                J[3:] *= p.orientation_weight
                 dq = J.T @ np.linalg.solve(J @ J.T + p.damping * np.eye(6), err)
-                q[qcols] = q[qcols] + dq
+                q[qcols] = np.clip(q[qcols] + dq, lo, hi)   # the limits hold; the line may then be lost
             pin.framesForwardKinematics(model, data, q)
-            e = pin.log6(data.oMf[fid].actInv(target)).vector
-            if np.linalg.norm(e[:3]) > 2e-3 or np.linalg.norm(e[3:]) > 1e-2:
-                return None, f"the arm cannot follow the line beyond {1e3 * (s - p.step_m):.0f} mm (IK)"
-            if np.any(q[qcols] < lo - 1e-9) or np.any(q[qcols] > hi + 1e-9):
-                return None, f"a joint limit at {1e3 * s:.0f} mm"
+            if np.linalg.norm(data.oMf[fid].translation - target.translation) > 2e-3:
+                return None, f"the arm cannot follow the line beyond {1e3 * (s - p.step_m):.0f} mm (IK, limits)"
             P0, P1, R = self.cm.world_shapes(q)
             dist = tree.nearest_batch(P0, P1, R)[0] + margin_m
             if np.any(dist[other] < 0):
                 names = [self.cm.names[i] for i in np.flatnonzero(other & (dist < 0))]
                 return None, f"{', '.join(names)} would touch the map at {1e3 * s:.0f} mm"
             clear = self._hand_clearance(q, allowed, hand)
-            if clear < prev_clear - p.clearance_tolerance_m:
-                return None, f"the hand's clearance would shrink at {1e3 * s:.0f} mm"
-            prev_clear = max(prev_clear, clear)
+            if clear < min(prev_clear, 0.0) - p.clearance_tolerance_m:
+                return None, f"the hand would press into the contact's voxels at {1e3 * s:.0f} mm"
             if np.any(dist[hand] < 0):
                 # the hand may still touch the voxels of the allowed contact, nothing else
                 outside = self._outside_contact(P0, P1, R, hand, tree, margin_m, contact)
@@ -283,6 +312,49 @@ class RetreatPlanner:
             arm_clear = float(np.min(dist[hand])) - margin_m   # the retreating shapes, with the planning margin
             if s >= p.min_distance_m - 1e-9 and arm_clear >= p.end_clearance_m and np.all(dist >= margin_m):
                 return Retreat(np.array(path), d, s, label, arm_clear), ""
+        return None, f"no clearance of {1e3 * p.end_clearance_m:.0f} mm within {1e3 * p.max_distance_m:.0f} mm"
+
+    def _step_ok(self, q, contact, tree, margin_m, allowed, prev_clear, where: str) -> tuple[str, np.ndarray, float]:
+        """The checks of one retreat posture (module doc, step 4): ``(why not or '', dist, clearance)``."""
+        hand, other = self.hand[contact.arm], ~self.hand[contact.arm]
+        P0, P1, R = self.cm.world_shapes(q)
+        dist = tree.nearest_batch(P0, P1, R)[0] + margin_m
+        if np.any(dist[other] < 0):
+            names = [self.cm.names[i] for i in np.flatnonzero(other & (dist < 0))]
+            return f"{', '.join(names)} would touch the map {where}", dist, prev_clear
+        clear = self._hand_clearance(q, allowed, hand)
+        if clear < min(prev_clear, 0.0) - self.params.clearance_tolerance_m:
+            return f"the hand would press into the contact's voxels {where}", dist, prev_clear
+        if np.any(dist[hand] < 0) and self._outside_contact(P0, P1, R, hand, tree, margin_m, contact):
+            return f"the hand would touch voxels away from the contact {where}", dist, prev_clear
+        return "", dist, prev_clear
+
+    def _back_along(self, q0, contact, path, tree, margin_m, allowed) -> tuple[Retreat | None, str]:
+        """The retreat along ``path`` (joint samples from the start backwards): the first sample
+        whose hand is ``min_distance_m`` from the start and has the end clearance ends it."""
+        p = self.params
+        hand = self.hand[contact.arm]
+        tip = self.robot.limbs[ARM_LIMBS[contact.arm]].tip
+        p0 = self.robot.frame_pose(q0, tip).translation
+        prev = self._hand_clearance(q0, allowed, hand)
+        out = [path[0]]
+        lo, hi = self.robot.lower - 1e-9, self.robot.upper + 1e-9
+        for k in range(1, len(path)):
+            j = path[k]
+            if np.any(j < lo) or np.any(j > hi):
+                return None, f"sample {k} outside the joint limits"
+            q = self.robot.config(j, self.robot.base_on_feet(j))
+            why, dist, prev = self._step_ok(q, contact, tree, margin_m, allowed, prev, f"at sample {k}")
+            if why:
+                return None, why
+            out.append(j)
+            moved = float(np.linalg.norm(self.robot.frame_pose(q, tip).translation - p0))
+            arm_clear = float(np.min(dist[hand])) - margin_m
+            if moved >= p.min_distance_m and arm_clear >= p.end_clearance_m and np.all(dist >= margin_m):
+                d = (self.robot.frame_pose(q, tip).translation - p0) / max(moved, 1e-9)
+                return Retreat(np.array(out), d, moved, "back along the approach", arm_clear), ""
+            if moved > p.max_distance_m:
+                break
         return None, f"no clearance of {1e3 * p.end_clearance_m:.0f} mm within {1e3 * p.max_distance_m:.0f} mm"
 
     def _hand_clearance(self, q, allowed: SphereTree | None, hand: np.ndarray) -> float:
