@@ -7,7 +7,7 @@ PYTEST_ARGS ?=
 # so its module fixtures are built once); TEST_WORKERS=0 runs them in this process, one by one
 TEST_WORKERS ?= 2
 
-.PHONY: setup test demo bench bench-graph bags clean urdf bench-peers
+.PHONY: setup test demo up bench bench-graph bags clean urdf bench-peers
 
 setup:
 	@tools/setup.sh
@@ -17,6 +17,10 @@ test: setup
 
 demo: setup
 	@$(ENV) python -m humanoid_reach_ros.demo $(if $(ROBOT),--robot $(ROBOT))
+
+# the whole graph (the six nodes with their YAML files, as reach.launch.py) until Ctrl-C
+up: setup
+	@$(ENV) hr_graph $(if $(ROBOT),--robot $(ROBOT))
 
 bench: setup
 	@$(ENV) for b in bench/graph.py $$(ls bench/*.py | grep -v '^bench/graph.py$$'); do echo "== $$b"; python $$b || exit 1; done

@@ -28,6 +28,7 @@ EXECUTABLES = {
     "hr_record": "humanoid_reach_ros.nodes.bag_record:main",
     "hr_play": "humanoid_reach_ros.nodes.bag_play:main",
     "hr_demo": "humanoid_reach_ros.demo:main",
+    "hr_graph": "humanoid_reach_ros.graph_up:main",   # the whole graph until Ctrl-C (where `ros2 launch` is absent)
 }
 
 setup(

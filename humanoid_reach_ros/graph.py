@@ -12,6 +12,10 @@ Used by the demo (``humanoid_reach_ros.demo``) and by the node-level tests.
   node ends with exit code 0 within ``STOP_DEADLINE_S`` of a SIGINT (the demo and
   test_operator_flow check it).
 * ``wait_for`` polls a condition with a timeout.
+* ``Graph`` is the node processes of one run (the demo, ``hr_graph``, benches, tools): each
+  node with its ``config/<name>.yaml``, stopped in reverse order; ``GRAPH_NODES`` the six
+  nodes of ``launch/reach.launch.py`` and ``launch_params`` the parameters that launch file
+  adds to each node's YAML file.
 
 No rclpy here: this module only starts and stops processes.
 """
@@ -29,6 +33,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, TypeVar
+
+from humanoid_reach_ros.paths import config_path
 
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent  # the directory holding humanoid_reach_ros/
 DOMAIN_MIN, DOMAIN_MAX = 1, 101
@@ -149,13 +155,16 @@ class NodeProcess:
 
     @classmethod
     def start(cls, module: str, log_dir: Path, env: Mapping[str, str], params_file: str | Path | None = None,
-              params: Mapping[str, Any] | None = None, extra_ros_args: list[str] | None = None) -> "NodeProcess":
+              params: Mapping[str, Any] | None = None, extra_ros_args: list[str] | None = None,
+              new_session: bool = False) -> "NodeProcess":
+        """``new_session``: the node gets a process group of its own, so a terminal's Ctrl-C
+        reaches only the process that started it, which then stops it (``hr_graph``)."""
         cmd = node_command(module, params_file, params, extra_ros_args)
         name = module.rsplit(".", 1)[-1]
         log_path = Path(log_dir) / f"{name}.{time.monotonic_ns()}.log"
         with open(log_path, "wb") as log:
             proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                    env=dict(env), cwd=PACKAGE_ROOT)
+                                    env=dict(env), cwd=PACKAGE_ROOT, start_new_session=new_session)
         return cls(name, proc, log_path, cmd)
 
     @property
@@ -207,3 +216,64 @@ class NodeProcess:
 
     def exited_cleanly(self) -> bool:
         return self.proc.returncode in self.ok_exit_codes
+
+
+# ---------------------------------------------------------------- a graph of node processes
+# the six nodes of launch/reach.launch.py, in its order; the first two are the simulated robot and
+# head sensors (its use_sim_sensors:=false leaves them out: the real robot's drivers stand in)
+GRAPH_NODES = ("joint_driver", "scene_sim", "voxel_mapper", "marker_localizer", "reach_planner", "reach_executor")
+SIM_NODES = ("joint_driver", "scene_sim")
+SCENE_NODES = ("scene_sim", "reach_planner", "reach_executor")   # the launch file's scene:= goes to these
+
+
+def launch_params(name: str, scene: str | Path | None = None, robot: str | None = None) -> dict[str, Any]:
+    """What ``reach.launch.py`` gives node ``name`` besides its YAML file: ``scene_file`` (its
+    ``scene:=``) for the nodes that read a scene; ``robot_config`` when a robot is named."""
+    params: dict[str, Any] = {}
+    if scene is not None and name in SCENE_NODES:
+        params["scene_file"] = str(scene)
+    if robot is not None:
+        params["robot_config"] = robot
+    return params
+
+
+@dataclass
+class Graph:
+    """The node processes of one run; ``stop()`` shuts them down in reverse order."""
+
+    out: Path
+    env: dict[str, str]
+    procs: list[NodeProcess] = field(default_factory=list)
+    new_session: bool = False   # each node in a process group of its own (NodeProcess.start)
+
+    def start(self, module: str, params: dict[str, Any] | None = None) -> NodeProcess:
+        """``module`` with its ``config/<name>.yaml`` (if there is one) and ``params`` on top."""
+        name = module.rsplit(".", 1)[-1]
+        params_file = config_path(f"{name}.yaml")
+        proc = NodeProcess.start(module, self.out, self.env, params_file if params_file.is_file() else None,
+                                 params, new_session=self.new_session)
+        self.procs.append(proc)
+        return proc
+
+    def start_command(self, name: str, cmd: list[str]) -> NodeProcess:
+        log_path = self.out / f"{name}.log"
+        with open(log_path, "wb") as log:
+            p = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=self.env)
+        proc = NodeProcess(name, p, log_path, cmd)
+        self.procs.append(proc)
+        return proc
+
+    def dead(self) -> list[NodeProcess]:
+        """The processes that have exited."""
+        return [p for p in self.procs if not p.alive()]
+
+    def check_alive(self) -> None:
+        for p in self.procs:
+            if not p.alive():
+                raise RuntimeError(f"{p.name} exited with code {p.proc.returncode}\n{p.log_tail(30)}")
+
+    def log_tails(self) -> str:
+        return "\n".join(p.log_tail(15) for p in self.procs)
+
+    def stop(self) -> dict[str, int]:
+        return {p.name: p.stop() for p in reversed(self.procs)}

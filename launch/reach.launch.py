@@ -14,7 +14,8 @@ Then, from another shell, reach the valve the marker shows (see README):
     ros2 service call /plan_reach humanoid_reach_interfaces/srv/PlanReach "{use_marker_target: true, execute: true, ...}"
     ros2 run humanoid_reach_ros reach_operator --marker --execute
 
-(For ROS 2 installs that have `launch`; here `make demo` starts the same processes.)
+(For ROS 2 installs that have `launch`; without it, `hr_graph` (`make up`) starts the same
+processes with the same options: --scene FILE, --no-sim-sensors.)
 """
 import os
 

@@ -59,8 +59,31 @@ def test_whole_graph_reaches_the_valve(tmp_path, robot):
     (("--budget", "0"), "--budget"),
     (("--arm", "middle"), "invalid choice"),
     (("--robot", "nao"), "invalid choice"),
+    (("--tar", "0.7", "0", "0.9"), "unrecognized arguments: --tar"),   # no abbreviations: it moves a robot
 ])
 def test_bad_options_are_refused(tmp_path, args, message):
     proc = run_demo(tmp_path, *args, timeout=60)
     assert proc.returncode == 2 and message in proc.stderr, proc.stderr
     assert not list(tmp_path.glob("*.log"))  # nothing was started
+
+
+def test_progress_bar_reaches_100_percent_on_success():
+    """The feedback's last progress comes before the motion's end (a log's bar stopped at its
+    80 % line, 80.1 %): a successful result draws the 100 % line, a failed one does not (issue 22)."""
+    import io
+    from types import SimpleNamespace as NS
+
+    from humanoid_reach_ros.demo import ProgressBar
+
+    def run(success: bool) -> list[str]:
+        out = io.StringIO()   # not a terminal: a line per 20 %
+        bar = ProgressBar(out)
+        for k in range(0, 96):
+            bar.update(NS(progress=0.801 + (k - 1) * 0.002 if k else 0.0, min_distance_m=0.05, com_error_m=1e-5))
+        bar.finish(NS(success=success, min_distance_m=0.04, max_com_error_m=2e-5))
+        return out.getvalue().splitlines()
+
+    lines = run(True)
+    assert lines[-2].startswith("[demo] executing [################....]  80.1 %"), lines
+    assert lines[-1].startswith("[demo] executing [####################] 100.0 %  min distance  4.00 cm"), lines
+    assert "100.0 %" not in "\n".join(run(False))

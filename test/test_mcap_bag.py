@@ -263,6 +263,29 @@ def test_cli_bad_inputs(tmp_path: Path, ros_env) -> None:
     assert r.returncode == 2 and "must be absolute" in r.stderr
 
 
+def test_record_default_output_is_recordings_and_git_ignores_bags(tmp_path: Path, ros_env) -> None:
+    """Without -o: ``recordings/hr_record_<date>_<time>.mcap`` under the current directory, never
+    the repository's root (issue 22); git ignores it and every *.mcap outside bags/; no flag
+    abbreviations (``--dur`` is not ``--duration``)."""
+    import re
+
+    from humanoid_reach_ros.nodes import bag_record
+
+    out = bag_record.parse_args(["/joint_states"]).output
+    assert re.fullmatch(r"recordings/hr_record_\d{8}_\d{6}\.mcap", out), out
+    assert bag_record.parse_args(["-o", "x/run.mcap", "/a"]).output == "x/run.mcap"
+    r = subprocess.run([sys.executable, "-m", RECORD, "/no_such_topic", "--duration", "0.5"], env=dict(ros_env),
+                       cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1, r.stderr   # nothing recorded, the file written all the same
+    written = list((tmp_path / "recordings").glob("hr_record_*.mcap"))
+    assert len(written) == 1 and f"to recordings/{written[0].name}" in r.stdout, (written, r.stdout)
+    r = run_tool(RECORD, ["--dur", "1", "/a"], ros_env)
+    assert r.returncode == 2 and "unrecognized arguments: --dur" in r.stderr, r.stderr
+    ignored = subprocess.run(["git", "check-ignore", "--no-index", "run.mcap", "recordings/x.mcap", "test/y.mcap",
+                              "bags/plant_head_scan.mcap"], cwd=REPO_ROOT, capture_output=True, text=True).stdout
+    assert ignored.split() == ["run.mcap", "recordings/x.mcap", "test/y.mcap"], ignored
+
+
 @pytest.mark.node
 def test_record_and_replay_round_trip(start_node, ros_probe, ros_env, tmp_path: Path) -> None:
     driver = start_node("joint_driver", params_file="config/joint_driver.yaml", ready_log=r"simulated hrp2")

@@ -15,6 +15,14 @@ that CLI would resolve it:
   fields as ``ros2 service call`` does (mapping keys -> message fields, recursively) and
   sent to a running reach_planner started with the README's parameter file.
 
+The same holds for docs/operator.md, and every command of both documents runs HERE as written
+(``. tools/env.sh``: the executables on ``PATH``, no ``ros2`` CLI, no ``launch``) or is shown
+with its here-equivalent beside it: a ``ros2 run humanoid_reach_ros EXE ARGS`` runs here as
+``EXE ARGS`` (checked that way), ``ros2 launch ... reach.launch.py`` has ``hr_graph`` beside it,
+``ros2 service call /plan_reach`` has ``reach_operator --target``; a command of neither kind
+(``hr_graph``, ``reach_planner --ros-args ...``, ``python -m ...``, ``make X``) is checked as
+written: installed, its arguments parsed by its own parser, its files there.
+
 Also: the README stays small, its links and picture exist, every path that
 docs/paper_map.md names exists, and no file of the repository points outside it.
 """
@@ -22,6 +30,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import importlib.util
 import os
 import re
 import shlex
@@ -36,6 +45,7 @@ import yaml
 from nodetools import REPO_ROOT
 
 README = REPO_ROOT / "README.md"
+OPERATOR_MD = REPO_ROOT / "docs" / "operator.md"
 PACKAGE = "humanoid_reach_ros"
 INSTALL_PREFIX = REPO_ROOT / "install" / PACKAGE  # what `ros2 pkg prefix humanoid_reach_ros` prints
 INSTALLED_EXES = INSTALL_PREFIX / "lib" / PACKAGE
@@ -382,3 +392,114 @@ def test_readme_service_call_plans_on_a_running_planner(start_node, ros_probe) -
     assert resp is not None and resp.success and resp.error_code == E.SUCCESS, (resp.error_code, resp.message)
     assert resp.arm in (PlanReach.Request.ARM_RIGHT, PlanReach.Request.ARM_LEFT)
     assert len(resp.trajectory.points) >= 2 and len(resp.trajectory.joint_names) == 30
+
+
+# ---------------------------------------------------------------- every command of README.md and docs/operator.md, here
+def node_ros_args(argv: list[str], where: str) -> None:
+    """``--ros-args [--params-file FILE] [-p name:=value]...``: the file exists (relative to the
+    repository: commands run from its root here), each ``-p`` is ``name:=value``."""
+    if not argv:
+        return
+    assert argv[0] == "--ros-args", f"{where}: a node takes --ros-args, got {argv}"
+    k = 1
+    while k < len(argv):
+        if argv[k] == "--params-file":
+            f = Path(argv[k + 1])
+            assert (f if f.is_absolute() else REPO_ROOT / f).is_file(), f"{where}: no parameter file {f}"
+            k += 2
+        elif argv[k] == "-p":
+            assert ":=" in argv[k + 1], f"{where}: -p needs name:=value, got {argv[k + 1]}"
+            k += 2
+        else:
+            raise AssertionError(f"{where}: unexpected ROS argument {argv[k]!r}")
+
+
+def check_here(argv: list[str], where: str) -> None:
+    """``argv`` runs here as written (see the module doc)."""
+    from humanoid_reach_ros import graph_up
+    from humanoid_reach_ros.nodes import bag_play, bag_record
+    from humanoid_reach_ros.nodes import reach_operator as op
+
+    argv = [a for a in argv if a != "&"]
+    exe, args = argv[0], argv[1:]
+    scripts = console_scripts()
+    if exe == "make":
+        assert args and args[0] in makefile_targets(), f"{where}: not a Makefile target: {args}"
+    elif exe == ".":
+        assert (REPO_ROOT / args[0]).is_file(), f"{where}: {args[0]} does not exist"
+    elif exe == "python" and args[:1] == ["-m"]:
+        assert importlib.util.find_spec(args[1]) is not None, f"{where}: no module {args[1]}"
+        node_ros_args(args[2:], where)
+    elif exe in scripts:
+        installed = INSTALLED_EXES / exe
+        assert installed.is_file() and os.access(installed, os.X_OK), f"{where}: {exe} is not installed"
+        parse = {"reach_operator": op.parse_args, "hr_play": bag_play.parse_args, "hr_record": bag_record.parse_args,
+                 "hr_graph": graph_up.parse_args}.get(exe)
+        if parse is None:   # a node
+            assert scripts[exe].startswith(f"{PACKAGE}.nodes."), f"{where}: {exe} is not a node"
+            node_ros_args(args, where)
+        elif "--help" not in args:
+            parsed = parse(args)
+            if exe == "hr_play" and Path(parsed.bag).parts[0] == "bags":
+                assert (REPO_ROOT / parsed.bag).is_file(), f"{where}: no bag {parsed.bag}"
+    else:
+        raise AssertionError(f"{where}: {' '.join(argv)!r} cannot run here (no ros2 CLI, no launch) and is "
+                             "neither a ros2 command with its here-form beside it nor an installed executable")
+
+
+@pytest.mark.parametrize("doc", [README, OPERATOR_MD], ids=lambda p: p.name)
+def test_every_command_runs_here_or_has_its_here_form_beside_it(doc: Path) -> None:
+    text = doc.read_text()
+    commands = shell_commands(text)
+    assert commands
+    for argv in commands:
+        where = f"{doc.name}: {' '.join(argv)[:80]}"
+        if argv[0] == "ros2":
+            verb = argv[1]
+            if verb == "run":
+                assert argv[2] == PACKAGE, where
+                check_here(argv[3:], where)   # here: the same without the prefix
+            elif verb == "launch":
+                assert (REPO_ROOT / "launch" / argv[3]).is_file(), where
+                here = "hr_graph" if argv[3] == "reach.launch.py" else argv[3].removesuffix(".launch.py")
+                assert any(c[0] == here for c in commands), f"{where}: no `{here}` beside it"
+            elif verb == "service":
+                service_request(argv[4], argv[5])   # the payload fills the request
+                assert re.search(r"`reach_operator --target [^`]*`|^reach_operator --target", text, re.M), \
+                    f"{where}: no `reach_operator --target` beside it"
+            else:
+                raise AssertionError(f"{where}: ros2 {verb} is not checked here")
+        elif argv[0] == "colcon":
+            assert any(c[:2] == ["make", "setup"] for c in commands), f"{where}: no `make setup` beside it"
+        else:
+            check_here(argv, where)
+
+
+def test_operator_md_counts_the_scan_poses_of_the_config() -> None:
+    """"An empty pose list runs `scan_poses_deg` (N yaw/pitch pairs; the last, yaw Y pitch P deg"."""
+    cfg = yaml.safe_load((REPO_ROOT / "config" / "reach_executor.yaml").read_text())["/**"]["ros__parameters"]
+    flat = cfg["scan_poses_deg"]
+    words = {7: "seven", 8: "eight", 9: "nine", 10: "ten", 11: "eleven", 12: "twelve"}
+    m = re.search(r"runs `scan_poses_deg` \((\w+) yaw/pitch pairs; the last,\s+yaw (\S+) pitch (\S+) deg",
+                  OPERATOR_MD.read_text())
+    assert m, "docs/operator.md no longer describes the scan"
+    assert m.group(1) == words.get(len(flat) // 2, str(len(flat) // 2)), (m.group(1), len(flat) // 2)
+    assert (float(m.group(2)), float(m.group(3))) == (flat[-2], flat[-1])
+
+
+def test_readme_demo_and_executor_look_for_the_marker_in_one_place() -> None:
+    """The README's ``--look``, the demo's aim at the plant's valve and the executor's
+    ``marker_look_deg`` (where reach_operator --marker looks when no marker position is known)."""
+    from humanoid_reach_ros.demo import aim_head_deg
+    from humanoid_reach_ros.nodes.reach_executor_params import PARAMETERS
+    from humanoid_reach_ros.paths import config_path
+    from humanoid_reach_ros.sim.scene import load_scene
+
+    looks = [a[a.index("--look") + 1:a.index("--look") + 3] for a in run_commands("reach_operator") if "--look" in a]
+    assert looks, "the README turns the head with --look"
+    cfg = yaml.safe_load((REPO_ROOT / "config" / "reach_executor.yaml").read_text())["/**"]["ros__parameters"]
+    valve = load_scene(config_path("scenes/plant.yaml")).target.pose[:3, 3]
+    aim = aim_head_deg("hrp2", valve)
+    for look in looks:
+        assert [float(v) for v in look] == list(aim) == PARAMETERS["marker_look_deg"].default \
+            == cfg["marker_look_deg"], (look, aim, cfg["marker_look_deg"])

@@ -33,6 +33,13 @@ Usage::
   time is not used by this package).
 * ``--wait-subscribers S``: before playing, wait up to S s until every played topic has a
   subscriber (so that the first messages are not lost to discovery).
+* Another live publisher of a played topic (a ``joint_driver`` beside a replayed
+  ``/joint_states``: two sources mixed) is warned about, naming its node: the player looks
+  at each played topic's publishers (``get_publishers_info_by_topic``, its own left out) for
+  ``DISCOVERY_WAIT_S`` before it starts and every ``PUBLISHER_CHECK_PERIOD_S`` while playing
+  (discovery of a running node can take over a second).
+* Replaying into running nodes: a node that rejects stale input (the planner's 0.5 s
+  ``/joint_states``) fails once a single pass has ended; ``--loop`` keeps the stream going.
 * At the end the player waits up to ``ACK_TIMEOUT_S`` (5 s) until the subscribers of its
   reliable topics have acknowledged every message (``Publisher.wait_for_all_acked``), so a
   short replay is not lost when the process exits; a warning names the topics that did not.
@@ -59,6 +66,7 @@ from humanoid_reach_ros.io.mcap_bag import BagError, BagReader, QosInfo, describ
 from humanoid_reach_ros.nodes.bag_record import StopSignals
 
 NODE_NAME = "bag_play"
+_UNNAMED = "_NODE_NAME_UNKNOWN_"   # rmw's node name of an endpoint whose node is not discovered yet
 
 
 def publisher_qos(q: QosInfo) -> QoSProfile:
@@ -93,6 +101,8 @@ class BagPlayerNode(Node):
                             for t in topics}
         self.restamp = {t for t in topics if stamps_now and has_header(self.classes[t])}
         self.published = 0
+        self._warned: set[tuple[str, str]] = set()
+        self._next_check = 0.0
         self._first_log_ns = 0
         self._pass_start_ns = 0
         self._rate = 1.0
@@ -106,6 +116,35 @@ class BagPlayerNode(Node):
                 return lonely
             time.sleep(0.02)
         return []
+
+    def other_publishers(self) -> dict[str, list[str]]:
+        """Played topics that other nodes publish too -> those nodes (``/ns/name``), as discovery
+        shows them now (this player's own publisher left out)."""
+        found: dict[str, list[str]] = {}
+        me = f"{self.get_namespace().rstrip('/')}/{self.get_name()}"
+        for topic in self.topics:
+            nodes = [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in self.get_publishers_info_by_topic(topic)]
+            # an endpoint whose node discovery has not named yet (this player's own, early on) shows as
+            # _NODE_NAME_UNKNOWN_: this player's publisher is taken out by name, else as one unnamed
+            unnamed = [n for n in nodes if _UNNAMED in n]
+            if me in nodes:
+                nodes.remove(me)
+            elif unnamed:
+                nodes.remove(unnamed[0])
+            nodes = [n for n in nodes if _UNNAMED not in n]   # named at a later look
+            if nodes:
+                found[topic] = sorted(nodes)
+        return found
+
+    def warn_other_publishers(self) -> None:
+        """A warning per (topic, node) newly seen publishing a played topic: two sources mixed."""
+        for topic, nodes in self.other_publishers().items():
+            new = [n for n in nodes if (topic, n) not in self._warned]
+            if new:
+                self._warned.update((topic, n) for n in new)
+                self.get_logger().warning(
+                    f"{topic} is also published by {', '.join(new)}: the replay mixes two sources of {topic} "
+                    f"(stop {'them' if len(new) > 1 else 'it'}, or leave the topic out with --topics)")
 
     def wait_for_acks(self, timeout_s: float) -> list[str]:
         """Reliable topics whose subscribers have not acknowledged every message within
@@ -142,6 +181,9 @@ class BagPlayerNode(Node):
         for m, t in zip(messages, due):
             while stop.signal is None and (wait := t0 + t - time.monotonic()) > 0:
                 time.sleep(min(wait, 0.05))
+            if time.monotonic() > self._next_check:   # another publisher may appear at any time
+                self._next_check = time.monotonic() + PUBLISHER_CHECK_PERIOD_S
+                self.warn_other_publishers()
             if stop.signal is not None:
                 return False
             self.publish(m.topic, m.data)
@@ -149,8 +191,8 @@ class BagPlayerNode(Node):
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="hr_play", description="Republish a rosbag2-compatible MCAP file with "
-                                "the recorded timing.")
+    p = argparse.ArgumentParser(prog="hr_play", allow_abbrev=False,   # what it publishes can move a robot
+                                description="Republish a rosbag2-compatible MCAP file with the recorded timing.")
     p.add_argument("bag", help=".mcap file (or a rosbag2 directory holding one)")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="play only these topics (default: all)")
     p.add_argument("-r", "--rate", type=float, default=1.0, help="rate factor (2 = twice as fast)")
@@ -171,6 +213,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 
 ACK_TIMEOUT_S = 5.0   # at the end, reliable subscribers get this long to acknowledge what was played
+DISCOVERY_WAIT_S = 1.0   # before playing: other publishers of the played topics seen within this long are named ...
+PUBLISHER_CHECK_PERIOD_S = 1.0   # ... and while playing, those that appear, looked for this often
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -198,6 +242,10 @@ def main(argv: list[str] | None = None) -> int:
             if lonely:
                 node.get_logger().warning(f"no subscriber after {args.wait_subscribers:g} s on {', '.join(lonely)}; "
                                           "playing anyway")
+        deadline = time.monotonic() + DISCOVERY_WAIT_S   # discovery shows the other publishers first
+        while stop.signal is None and time.monotonic() < deadline:
+            node.warn_other_publishers()
+            time.sleep(0.05)
         node.get_logger().info(f"playing {reader.path} ({', '.join(topics)}) at rate {args.rate:g}"
                                f"{', looping' if args.loop else ''}")
         while node.play(args.rate, args.start_offset, stop) and args.loop:

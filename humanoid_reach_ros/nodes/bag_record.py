@@ -2,8 +2,12 @@
 
 Usage::
 
-    python -m humanoid_reach_ros.nodes.bag_record -o run.mcap /joint_states /robot_description
-    python -m humanoid_reach_ros.nodes.bag_record -o run.mcap --all --duration 10
+    python -m humanoid_reach_ros.nodes.bag_record /joint_states /robot_description   # -> recordings/<time>.mcap
+    python -m humanoid_reach_ros.nodes.bag_record -o recordings/run.mcap --all --duration 10
+
+* Output: ``-o FILE.mcap`` (its directory is created), by default
+  ``recordings/hr_record_<date>_<time>.mcap`` under the current directory (``recordings/`` and
+  ``*.mcap`` outside ``bags/`` are ignored by git: a recording never lands among the sources).
 
 * Topics and their types come from the graph (``get_topic_names_and_types``), polled every
   ``--poll-period`` s so that topics appearing later are picked up. A topic is subscribed
@@ -143,13 +147,23 @@ class BagRecorderNode(Node):
         return [t for t in (self.wanted or []) if t not in self._recorded]
 
 
+RECORDINGS_DIR = "recordings"   # default output directory (relative to the current one; git ignores it)
+
+
+def default_output(now: float | None = None) -> str:
+    """``recordings/hr_record_<YYYYmmdd>_<HHMMSS>.mcap`` (local time)."""
+    return f"{RECORDINGS_DIR}/hr_record_{time.strftime('%Y%m%d_%H%M%S', time.localtime(now))}.mcap"
+
+
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="hr_record", description="Record ROS 2 topics into a rosbag2-compatible "
-                                "MCAP file (profile ros2, ros2msg schemas, cdr messages, zstd chunks).")
+    p = argparse.ArgumentParser(prog="hr_record", allow_abbrev=False,
+                                description="Record ROS 2 topics into a rosbag2-compatible MCAP file (profile "
+                                "ros2, ros2msg schemas, cdr messages, zstd chunks).")
     p.add_argument("topics", nargs="*", help="topics to record (e.g. /joint_states)")
     p.add_argument("-a", "--all", action="store_true", help="record every topic (hidden ones only with "
                    "--include-hidden)")
-    p.add_argument("-o", "--output", required=True, help="output .mcap file (overwritten)")
+    p.add_argument("-o", "--output", help=f"output .mcap file (overwritten; its directory is created); default "
+                   f"{RECORDINGS_DIR}/hr_record_<date>_<time>.mcap")
     p.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0 = until Ctrl-C)")
     p.add_argument("--max-messages", type=int, default=0, help="stop after this many messages (0 = no limit)")
     p.add_argument("--include-hidden", action="store_true", help="with --all, also hidden topics")
@@ -162,6 +176,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         p.error(f"topic names must be absolute (start with '/'): {', '.join(bad)}")
     if a.duration < 0 or a.max_messages < 0 or not a.poll_period > 0:
         p.error("--duration and --max-messages must be >= 0 and --poll-period > 0")
+    if a.output is None:
+        a.output = default_output()
     if not a.output.endswith(".mcap"):
         p.error(f"output file {a.output!r} must end in .mcap")
     return a

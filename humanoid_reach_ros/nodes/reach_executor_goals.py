@@ -27,6 +27,11 @@ from humanoid_reach_ros.io import exec_msgs
 RESULT_NAMES = {int(c): c.name for c in C}
 
 
+def counted(n: int, plural: str) -> str:
+    """``1 head pose``, ``2 head poses``."""
+    return f"{n} {plural[:-1] if n == 1 else plural}"
+
+
 @dataclasses.dataclass(eq=False)
 class Pending:
     """A motion handed to the loop, as the node follows it."""
@@ -217,7 +222,7 @@ def look_goal(node, goal_handle) -> Look.Result:
         return Look.Result(error_code=exc.code, message=str(exc))
     log = node.get_logger()
     count, what, item = (len(poses), "head poses", "pose") if points is None else (len(points), "gaze points", "point")
-    log.info(f"{label}: accepted: {count} {what}, {dwell:g} s each")
+    log.info(f"{label}: accepted: {counted(count, what)}, {dwell:g} s each")
     fb = Look.Feedback(pose_count=count)
     unseen = []
     for k in range(count):
@@ -254,9 +259,9 @@ def look_goal(node, goal_handle) -> Look.Result:
     result.success = result.error_code == C.SUCCESS
     result.duration_s = time.monotonic() - t0
     if result.success and points is None:
-        result.message = f"{count} head poses reached and held {dwell:g} s each"
+        result.message = f"{counted(count, 'head poses')} reached and held {dwell:g} s each"
     elif result.success:
-        result.message = (f"{count} gaze points looked at and held {dwell:g} s each"
+        result.message = (f"{counted(count, 'gaze points')} looked at and held {dwell:g} s each"
                           + (f"; {'; '.join(unseen)}" if unseen else ": every point in view"))
     line = (f"{label}: {RESULT_NAMES.get(result.error_code, result.error_code)}: {result.message} "
             f"[{result.duration_s:.1f} s, max COG error {result.max_com_error_m * 1e3:.2f} mm]")

@@ -51,7 +51,7 @@ EXIT = {"success": 0, "internal": 1, "usage": 2, "unavailable": 3, "invalid": 4,
         "no_input": 6, "execution": 7, "canceled": 130}
 
 SCAN_POSES_ASSUMED = 20   # for the result deadline of a scan: poses of the executor's scan_poses_deg at most
-WAIT_NOTE_FIRST_S = 1.0   # waiting for a server: the first line after this long [s] (none when it is up) ...
+WAIT_NOTE_FIRST_S = 2.0   # waiting for a server: the first line after this long [s] (discovery can take 1 s) ...
 WAIT_NOTE_EVERY_S = 5.0   # ... then one every this long, with the seconds left
 ARMS = ARM_REQUESTS                     # --arm name -> PlanReach.Request.ARM_*
 ARM_LABELS = {code: name for name, code in ARM_REQUESTS.items()}
@@ -396,7 +396,7 @@ class Operator:
             if ready():
                 return True
             now = time.monotonic()
-            if now >= note[0]:   # at 1 s, then at 5, 10, 15 ... s
+            if now >= note[0]:   # at 2 s, then at 5, 10, 15 ... s
                 note[0] = t0 + WAIT_NOTE_EVERY_S * (math.floor((now - t0) / WAIT_NOTE_EVERY_S) + 1)
                 self.err.write(f"reach_operator: waiting for {name} ({owner}) ... "
                                f"{max(0.0, self.timeout_s - (now - t0)):.0f} s left\n")
@@ -609,12 +609,16 @@ def plan_with_looks(op: Operator, args: argparse.Namespace, req: Any, text: Text
         code = look(op, args, text, err, summary, gaze_points=pts)
         if code != EXIT["success"]:
             return None, code
+        if args.marker and (code := ensure_marker_target(op, args, text, err, summary)) != EXIT["success"]:
+            return None, code   # the look turned the head away from the marker: find it again
         text.write("planning again ...\n")
         text.flush()
 
 
 # ---------------------------------------------------------------- the marker, fresh
-MARKER_FRESH_WAIT_S = 2.0    # a /target_pose within this long counts as seen now (marker_localizer: >= 2 Hz in view)
+MARKER_FRESH_WAIT_S = 2.0    # a /target_pose within this long of finding its publisher: seen now (>= 2 Hz in view)
+MARKER_DISCOVERY_S = 5.0     # a marker_localizer (a /target_pose publisher) gets this long to be discovered
+MARKER_DIAGNOSTICS_WAIT_S = 2.5   # then its diagnostics (1 Hz, the last marker position) this long at most
 MARKER_WAIT_S = 15.0         # after turning the head toward the marker: wait this long for a /target_pose
 MARKER_LOOK_DWELL_S = 0.1    # the head's hold there (the wait for the marker follows)
 EXECUTOR_NODE = "/reach_executor"
@@ -646,18 +650,19 @@ def ensure_marker_target(op: Operator, args: argparse.Namespace, text: TextIO, e
                          summary: dict[str, Any]) -> int:
     """``--marker``: the planner takes the marker's ``/target_pose`` only while it is recent (1 s,
     its ``target_timeout_s``), and ``marker_localizer`` publishes only while the marker is in the
-    camera's view. When no ``/target_pose`` comes within ``MARKER_FRESH_WAIT_S``, the head is turned
+    camera's view. When no ``/target_pose`` comes within ``MARKER_FRESH_WAIT_S`` (of discovering its
+    publisher, within ``MARKER_DISCOVERY_S``), the head is turned
     (``/look``) toward the marker's last known position (from ``marker_localizer``'s diagnostics,
     aimed from the current posture) or, with none known, to the executor's ``marker_look_deg``;
     then a fresh pose is awaited for ``MARKER_WAIT_S`` with a countdown. Returns the exit code to
-    stop with, or ``EXIT["success"]`` to plan. Without a ``marker_localizer`` or an executor it
-    leaves the answer to the planner (``NO_TARGET`` with its hint)."""
+    stop with, or ``EXIT["success"]`` to plan. Without a ``marker_localizer`` it leaves the answer
+    to the planner (``NO_TARGET`` with its hint); without an executor the look says so (exit 3)."""
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import PoseStamped
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import JointState
 
-    seen: dict[str, Any] = {"pose_t": -math.inf, "pose": None, "last": None, "joints": None}
+    seen: dict[str, Any] = {"pose_t": -math.inf, "pose": None, "last": None, "joints": None, "diagnostics": False}
 
     def on_pose(m: Any) -> None:
         seen["pose_t"], seen["pose"] = time.monotonic(), m
@@ -665,8 +670,10 @@ def ensure_marker_target(op: Operator, args: argparse.Namespace, text: TextIO, e
     def on_diagnostics(m: Any) -> None:
         for st in m.status:
             v = {kv.key: kv.value for kv in st.values}
-            if st.name.startswith("marker_localizer") and "target_x_m" in v:
-                seen["last"] = [float(v["target_x_m"]), float(v["target_y_m"]), float(v["target_z_m"])]
+            if st.name.startswith("marker_localizer"):
+                seen["diagnostics"] = True
+                if "target_x_m" in v:
+                    seen["last"] = [float(v["target_x_m"]), float(v["target_y_m"]), float(v["target_z_m"])]
 
     def since(t: float) -> Callable[[], bool]:
         return lambda: seen["pose_t"] >= t
@@ -679,12 +686,24 @@ def ensure_marker_target(op: Operator, args: argparse.Namespace, text: TextIO, e
     summary["marker"] = report
     t0 = time.monotonic()
     try:
-        op.spin_until(lambda: since(t0)() or time.monotonic() > t0 + MARKER_FRESH_WAIT_S, None)
+        found: list[float] = []   # when this node discovered a /target_pose publisher (it lags on a busy machine)
+
+        def settled() -> bool:
+            now = time.monotonic()
+            if not found and op.node.count_publishers("/target_pose") > 0:
+                found.append(now)
+            return since(t0)() or now > (found[0] + MARKER_FRESH_WAIT_S if found else t0 + MARKER_DISCOVERY_S)
+        op.spin_until(settled, None)
         if since(t0)():
             report["fresh"] = True
             return EXIT["success"]
-        if op.node.count_publishers("/target_pose") == 0 or not op.look_client.server_is_ready():
-            return EXIT["success"]   # nothing to look with or for: the planner answers (NO_TARGET and its hint)
+        if op.node.count_publishers("/target_pose") == 0:
+            return EXIT["success"]   # no marker_localizer: the planner answers (NO_TARGET and its hint)
+        t_diag = time.monotonic() + MARKER_DIAGNOSTICS_WAIT_S   # its diagnostics (1 Hz) hold the last position
+        op.spin_until(lambda: seen["diagnostics"] or since(t0)() or time.monotonic() > t_diag, None)
+        if since(t0)():
+            report["fresh"] = True
+            return EXIT["success"]
         params = executor_parameters(op, ["marker_look_deg", "robot_config"])
         if seen["last"] is not None and seen["joints"] is not None:
             from humanoid_reach_ros.io import msgs
@@ -699,7 +718,9 @@ def ensure_marker_target(op: Operator, args: argparse.Namespace, text: TextIO, e
                      f"yaw {yaw:g}, pitch {pitch:g} deg")
         else:
             yaw, pitch = (float(v) for v in params["marker_look_deg"])
-            where = f"where the executor looks for it (marker_look_deg): yaw {yaw:g}, pitch {pitch:g} deg"
+            why = ("no marker position known" if seen["last"] is None and seen["diagnostics"] else
+                   "no diagnostics from marker_localizer" if seen["last"] is None else "no /joint_states")
+            where = f"where the executor looks for it (marker_look_deg; {why}): yaw {yaw:g}, pitch {pitch:g} deg"
         report["looked_deg"] = [yaw, pitch]
         text.write(f"no /target_pose within {MARKER_FRESH_WAIT_S:g} s (the marker is out of view): turning the head "
                    f"{where} ...\n")

@@ -903,7 +903,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     import argparse
     import time
 
-    ap = argparse.ArgumentParser(description=main.__doc__)
+    ap = argparse.ArgumentParser(description=main.__doc__, allow_abbrev=False)
     ap.add_argument("scene", nargs="?", default="scenes/plant.yaml")
     ap.add_argument("--figure", help="write the three-view PNG here")
     ap.add_argument("--resolution", type=float, action="append", help="voxel size [m] (repeatable)")
