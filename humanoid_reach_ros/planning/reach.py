@@ -974,11 +974,16 @@ class ReachPlanner:
             Q = np.vstack(parts)
             Q[-1] = q_rest
             out = self._trajectory(Q)
+            # the arm whose hand the executor tracks (level 3): the one that travels most (the pre-segment
+            # may move the other arm home while this arm's planning space only holds the trunk)
+            travel = {a: float(np.abs(np.diff(Q[:, N_BASE_Q + np.array(self.robot.limbs[f"{a}_arm"].joint_index)],
+                                              axis=0)).sum()) for a in ("right", "left")}
+            arm = max(travel, key=travel.get)
             stats.update(path_planning_time_s=time.perf_counter() - tp, tree_nodes=nodes, path_waypoints=len(Q))
             collision_stats()
             stats["total_time_s"] = time.perf_counter() - t0
             return PlanOutcome(
-                True, PlanError.SUCCESS, f"planned the way home ({arm} arm): {len(Q)} waypoints, "
+                True, PlanError.SUCCESS, f"planned the way home ({arm} arm moving most): {len(Q)} waypoints, "
                                          f"{out.duration:.1f} s, planning {1e3 * stats['total_time_s']:.0f} ms{note}",
                 arm, self.robot.joint_names, out.times_out, out.positions, out.velocities, out.accelerations,
                 Q, None, self.robot.base_pose(prefix[0]), stats, waypoint_times=out.waypoint_times,
