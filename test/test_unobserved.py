@@ -11,6 +11,7 @@ topics) runs in test_operator_flow.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -91,3 +92,31 @@ def test_bad_unobserved_input(planner) -> None:
         planner.set_map(np.empty((0, 3)), np.array([[np.nan, 0.0, 0.0]]))
     with pytest.raises(ValueError, match="unobserved voxels must be an"):
         planner.set_map(np.empty((0, 3)), np.zeros((3, 2)))
+
+
+def test_behind_the_robot_is_unobserved_and_no_gaze_sees_it(scene) -> None:
+    """The unobserved region reaches behind the robot (voxel_mapper's unobserved_region_min_m):
+    after the whole scan a target behind the back is not planned as if free; since no gaze of
+    the head and chest reaches there, the answer is UNOBSERVABLE_SPACE; a low target beside
+    the hip, in the body's own swept space, is planned."""
+    from humanoid_reach_ros.control.gaze import GazeSolver
+    from humanoid_reach_ros.robot.model import RobotModel
+    from humanoid_reach_ros.scene.planning_scene import PlanningScene, SceneParams
+
+    robot = RobotModel()
+    gaze = GazeSolver(RobotModel())
+    pl = ReachPlanner(robot, PlannerParams(time_budget_s=2.0), observable=gaze.observable)
+    pl.scene = PlanningScene(robot, SceneParams(body_clearance_m=CLEARANCE), pl.collision_model)
+    assert REGION[0][0] <= -0.5, REGION   # behind the robot too
+    flat = EXECUTOR_PARAMETERS["scan_poses_deg"].default
+    m = scanned(pl, scene, list(zip(flat[::2], flat[1::2])))
+    pl.scene.set_occupied(m.occupied_centers(), "/voxel_map")
+    pl.scene.set_unobserved(m.frontier_centers(*REGION), m.unobserved_blocks(*REGION, 5))
+    j0 = robot.half_sitting_joints
+    behind = dataclasses.replace(valve_region(), target_p=np.array([-0.4, 0.0, 0.9]))
+    out = pl.plan(j0, PlanRequest(behind, seed=0))
+    assert out.error == PlanError.UNOBSERVABLE_SPACE, out.message
+    assert "no reachable gaze" in out.message and len(out.unobserved_points) >= 1
+    # beside the hip, where the body has been (body-swept space counts as observed): planned
+    hip = dataclasses.replace(valve_region(), target_p=np.array([0.25, -0.29, 0.66]))
+    assert pl.plan(j0, PlanRequest(hip, seed=0)).success
