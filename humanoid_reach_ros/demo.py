@@ -41,7 +41,7 @@ from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT, robots
 # the topics the MCAP recording keeps (camera images are left out: 10 Hz of 640x480 RGB is 9 MB/s)
 RECORDED_TOPICS = ("/joint_states", "/joint_command", "/base_pose", "/robot_description", "/target_pose",
                    "/markers", "/voxel_map", "/reach_trajectory", "/planning/markers", "/executor/metrics",
-                   "/diagnostics", "/head_camera/camera_info")
+                   "/diagnostics", "/head_camera/camera_info", "/voxel_map/unobserved", "/voxel_map/unobserved_blocks")
 # the executor's head scan (parameter scan_poses_deg of reach_executor): (yaw, pitch) [deg], pitch > 0 looks
 # down; tools/record_bags.py and test_perception_graph command the same poses without the executor
 _SCAN = PARAMETERS["scan_poses_deg"].default

@@ -287,6 +287,7 @@ class ReachPlanner:
                                         params.trunk_roll_rad, params.trunk_yaw_rad)
         self.early_exit_checks = bool(early_exit_checks)
         self._tree_build_s = 0.0
+        self._pre_segment_why = ""
         self._plan_lock = threading.Lock()
         self._checker_lock = threading.Lock()
         self._checkers: dict = {}   # arm -> (collision, PlanChecker) of the last map used
@@ -436,7 +437,7 @@ class ReachPlanner:
 
     def search_path(self, arm: str, start_plan: np.ndarray, goal_plan: np.ndarray, collision: RobotCollision,
                     rng: np.random.Generator, planner: str, budget_s: float, trunk: TrunkSampler | None = None,
-                    shortcut_s=None):
+                    shortcut_s=None, is_valid=None):
         """Path in ``q_plan`` from ``start_plan`` (n + 4,) to any of ``goal_plan`` (G, n + 4), then
         shortcut: ``(result, path or None, tree nodes)``. RRT-connect runs first in the
         planning space cut around the start and the goals (at most
@@ -448,7 +449,7 @@ class ReachPlanner:
         p = self.params
         t0 = time.perf_counter()
         include = np.vstack([start_plan[None], goal_plan])
-        is_valid = self.validity_fn(arm, collision)
+        is_valid = self.validity_fn(arm, collision) if is_valid is None else is_valid
         spaces = [(self.planning_space(arm, include, trunk, cut=False), None)]
         if p.trunk_space_margin is not None and planner == "rrt_connect":
             spaces.insert(0, (self.planning_space(arm, include, trunk), p.trunk_space_cut_iterations))
@@ -551,8 +552,13 @@ class ReachPlanner:
                 Q[k] = self.start_config(Q[k, N_BASE_Q:])
         joints = Q[:, N_BASE_Q:]
         if not np.all((joints >= self.robot.lower - 1e-9) & (joints <= self.robot.upper + 1e-9)):
+            self._pre_segment_why = "a joint limit"
             return None
-        if not np.all(collision.check_batch(Q)):
+        ok = collision.check_batch(Q)
+        if not np.all(ok):
+            k = int(np.argmin(ok))
+            self._pre_segment_why = (f"{', '.join(self.colliding_shapes(Q[k], collision)) or 'a shape'} at "
+                                     f"{100 * k / max(len(Q) - 1, 1):.0f} %")
             return None
         return Q
 
@@ -572,7 +578,22 @@ class ReachPlanner:
                 joints = self._validate_joints(start_joints)
                 self.scene.mark_body(joints)
                 snap = self.scene.snapshot()   # the plan and its unobserved-space check use this one
-                outcome = self._plan(joints, request, stats, t0, snap)
+                try:
+                    outcome = self._plan(joints, request, stats, t0, snap)
+                except _Failure as e:
+                    outcome = self._fail(e.error, e.message, stats, t0, **e.extra)
+                for farther in (0.12, 0.2):
+                    if outcome.error != PlanError.START_IN_COLLISION or "pre_segment" not in outcome.message:
+                        break
+                    # the start (or the retreat's end) is clear but the way onto the planning manifold
+                    # is not: the pre-segment moves the trunk and the chest, the hand with them (seen
+                    # after the demo's reach: the hand back into the valve at 38 % of it). Retreat
+                    # from the nearest hand, farther (MoveIt Task Constructor's retreats: 0.12-0.25 m)
+                    try:
+                        outcome = self._plan(joints, request, _empty_stats(), t0, snap, force_retreat=True,
+                                             min_retreat_m=farther)
+                    except _Failure as e:
+                        outcome = self._fail(e.error, e.message, stats, t0, **e.extra)
             except _Failure as e:
                 outcome = self._fail(e.error, e.message, stats, t0, **e.extra)
             if snap is not None:
@@ -730,7 +751,8 @@ class ReachPlanner:
         return region, arm, planner, int(n_goals), float(budget), int(seed)
 
     def _plan(self, start_joints, request: PlanRequest, stats: dict, t0: float, snap: SceneSnapshot,
-              collisions: tuple[RobotCollision, RobotCollision | None] | None = None) -> PlanOutcome:
+              collisions: tuple[RobotCollision, RobotCollision | None] | None = None,
+              force_retreat: bool = False, min_retreat_m: float | None = None) -> PlanOutcome:
         """One plan in ``snap`` (``collisions``: the checkers to use instead of the scene's, as
         ``_unobserved_check`` does): checks, the retreat from a contact, then a reach (goal
         sampling + path) or the way home."""
@@ -762,7 +784,8 @@ class ReachPlanner:
         stats["map_voxels"] = int((known or collision).tree.n_spheres)   # occupied, the target's object left out
         c0 = replace(collision.counters)
         q_first = self.start_config(joints)
-        retreat, joints = self._start_or_retreat(joints, q_first, collision, snap, self._approach_at(joints, request))
+        retreat, joints = self._start_or_retreat(joints, q_first, collision, snap, self._approach_at(joints, request),
+                                                 force_retreat, min_retreat_m)
         q_start = self.start_config(joints)
         prefix = q_first[None] if retreat is None else np.array([self.start_config(j) for j in retreat.joints])
         retreat_kw = {} if retreat is None else {"retreat": retreat.describe()}
@@ -837,7 +860,7 @@ class ReachPlanner:
                 continue
             pre = self._pre_segment(q_start, q_proj_start, collision)
             if pre is None:
-                failures.append((arm, "pre_segment"))
+                failures.append((arm, f"pre_segment ({self._pre_segment_why})"))
                 continue
             result, path_plan, n_nodes = self.search_path(
                 arm, start_plan, goal_plan, collision, rng, planner, remaining, trunk,
@@ -867,7 +890,7 @@ class ReachPlanner:
         stats["tree_nodes"] = nodes
         collision_stats()
         why = "; ".join(f"{a} arm: {s.value if isinstance(s, PlanStatus) else s}" for a, s in failures)
-        if any(s in ("start_projection", "pre_segment") for _, s in failures) and not any(
+        if any(str(s).startswith(("start_projection", "pre_segment")) for _, s in failures) and not any(
                 isinstance(s, PlanStatus) for _, s in failures):
             raise _Failure(PlanError.START_IN_COLLISION,
                            f"the start posture cannot be moved to the planning manifold (trunk above COG_approx, "
@@ -881,13 +904,16 @@ class ReachPlanner:
 
     # ------------------------------------------------------------ start, retreat, home
     def _start_or_retreat(self, joints: np.ndarray, q_start: np.ndarray, collision: RobotCollision,
-                          snap: SceneSnapshot, approach: np.ndarray | None) -> tuple[Retreat | None, np.ndarray]:
+                          snap: SceneSnapshot, approach: np.ndarray | None, force: bool = False,
+                          min_retreat_m: float | None = None) -> tuple[Retreat | None, np.ndarray]:
         """The start as it is, or, when a hand touches the map, the end of a retreat
         (planning/retreat.py). START_IN_COLLISION names the links and the nearest voxels when
         something else collides, or when no retreat works; a colliding start is never moved at
         random."""
         margin = snap.params.safety_margin_m
-        contact, hit = self.retreat_planner.classify_start(q_start, collision.tree, margin)
+        contact, hit = self.retreat_planner.classify_start(
+            q_start, collision.tree, margin,
+            self.retreat_planner.params.contact_radius_m if force else None)
         if hit is not None:
             more = f"; also {contact.describe()}" if contact is not None else ""
             raise _Failure(PlanError.START_IN_COLLISION,
@@ -901,12 +927,12 @@ class ReachPlanner:
                                "start posture in collision: " + (", ".join(shapes) if shapes else "unknown shapes"))
             return None, joints
         retreat, reasons = self.retreat_planner.plan(joints, contact, collision.tree, margin, approach,
-                                                     self._reverse_of_last(joints))
+                                                     self._reverse_of_last(joints), min_retreat_m)
         if retreat is None:
             raise _Failure(PlanError.START_IN_COLLISION,
                            f"{contact.describe()} and no retreat of {1e3 * self.retreat_planner.params.min_distance_m:.0f}"
                            f"-{1e3 * self.retreat_planner.params.max_distance_m:.0f} mm frees it: "
-                           + "; ".join(reasons))
+                           + "; ".join(reasons[:6]) + (f"; ... {len(reasons) - 6} more lines" if len(reasons) > 6 else ""))
         end = retreat.joints[-1]
         if not collision.check(self.start_config(end)):
             shapes = self.colliding_shapes(self.start_config(end), collision)
@@ -960,7 +986,7 @@ class ReachPlanner:
                 continue
             pre = self._pre_segment(q_start, q_proj_start, collision)
             if pre is None:
-                failures.append((arm, "pre_segment"))
+                failures.append((arm, f"pre_segment ({self._pre_segment_why})"))
                 continue
             result, path_plan, n_nodes = self.search_path(
                 arm, start_plan, goal_plan, collision, rng, planner, remaining, None,
@@ -988,11 +1014,61 @@ class ReachPlanner:
                 arm, self.robot.joint_names, out.times_out, out.positions, out.velocities, out.accelerations,
                 Q, None, self.robot.base_pose(prefix[0]), stats, waypoint_times=out.waypoint_times,
                 waypoints_plan=path_plan, trajectory=out.spline, **retreat_kw)
+        # the pre-segment brings the chest and the other arm to the reference first, which can swing a
+        # hand near an object into it (the executor's hand task leaves the chest where it needed it:
+        # seen 16 deg of chest yaw after the demo's reach): plan on the manifold of the start posture
+        # instead (those joints kept), the arm and the trunk to the rest posture's, the rest last
+        for arm in order if all(str(s).startswith("pre_segment") for _, s in failures) else ():
+            remaining = deadline - time.perf_counter()
+            if remaining <= 0:
+                break
+            proj = Projector(self.robot, self.projector.ik, reference_joints=joints)
+            start_plan = proj.plan_config_of(q_start, arm)
+            goal_plan = proj.plan_config_of(q_rest, arm)
+            ends = proj.project_plan_config(np.vstack([start_plan, goal_plan]), arm)
+            if not np.all(ends.ok):
+                failures.append((arm, "start-posture manifold: an end does not project"))
+                continue
+            pre = self._pre_segment(q_start, ends.q[0], collision)
+            tail = self._pre_segment(q_rest, ends.q[1], collision)
+            if pre is None or tail is None:
+                failures.append((arm, f"start-posture manifold: {self._pre_segment_why}"))
+                continue
+            checker = PlanChecker(proj, collision, arm) if self.projector.compiled else None
+            result, path_plan, n_nodes = self.search_path(
+                arm, start_plan[0], goal_plan, collision, rng, planner, remaining, None,
+                shortcut_s=lambda: min(self.params.shortcut_time_s, max(0.0, deadline - time.perf_counter())),
+                is_valid=checker)
+            nodes += n_nodes
+            if path_plan is None:
+                failures.append((arm, f"start-posture manifold: {result.status.value}"))
+                continue
+            res = proj.project_plan_config(path_plan, arm)
+            if not np.all(res.ok):
+                failures.append((arm, "start-posture manifold: a waypoint does not project"))
+                continue
+            parts = [prefix] + [x[1:] for x in (pre, res.q, tail[::-1]) if len(x)]
+            Q = np.vstack(parts)
+            Q[-1] = q_rest
+            out = self._trajectory(Q)
+            travel = {a: float(np.abs(np.diff(Q[:, N_BASE_Q + np.array(self.robot.limbs[f"{a}_arm"].joint_index)],
+                                              axis=0)).sum()) for a in ("right", "left")}
+            moving = max(travel, key=travel.get)
+            stats.update(path_planning_time_s=time.perf_counter() - tp, tree_nodes=nodes, path_waypoints=len(Q))
+            collision_stats()
+            stats["total_time_s"] = time.perf_counter() - t0
+            return PlanOutcome(
+                True, PlanError.SUCCESS, f"planned the way home ({moving} arm moving most; the chest and the "
+                                         f"other arm kept until the arm is home): {len(Q)} waypoints, "
+                                         f"{out.duration:.1f} s, planning {1e3 * stats['total_time_s']:.0f} ms{note}",
+                moving, self.robot.joint_names, out.times_out, out.positions, out.velocities, out.accelerations,
+                Q, None, self.robot.base_pose(prefix[0]), stats, waypoint_times=out.waypoint_times,
+                waypoints_plan=path_plan, trajectory=out.spline, **retreat_kw)
         stats.update(path_planning_time_s=time.perf_counter() - tp, tree_nodes=nodes)
         collision_stats()
         why = "; ".join(f"{a} arm: {s.value if isinstance(s, PlanStatus) else s}" for a, s in failures)
         code = PlanError.START_IN_COLLISION if failures and all(
-            s in ("start_projection", "pre_segment") for _, s in failures) else PlanError.NO_PATH
+            str(s).startswith(("start_projection", "pre_segment")) for _, s in failures) else PlanError.NO_PATH
         return self._fail(code, f"no way home within the budget ({why}): raise --budget", stats, t0, **retreat_kw)
 
     def _projected_start(self, q_start: np.ndarray, arm: str) -> tuple[np.ndarray | None, np.ndarray]:

@@ -47,7 +47,7 @@ No ROS here.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pinocchio as pin
@@ -157,15 +157,19 @@ class RetreatPlanner:
         # the arm's joints and the chest's: the chest moves the shoulder when the arm alone is at a
         # limit (Talos at the plant valve: 1 of 8 reaches had no arm-only line out)
         chest = [robot.joint_index[n] for n in robot.spec.chest_joints]
-        self._cols = {arm: np.array(list(robot.limbs[limb].joint_index) + chest) for arm, limb in ARM_LIMBS.items()}
+        self._cols = {(arm, with_chest): np.array(list(robot.limbs[limb].joint_index) + (chest if with_chest else []))
+                      for arm, limb in ARM_LIMBS.items() for with_chest in (False, True)}
 
     # ------------------------------------------------------------ contact
     def classify_start(self, q: np.ndarray, tree: SphereTree, margin_m: float,
-                       ) -> tuple[Contact | None, StartCollision | None]:
+                       contact_distance_m: float | None = None) -> tuple[Contact | None, StartCollision | None]:
         """``(contact, collision)`` at the start ``q`` against ``tree`` (voxel spheres grown by
         ``margin_m``): a hand in contact (None if none), and the other shapes that collide
         (None if none). Shapes are compared with the map at zero margin for collisions and at
-        ``contact_distance_m`` for the contact."""
+        ``contact_distance_m`` (default the parameter's) for the contact: the planner asks again
+        with ``contact_radius_m`` when the start is clear but its way onto the planning manifold
+        is not."""
+        reach = self.params.contact_distance_m if contact_distance_m is None else float(contact_distance_m)
         if tree.n_spheres == 0:
             return None, None
         P0, P1, R = self.cm.world_shapes(q)
@@ -185,18 +189,18 @@ class RetreatPlanner:
             if not hs.size:
                 continue
             d = float(np.min(dist[hs]))
-            if d < self.params.contact_distance_m and (best is None or d < best[1]):
+            if d < reach and (best is None or d < best[1]):
                 best = (arm, d)
-        contact = None if best is None else self._contact(q, tree, best[0], P0, P1, R, dist, idx)
+        contact = None if best is None else self._contact(q, tree, best[0], P0, P1, R, dist, idx, reach)
         return contact, collision
 
     @staticmethod
     def _sphere_centre(tree: SphereTree, i: int) -> np.ndarray:
         return np.asarray(tree.centers[i], float).copy()
 
-    def _contact(self, q, tree, arm, P0, P1, R, dist, idx) -> Contact:
+    def _contact(self, q, tree, arm, P0, P1, R, dist, idx, reach: float) -> Contact:
         hs = np.flatnonzero(self.hand[arm])
-        near = hs[dist[hs] < self.params.contact_distance_m]
+        near = hs[dist[hs] < reach]
         k = near[int(np.argmin(dist[near]))]
         point = self._sphere_centre(tree, int(idx[k]))
         hand_p = self.robot.frame_pose(q, self.robot.limbs[ARM_LIMBS[arm]].tip).translation.copy()
@@ -243,10 +247,21 @@ class RetreatPlanner:
 
     def plan(self, joints: np.ndarray, contact: Contact, tree: SphereTree, margin_m: float,
              approach: np.ndarray | None = None, reverse_path: np.ndarray | None = None,
-             ) -> tuple[Retreat | None, list[str]]:
+             min_distance_m: float | None = None) -> tuple[Retreat | None, list[str]]:
         """The first retreat that passes every check (module doc) and the reasons the others
         failed. ``reverse_path`` (K, n): the last plan's samples backwards from where the robot
-        stands (the way the hand came in), tried first; then the Cartesian directions."""
+        stands (the way the hand came in), tried first; then the Cartesian directions.
+        ``min_distance_m``: a longer retreat than the parameter's (at most ``max_distance_m``)."""
+        saved = self.params
+        if min_distance_m is not None:
+            self.params = replace(saved, min_distance_m=min(max(float(min_distance_m), saved.min_distance_m),
+                                                            saved.max_distance_m))
+        try:
+            return self._plan(joints, contact, tree, margin_m, approach, reverse_path)
+        finally:
+            self.params = saved
+
+    def _plan(self, joints, contact, tree, margin_m, approach, reverse_path) -> tuple[Retreat | None, list[str]]:
         q0 = self.robot.config(joints, self.robot.base_on_feet(joints))
         allowed = (SphereTree.from_voxels(contact.voxels, 2.0 * (float(tree.radii[0]) - margin_m))
                    if len(contact.voxels) else None)
@@ -256,17 +271,33 @@ class RetreatPlanner:
             if r is not None:
                 return r, reasons
             reasons.append(f"back along the approach: {why}")
-        for label, d in self.directions(q0, contact, approach):
-            r, why = self._along(q0, contact, d, label, tree, margin_m, allowed)
+        # the arm alone first: a chest the retreat bends is bent back by the plan's pre-segment (to
+        # the reference), which swings the hand back (seen: chest pitch 0.06 -> 0.60 rad, the hand
+        # into the valve at 50 % of the pre-segment); the chest only where the arm alone cannot
+        # (first, the chest returns to its reference over the retreat, the arm keeping the line)
+        candidates = [(mode, label, d) for mode in ("chest home", "arm", "arm and chest")
+                      for label, d in self.directions(q0, contact, approach)]
+        for mode, label, d in candidates:
+            label = f"{label}, {mode}"
+            r, why = self._along(q0, contact, d, label, tree, margin_m, allowed, mode)
             if r is not None:
                 return r, reasons
             reasons.append(f"{label}: {why}")
         return None, reasons
 
-    def _along(self, q0, contact, d, label, tree, margin_m, allowed) -> tuple[Retreat | None, str]:
+    def _along(self, q0, contact, d, label, tree, margin_m, allowed, mode: str = "arm",
+               ) -> tuple[Retreat | None, str]:
+        """The hand on the line ``p_0 + s d``. ``mode``: ``arm`` (the arm's joints follow it),
+        ``arm and chest`` (the chest's too), ``chest home`` (the chest moves to its reference
+        linearly over ``min_distance_m`` while the arm follows the line)."""
         p = self.params
         arm = contact.arm
-        fid, cols = self._fid[arm], self._cols[arm]
+        fid, cols = self._fid[arm], self._cols[(arm, mode == "arm and chest")]
+        chest_q = np.array([self.robot.joint_index[n] for n in self.robot.spec.chest_joints]) + N_BASE_Q
+        chest_0 = q0[chest_q].copy()
+        chest_ref = self.robot.half_sitting_joints[chest_q - N_BASE_Q]
+        if mode == "chest home" and np.max(np.abs(chest_ref - chest_0)) < 1e-6:
+            return None, "the chest is at its reference already"
         vcols = cols + N_BASE_V
         qcols = cols + N_BASE_Q
         model, data = self.robot.model, self._data
@@ -281,6 +312,8 @@ class RetreatPlanner:
         for k in range(1, n_steps + 1):
             s = min(k * p.step_m, p.max_distance_m)
             target = pin.SE3(M0.rotation, M0.translation + s * d)
+            if mode == "chest home":
+                q[chest_q] = chest_0 + min(1.0, s / p.min_distance_m) * (chest_ref - chest_0)
             for _ in range(p.iterations * (4 if k == 1 else 1)):   # the first step may start singular
                 pin.framesForwardKinematics(model, data, q)
                 M = data.oMf[fid]
@@ -310,7 +343,8 @@ class RetreatPlanner:
                     return None, f"the hand would touch voxels away from the contact at {1e3 * s:.0f} mm"
             path.append(q[N_BASE_Q:].copy())
             arm_clear = float(np.min(dist[hand])) - margin_m   # the retreating shapes, with the planning margin
-            if s >= p.min_distance_m - 1e-9 and arm_clear >= p.end_clearance_m and np.all(dist >= margin_m):
+            if s >= p.min_distance_m - 1e-9 and arm_clear >= p.end_clearance_m and np.all(dist >= margin_m) \
+                    and (mode != "chest home" or np.max(np.abs(q[chest_q] - chest_ref)) < 1e-9):
                 return Retreat(np.array(path), d, s, label, arm_clear), ""
         return None, f"no clearance of {1e3 * p.end_clearance_m:.0f} mm within {1e3 * p.max_distance_m:.0f} mm"
 
