@@ -61,7 +61,7 @@ from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion, matrix_rpy
 from humanoid_reach_ros.robot.limb_ik import LimbIKSet
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 from humanoid_reach_ros.robot.shapes import load_collision_model
-from humanoid_reach_ros.scene.planning_scene import PlanningScene, SceneParams, SceneSnapshot
+from humanoid_reach_ros.scene.planning_scene import PlanningScene, SceneParams, SceneSnapshot, voxel_points
 
 STAT_KEYS = (
     "goal_sampling_time_s", "goals_requested", "goals_found", "goals_right_arm", "goals_left_arm", "samples",
@@ -304,8 +304,8 @@ class ReachPlanner:
         frontier), same resolution. Plans avoid them like occupied voxels; a plan that fails
         only because of them is answered ``UNOBSERVED_SPACE`` (checked against the occupied
         voxels alone, see :meth:`plan`)."""
-        V = _voxel_array(voxels, "voxels")
-        U = None if unobserved is None else _voxel_array(unobserved, "unobserved voxels")
+        V = voxel_points(voxels, "voxels")
+        U = None if unobserved is None else voxel_points(unobserved, "unobserved voxels")
         self.scene.set_occupied(V, source="set_map")
         if U is None:
             self.scene.forget_unobserved()
@@ -940,6 +940,27 @@ class ReachPlanner:
                            f"{contact.describe()}; the retreat's end still collides ({', '.join(shapes)})")
         return retreat, end
 
+    def _home_outcome(self, pieces, q_rest, path_plan, how, stats, tp, nodes, t0, collision_stats, note,
+                      retreat_kw) -> PlanOutcome:
+        """SUCCESS of a way home made of ``pieces`` (each starting where the last ended), ending
+        exactly at ``q_rest``. Its arm is the one that travels most: the executor tracks that
+        hand (the pre-segment may move the other arm home while the planned arm stays)."""
+        Q = np.vstack([pieces[0]] + [x[1:] for x in pieces[1:] if len(x)])
+        Q[-1] = q_rest
+        out = self._trajectory(Q)
+        travel = {a: float(np.abs(np.diff(Q[:, N_BASE_Q + np.array(self.robot.limbs[f"{a}_arm"].joint_index)],
+                                          axis=0)).sum()) for a in ("right", "left")}
+        arm = max(travel, key=travel.get)
+        stats.update(path_planning_time_s=time.perf_counter() - tp, tree_nodes=nodes, path_waypoints=len(Q))
+        collision_stats()
+        stats["total_time_s"] = time.perf_counter() - t0
+        return PlanOutcome(
+            True, PlanError.SUCCESS, f"planned the way home ({arm} arm moving most{how}): {len(Q)} waypoints, "
+                                     f"{out.duration:.1f} s, planning {1e3 * stats['total_time_s']:.0f} ms{note}",
+            arm, self.robot.joint_names, out.times_out, out.positions, out.velocities, out.accelerations,
+            Q, None, self.robot.base_pose(Q[0]), stats, waypoint_times=out.waypoint_times,
+            waypoints_plan=path_plan, trajectory=out.spline, **retreat_kw)
+
     def _plan_home(self, joints, q_start, prefix, collision, rng, planner, deadline, stats, t0, collision_stats,
                    retreat_kw) -> PlanOutcome:
         """The way back to the rest posture (the robot description's half-sitting): each arm
@@ -995,25 +1016,8 @@ class ReachPlanner:
             if path_plan is None:
                 failures.append((arm, result.status))
                 continue
-            Q = self.full_configs(path_plan, arm)
-            parts = [prefix] + [x[1:] for x in (pre, Q, tail[::-1]) if len(x)]
-            Q = np.vstack(parts)
-            Q[-1] = q_rest
-            out = self._trajectory(Q)
-            # the arm whose hand the executor tracks (level 3): the one that travels most (the pre-segment
-            # may move the other arm home while this arm's planning space only holds the trunk)
-            travel = {a: float(np.abs(np.diff(Q[:, N_BASE_Q + np.array(self.robot.limbs[f"{a}_arm"].joint_index)],
-                                              axis=0)).sum()) for a in ("right", "left")}
-            arm = max(travel, key=travel.get)
-            stats.update(path_planning_time_s=time.perf_counter() - tp, tree_nodes=nodes, path_waypoints=len(Q))
-            collision_stats()
-            stats["total_time_s"] = time.perf_counter() - t0
-            return PlanOutcome(
-                True, PlanError.SUCCESS, f"planned the way home ({arm} arm moving most): {len(Q)} waypoints, "
-                                         f"{out.duration:.1f} s, planning {1e3 * stats['total_time_s']:.0f} ms{note}",
-                arm, self.robot.joint_names, out.times_out, out.positions, out.velocities, out.accelerations,
-                Q, None, self.robot.base_pose(prefix[0]), stats, waypoint_times=out.waypoint_times,
-                waypoints_plan=path_plan, trajectory=out.spline, **retreat_kw)
+            return self._home_outcome([prefix, pre, self.full_configs(path_plan, arm), tail[::-1]], q_rest,
+                                      path_plan, "", stats, tp, nodes, t0, collision_stats, note, retreat_kw)
         # the pre-segment brings the chest and the other arm to the reference first, which can swing a
         # hand near an object into it (the executor's hand task leaves the chest where it needed it:
         # seen 16 deg of chest yaw after the demo's reach): plan on the manifold of the start posture
@@ -1047,23 +1051,9 @@ class ReachPlanner:
             if not np.all(res.ok):
                 failures.append((arm, "start-posture manifold: a waypoint does not project"))
                 continue
-            parts = [prefix] + [x[1:] for x in (pre, res.q, tail[::-1]) if len(x)]
-            Q = np.vstack(parts)
-            Q[-1] = q_rest
-            out = self._trajectory(Q)
-            travel = {a: float(np.abs(np.diff(Q[:, N_BASE_Q + np.array(self.robot.limbs[f"{a}_arm"].joint_index)],
-                                              axis=0)).sum()) for a in ("right", "left")}
-            moving = max(travel, key=travel.get)
-            stats.update(path_planning_time_s=time.perf_counter() - tp, tree_nodes=nodes, path_waypoints=len(Q))
-            collision_stats()
-            stats["total_time_s"] = time.perf_counter() - t0
-            return PlanOutcome(
-                True, PlanError.SUCCESS, f"planned the way home ({moving} arm moving most; the chest and the "
-                                         f"other arm kept until the arm is home): {len(Q)} waypoints, "
-                                         f"{out.duration:.1f} s, planning {1e3 * stats['total_time_s']:.0f} ms{note}",
-                moving, self.robot.joint_names, out.times_out, out.positions, out.velocities, out.accelerations,
-                Q, None, self.robot.base_pose(prefix[0]), stats, waypoint_times=out.waypoint_times,
-                waypoints_plan=path_plan, trajectory=out.spline, **retreat_kw)
+            return self._home_outcome([prefix, pre, res.q, tail[::-1]], q_rest, path_plan,
+                                      "; the chest and the other arm kept until the arm is home", stats, tp, nodes,
+                                      t0, collision_stats, note, retreat_kw)
         stats.update(path_planning_time_s=time.perf_counter() - tp, tree_nodes=nodes)
         collision_stats()
         why = "; ".join(f"{a} arm: {s.value if isinstance(s, PlanStatus) else s}" for a, s in failures)
@@ -1147,17 +1137,6 @@ class _Traj:
     @property
     def duration(self) -> float:
         return self.spline.duration
-
-
-def _voxel_array(voxels, what: str) -> np.ndarray:
-    V = np.asarray(voxels, dtype=float)
-    if V.size == 0:
-        V = V.reshape(0, 3)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise ValueError(f"{what} must be an (N, 3) array of centres, got shape {V.shape}")
-    if not np.all(np.isfinite(V)):
-        raise ValueError(f"{what} contain NaN or inf")
-    return V
 
 
 def _merge_goals(a: Goals, b: Goals) -> Goals:
