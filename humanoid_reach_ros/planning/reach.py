@@ -594,6 +594,9 @@ class ReachPlanner:
                                              min_retreat_m=farther)
                     except _Failure as e:
                         outcome = self._fail(e.error, e.message, stats, t0, **e.extra)
+                if not request.home and outcome.error == PlanError.START_IN_COLLISION \
+                        and "pre_segment" in outcome.message:
+                    outcome = self._via_home(joints, request, snap, t0, outcome)
             except _Failure as e:
                 outcome = self._fail(e.error, e.message, stats, t0, **e.extra)
             if snap is not None:
@@ -609,6 +612,32 @@ class ReachPlanner:
                               f"internal error: {type(e).__name__}: {e} ({traceback.format_exc(limit=3)!r})", stats, t0)
         finally:
             self._plan_lock.release()
+
+    def _via_home(self, joints: np.ndarray, request: PlanRequest, snap: SceneSnapshot, t0: float,
+                  failed: PlanOutcome) -> PlanOutcome:
+        """A reach whose start cannot be moved onto the planning manifold (the hand would swing
+        back into the object it rests on: seen in dense_pipes after a reach onto a pipe) goes by
+        the rest posture: the way home (which keeps the chest and the other arm until the arm is
+        home), then the reach from there. ``failed`` is returned when either part fails."""
+        home = self._plan(joints, replace(request, home=True), _empty_stats(), t0, snap)
+        if not home.success:
+            return failed
+        rest = np.asarray(home.positions[-1], float)
+        try:
+            reach = self._plan(rest, replace(request, approach=None), _empty_stats(), time.perf_counter(), snap)
+        except _Failure:
+            return failed
+        if not reach.success:
+            return failed
+        Q = np.vstack([home.waypoints, reach.waypoints[1:]])
+        out = self._trajectory(Q)
+        stats = dict(reach.stats)
+        stats["path_waypoints"] = len(Q)
+        stats["total_time_s"] = time.perf_counter() - t0
+        return replace(reach, message=f"{reach.message}; by the rest posture first ({home.message})", waypoints=Q,
+                       times=out.times_out, positions=out.positions, velocities=out.velocities,
+                       accelerations=out.accelerations, waypoint_times=out.waypoint_times, trajectory=out.spline,
+                       waist_start=self.robot.base_pose(Q[0]), retreat=home.retreat, stats=stats)
 
     def _remember_end(self, outcome: PlanOutcome) -> None:
         """The last successful plan's samples (:meth:`_reverse_of_last`) and its hand's last
