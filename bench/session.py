@@ -93,7 +93,8 @@ for _p in (REPO, REPO / "bench"):
 
 BUDGET_S = 10.0             # --budget of every plan: a cap (a plan ends when found), so a loaded machine fails no step
 STEP_TIMEOUT_S = 300.0       # one reach_operator process at most
-HOME_TOL_RAD = 0.005         # after --home: every joint within this of half-sitting (measured, settled)
+HOME_TOL_RAD = 0.01          # after --home: every joint within this of half-sitting (measured, settled; the
+                             # executor holds the exact COG of the motion's start, so the legs end up to 7 mrad off)
 MOTION_START_TFS_S = 0.2     # the first /executor/metrics of a motion: time_from_start_s below this
 READY_LOGS = {               # a node's log line once it serves (test_operator_flow's)
     "joint_driver": r"simulated \w+", "scene_sim": r"scene sensors ready", "voxel_mapper": r"voxel mapper ready",

@@ -579,6 +579,7 @@ def look(op: Operator, args: argparse.Namespace, text: TextIO, err: TextIO, summ
 
 
 # ---------------------------------------------------------------- look where the plan needs to see
+AUTO_LOOK_SERVER_WAIT_S = 3.0   # an automatic look waits this long for /look before it gives up on looking
 def plan_with_looks(op: Operator, args: argparse.Namespace, req: Any, text: TextIO, err: TextIO,
                     summary: dict[str, Any]) -> tuple[Any | None, int]:
     """``/plan_reach``; while it answers UNOBSERVED_SPACE with the points where the target or the
@@ -601,6 +602,11 @@ def plan_with_looks(op: Operator, args: argparse.Namespace, req: Any, text: Text
         if args.no_auto_look or looks >= args.max_looks:
             if not args.no_auto_look:
                 err.write(f"reach_operator: still unobserved after {looks} automatic look(s) at {where}\n")
+            return resp, EXIT["success"]
+        # a graph without an executor (a planner fed by a replayed bag) has nobody to look: say so at once
+        # rather than wait --timeout for /look (discovery takes well under AUTO_LOOK_SERVER_WAIT_S here)
+        if not op.spin_until(op.look_client.server_is_ready, AUTO_LOOK_SERVER_WAIT_S):
+            err.write(f"reach_operator: no /look server (is reach_executor running?): no automatic look at {where}\n")
             return resp, EXIT["success"]
         looks += 1
         text.write(f"the plan needs to see {where} m (unobserved): looking there, automatic look {looks}/"
