@@ -332,7 +332,9 @@ def test_operator_md_replay_recipe_runs_as_written(ros_env, ros_probe, tmp_path:
         for _ in range(3):   # a loaded 2-core machine may run out of the planner's 2 s budget: asked again
             r = subprocess.run(cmds[3], env=dict(ros_env), cwd=REPO_ROOT, capture_output=True, text=True,
                                timeout=180)
-            if r.returncode != 5:
+            # (a budget spent with the frontier as an obstacle, then a 1 s plan through it, is answered
+            # UNOBSERVED_SPACE, exit 6; with no executor in this graph nobody looks: ask again too)
+            if r.returncode not in (5, 6):
                 break
         assert r.returncode == 0, (r.stdout, r.stderr, logs())
         assert "NO_JOINT_STATES" not in r.stderr and "plan: " in r.stdout, r.stderr
