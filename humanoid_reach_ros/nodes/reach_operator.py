@@ -454,9 +454,16 @@ class Operator:
         if gaze_points is not None:
             from humanoid_reach_ros.io.msgs import points_list
             goal.gaze_points = points_list(gaze_points)
-        send = self.look_client.send_goal_async(goal, feedback_callback=lambda m: on_feedback(m.feedback))
         poses = len(yaw_rad) or (len(gaze_points) if gaze_points is not None else SCAN_POSES_ASSUMED)
-        return self._await(send, self.timeout_s + poses * ((dwell_s or 1.0) + 5.0))
+        deadline = time.monotonic() + LOOK_START_GRACE_S
+        while True:
+            send = self.look_client.send_goal_async(goal, feedback_callback=lambda m: on_feedback(m.feedback))
+            outcome, result = self._await(send, self.timeout_s + poses * ((dwell_s or 1.0) + 5.0))
+            # right after the graph came up the executor may not have taken a /joint_states yet (bench/session,
+            # a --scan at once after start-up: NO_JOINT_STATES): ask again, for a few seconds only
+            if result is None or result.error_code != ExecuteCode.NO_JOINT_STATES or time.monotonic() > deadline:
+                return outcome, result
+            self.spin_until(lambda: False, 0.5)   # a pause that Ctrl-C ends (Canceled)
 
     def _await(self, send: Any, result_timeout_s: float) -> tuple[str, Any]:
         try:
@@ -579,6 +586,7 @@ def look(op: Operator, args: argparse.Namespace, text: TextIO, err: TextIO, summ
 
 
 # ---------------------------------------------------------------- look where the plan needs to see
+LOOK_START_GRACE_S = 5.0        # /look answered NO_JOINT_STATES: asked again for this long (a graph just up)
 AUTO_LOOK_SERVER_WAIT_S = 3.0   # an automatic look waits this long for /look before it gives up on looking
 def plan_with_looks(op: Operator, args: argparse.Namespace, req: Any, text: TextIO, err: TextIO,
                     summary: dict[str, Any]) -> tuple[Any | None, int]:
