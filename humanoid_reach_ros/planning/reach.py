@@ -883,14 +883,10 @@ class ReachPlanner:
                 break
             sel = np.flatnonzero(goals.arm == ARM_CODES[arm])
             goal_plan = self.projector.plan_config_of(goals.q[sel], arm)
-            q_proj_start, start_plan = self._projected_start(q_start, arm)
-            if q_proj_start is None:
-                failures.append((arm, "start_projection"))
+            onto = self._onto_manifold(q_start, arm, collision, failures)
+            if onto is None:
                 continue
-            pre = self._pre_segment(q_start, q_proj_start, collision)
-            if pre is None:
-                failures.append((arm, f"pre_segment ({self._pre_segment_why})"))
-                continue
+            pre, start_plan = onto
             result, path_plan, n_nodes = self.search_path(
                 arm, start_plan, goal_plan, collision, rng, planner, remaining, trunk,
                 shortcut_s=lambda: min(p.shortcut_time_s, max(0.0, deadline - time.perf_counter())))
@@ -1030,14 +1026,10 @@ class ReachPlanner:
             if tail is None:
                 failures.append((arm, "last segment to the rest posture collides"))
                 continue
-            q_proj_start, start_plan = self._projected_start(q_start, arm)
-            if q_proj_start is None:
-                failures.append((arm, "start_projection"))
+            onto = self._onto_manifold(q_start, arm, collision, failures)
+            if onto is None:
                 continue
-            pre = self._pre_segment(q_start, q_proj_start, collision)
-            if pre is None:
-                failures.append((arm, f"pre_segment ({self._pre_segment_why})"))
-                continue
+            pre, start_plan = onto
             result, path_plan, n_nodes = self.search_path(
                 arm, start_plan, goal_plan, collision, rng, planner, remaining, None,
                 shortcut_s=lambda: min(self.params.shortcut_time_s, max(0.0, deadline - time.perf_counter())))
@@ -1089,6 +1081,20 @@ class ReachPlanner:
         code = PlanError.START_IN_COLLISION if failures and all(
             str(s).startswith(("start_projection", "pre_segment")) for _, s in failures) else PlanError.NO_PATH
         return self._fail(code, f"no way home within the budget ({why}): raise --budget", stats, t0, **retreat_kw)
+
+    def _onto_manifold(self, q_start: np.ndarray, arm: str, collision: RobotCollision,
+                       failures: list) -> tuple[np.ndarray, np.ndarray] | None:
+        """The pre-segment from ``q_start`` onto ``arm``'s planning manifold and the start's q_plan,
+        or None with the reason appended to ``failures`` (a reach and the way home both begin so)."""
+        q_proj_start, start_plan = self._projected_start(q_start, arm)
+        if q_proj_start is None:
+            failures.append((arm, "start_projection"))
+            return None
+        pre = self._pre_segment(q_start, q_proj_start, collision)
+        if pre is None:
+            failures.append((arm, f"pre_segment ({self._pre_segment_why})"))
+            return None
+        return pre, start_plan
 
     def _projected_start(self, q_start: np.ndarray, arm: str) -> tuple[np.ndarray | None, np.ndarray]:
         start_plan = self.projector.plan_config_of(q_start, arm)[0]
