@@ -328,15 +328,18 @@ def test_operator_md_replay_recipe_runs_as_written(ros_env, ros_probe, tmp_path:
         t_play = time.monotonic()
         ros_probe.spin_until(lambda: time.monotonic() - t_play > bag_s + 3.0 and len(maps) > 0, bag_s + 90.0,
                              "one pass of the bag and a /voxel_map", on_timeout=logs)
-        r = None
-        for _ in range(3):   # a loaded 2-core machine may run out of the planner's 2 s budget: asked again
-            r = subprocess.run(cmds[3], env=dict(ros_env), cwd=REPO_ROOT, capture_output=True, text=True,
-                               timeout=180)
-            # (a budget spent with the frontier as an obstacle, then a 1 s plan through it, is answered
-            # UNOBSERVED_SPACE, exit 6; with no executor in this graph nobody looks: ask again too)
-            if r.returncode not in (5, 6):
-                break
-        assert r.returncode == 0, (r.stdout, r.stderr, logs())
+        # A plan takes ~0.65 s here when quiet; beside the other xdist worker's graph it may spend the
+        # planner's 2 s budget (fresh clone, CI: three tries in a row NO_PATH, both arms out of time).
+        # Asked again until a generous deadline: exit 5 (no motion: NO_PATH / NO_GOAL_FOUND) or 6
+        # (a budget spent with the frontier as an obstacle, then a 1 s plan through it, is answered
+        # UNOBSERVED_SPACE; with no executor in this graph nobody looks).
+        tries: list[subprocess.CompletedProcess] = []
+        deadline = time.monotonic() + 240.0
+        while not tries or (tries[-1].returncode in (5, 6) and time.monotonic() < deadline):
+            tries.append(subprocess.run(cmds[3], env=dict(ros_env), cwd=REPO_ROOT, capture_output=True, text=True,
+                                        timeout=180))
+        r = tries[-1]
+        assert r.returncode == 0, ([(t.returncode, t.stdout[-300:]) for t in tries], r.stderr, logs())
         assert "NO_JOINT_STATES" not in r.stderr and "plan: " in r.stdout, r.stderr
         assert "also published by" not in play_log.read_text()   # the bag is the only source
         print(f"\n{r.stdout}")
