@@ -172,6 +172,63 @@ def test_late_solver_evaluates_at_the_deadline_it_will_be_sent_at() -> None:
     assert h.engine.times[-1] == pytest.approx(t_before + 3 * DT)
 
 
+def fill(h: Harness) -> None:
+    """The solver as the threaded loop runs it: it works while there is work (the queued
+    commands, then steps until ``lookahead_steps`` are computed ahead)."""
+    for _ in range(10):
+        if not h.sup.has_work():
+            return
+        h.sup.work()
+
+
+def test_lookahead_steps_absorb_a_solver_that_misses_a_period() -> None:
+    """With two steps computed ahead, a solver that does not run for a whole period (a late
+    wake-up) costs no overrun: the tick sends the step computed ahead, each step evaluated at
+    the deadline it goes out at; with one step ahead the same pattern overruns."""
+    for depth, overruns in ((2, 0), (1, 5)):
+        h = Harness(lookahead_steps=depth)
+        h.sup.tick(h.deadline() + DT)           # the loop is ticking when the motion comes
+        h.sup.submit(h.motion(1, duration=0.3))
+        for i in range(80):
+            if i % 10 != 5:                     # every 10th period the solver does not run
+                fill(h)
+            h.k += 1
+            h.clock.now = h.deadline()
+            h.sup.tick(h.deadline() + DT)
+        m = h.finished[0]
+        assert m.code == C.SUCCESS and m.overruns >= overruns and (m.overruns == 0) == (overruns == 0), (depth, m)
+        t = np.array([x for x in h.engine.times if x is not None])
+        if depth == 2:
+            assert np.allclose(np.diff(t[t <= 0.3]), DT)   # one step per deadline, none skipped or repeated
+            J = np.array(h.sent)
+            # the command at the k-th deadline is the reference at that deadline (joints = v t)
+            moving = J[:, 0] < 0.3 - 1e-9
+            assert np.allclose(np.diff(J[moving, 0]), DT)
+
+
+def test_lookahead_a_start_drops_the_steps_computed_ahead_and_the_hold_repeats_the_end() -> None:
+    """A preemption begins from the last *published* command (the steps computed ahead of it
+    are dropped); steps computed past a motion's end are never sent: the hold repeats the end."""
+    h = Harness(lookahead_steps=3)
+    h.sup.submit(h.motion(1, duration=1.0))
+    for _ in range(20):
+        fill(h)
+        h.cycle(solve=False)
+    assert len(h.sup._ready) == 3 - 1           # computed ahead of the deadlines to come
+    last = h.sent[-1].copy()
+    h.sup.submit(h.motion(2, duration=0.05))
+    fill(h)
+    assert np.allclose(h.engine.q0[7:], last)  # from the last published command, not the computed ahead
+    for _ in range(30):
+        fill(h)
+        h.cycle(solve=False)
+    assert h.finished[-1].id == 2 and h.finished[-1].code == C.SUCCESS and h.sup.mode == HOLD
+    end = last + 0.05
+    assert np.allclose(h.sent[-1], end) and not h.sup._ready
+    J = np.array(h.sent)
+    assert J[:, 0].max() == pytest.approx(end[0])   # nothing computed past the end went out
+
+
 def test_cancel_settles_then_holds_and_hold_timeout_goes_idle() -> None:
     h = Harness(hold_settle_s=0.02, hold_timeout_s=0.05)
     h.sup.submit(h.motion(1, duration=1.0))

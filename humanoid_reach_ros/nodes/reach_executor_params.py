@@ -68,6 +68,9 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "hold_timeout_s": ParamSpec(1.0, "republish the held command this long after a motion [s], then stop "
                                 "publishing (the joint driver holds its last command; the loop sleeps until the "
                                 "next motion); 0 = republish until the next motion", (0.0, 1e6)),
+    "lookahead_steps": ParamSpec(2, "the solver computes this many steps before their deadlines (1: only the "
+                                 "next one); 2 absorbs a late wake-up of the loop's threads at the cost of one "
+                                 "period more before a stop or a new map reaches the command", (1, 8)),
     "rt_priority": ParamSpec(80, "SCHED_FIFO priority of the control loop's tick thread (solver: one below) where "
                              "the OS allows it; 0 = normal scheduling"),
     "lock_memory": ParamSpec(True, "mlockall the control loop process (with rt_priority > 0) where the OS allows it"),
@@ -122,4 +125,5 @@ def executor_params(values: dict[str, Any]) -> ExecutorParams:
 
 def supervisor_config(values: dict[str, Any]) -> SupervisorConfig:
     return SupervisorConfig(period_s=values["period_s"], hold_settle_s=values["hold_settle_s"],
-                            hold_timeout_s=values["hold_timeout_s"], dual_arm_brake_s=values["dual_arm_brake_s"])
+                            hold_timeout_s=values["hold_timeout_s"], dual_arm_brake_s=values["dual_arm_brake_s"],
+                            lookahead_steps=values["lookahead_steps"])
