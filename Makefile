@@ -7,13 +7,18 @@ PYTEST_ARGS ?=
 # so its module fixtures are built once); TEST_WORKERS=0 runs them in this process, one by one
 TEST_WORKERS ?= 2
 
-.PHONY: setup test demo up bench bench-graph bags clean urdf bench-peers
+.PHONY: setup test lint demo up bench bench-graph bags clean urdf bench-peers
 
 setup:
 	@tools/setup.sh
 
+# the linter first (ruff.toml); a finding stops make before the tests
 test: setup
+	@$(ENV) ruff check .
 	@$(ENV) python -m pytest test $(if $(filter-out 0,$(TEST_WORKERS)),-n $(TEST_WORKERS) --dist loadfile) $(PYTEST_ARGS)
+
+lint: setup
+	@$(ENV) ruff check .
 
 demo: setup
 	@$(ENV) python -m humanoid_reach_ros.demo $(if $(ROBOT),--robot $(ROBOT))

@@ -39,7 +39,8 @@ support polygon of both soles with ``--margin-m`` (0.02 m).
 
 Timing: the garbage collector is off during the timed steps of a pair (as in ``timeit``;
 the bench's own bookkeeping holds ~10^6 objects; with the collector on during the steps, one
-step of a full run took 154 ms against a p99 of 0.33 ms) and on between pairs. CPU time of the thread (``time.thread_time``, the headline figures) and wall time
+step of a full run took 154 ms against a p99 of 0.33 ms) and on between pairs. CPU time of the
+thread (``time.thread_time``, the headline figures) and wall time
 (``time.perf_counter``) of the same steps; ``same_pairs`` gives both ratios. The proposed
 step runs compiled (reach/fast_legs.py, reach/fast_arms.py; the kernels are loaded from
 numba's cache when the controller is built). ``reachability``: fraction of pairs for
@@ -234,8 +235,10 @@ def fig14(robot, ctl, out_dir: Path, dt: float) -> dict:
         qs, pitch = [], []
         for k in range(1, n + 1):
             s = min_jerk(k / (0.7 * n))          # reach in 2.1 s (minimum jerk), then hold
-            t = HandTargets(r0.translation + s * (pr - r0.translation), rodrigues_interpolate(r0.rotation, tgt.R_right, s),
-                            l0.translation + s * (pl - l0.translation), rodrigues_interpolate(l0.rotation, tgt.R_left, s))
+            t = HandTargets(r0.translation + s * (pr - r0.translation),
+                            rodrigues_interpolate(r0.rotation, tgt.R_right, s),
+                            l0.translation + s * (pl - l0.translation),
+                            rodrigues_interpolate(l0.rotation, tgt.R_left, s))
             q = ik.solve_pinv(q, t, weighted=weighted, tol=1e-8, max_iter=50).q
             qs.append(q)
             pitch.append(q[7 + robot.joint_index["CHEST_JOINT1"]])
@@ -244,8 +247,9 @@ def fig14(robot, ctl, out_dir: Path, dt: float) -> dict:
         res[name] = (np.array(pitch), zmp[:, 0], final_hand_errors(robot, qs[-1], pr, pl))
     tt = np.arange(1, n + 1) * dt
     out_dir.mkdir(parents=True, exist_ok=True)
-    for fname, idx, ylabel, title in (("fig14_chest_pitch.png", 0, "chest pitch [deg]", "(a) chest pitch joint angle"),
-                                      ("fig14_zmp.png", 1, "ZMP x (frontal) [m]", "(b) ZMP in the frontal direction (RNEA)")):
+    for fname, idx, ylabel, title in (
+            ("fig14_chest_pitch.png", 0, "chest pitch [deg]", "(a) chest pitch joint angle"),
+            ("fig14_zmp.png", 1, "ZMP x (frontal) [m]", "(b) ZMP in the frontal direction (RNEA)")):
         fig, ax = plt.subplots(figsize=(6.4, 3.6))
         for name, style in (("standard", "r-"), ("weighted", "b-")):
             y = res[name][idx]

@@ -135,7 +135,7 @@ def plots(out_dir: Path, runs: dict, robot, dt: float, d_s: float, d_i: float) -
             n = r["n_ref"] + 100
             c = com_xy(robot, r["q"][:n])
             c0 = runs[arm]["com0"]
-            for row, axis in enumerate("xy"):
+            for row, _axis in enumerate("xy"):
                 axes[row, col].plot(r["t"][:n], 1e3 * (c[:, row] - c0[row]), style, label=label)
         axes[0, col].set_title(f"{arm} arm: exact COG (horizontal) vs start")
         axes[1, col].set_xlabel("time [s]")
@@ -245,7 +245,8 @@ def main(argv=None) -> int:
         runs[arm]["no_col"] = execute(ex, q_start[arm], refs[arm], arm, replace(params, collision_avoidance=False))
 
     # smooth reshaping vs velocity dampers
-    reshaper = SmoothReshaper(robot, cm, ReshapeParams(period_s=params.period_s, clearance_m=params.security_distance_m))
+    reshaper = SmoothReshaper(robot, cm, ReshapeParams(period_s=params.period_s,
+                                                       clearance_m=params.security_distance_m))
     reshaping = {}
     for arm in ARMS:
         rs = reshaper.reshape(refs[arm], tree, arm)

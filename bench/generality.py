@@ -212,7 +212,8 @@ def main() -> int:
         robot["library_s"] = time.perf_counter() - t0
         if not args.no_node:
             node = node_runs([c for c in cases if c.name in NODE_CASES], args.budget_s, 60.0, name)
-            robot["node"] = {"runs": node, "correct_rate": sum(r["correct"] for r in node) / len(node) if node else None}
+            robot["node"] = {"runs": node,
+                             "correct_rate": sum(r["correct"] for r in node) / len(node) if node else None}
         robot["targets"] = {
             "feasible_success_rate>=0.95": (robot["feasible_success_rate"] or 0) >= 0.95,
             "feasible_ms_p50<=300": (robot["feasible_ms_p50"] or 1e9) <= 300,

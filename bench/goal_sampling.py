@@ -115,7 +115,7 @@ def numerical_goals(region, n_goals, robot, collision, rng, trunk, projector) ->
         z_t, rpy_t = trunk.sample(rng, BATCH)
         for k in range(BATCH):
             samples += 1
-            for hand, arm in (("r_hand_ee", "right"), ("l_hand_ee", "left")):
+            for hand, arm in (("r_hand_ee", "right"), ("l_hand_ee", "left")):  # noqa: B007 (read after the break)
                 ok, q = num.solve(p_e[k], R_e[k], z_t[k], rpy_t[k], hand)
                 if ok:
                     break

@@ -62,7 +62,8 @@ PLANT_EXECUTIONS = [
     ("under_shoulder_pipe_left", "left", (0.50, 0.20, 1.08)),      # under the left shoulder pipe
     ("valve_marker_right_again", "right", None),
 ]
-DENSE_EXECUTIONS = [("dense_valve_right", "right", (0.71, 0.03, 0.90)), ("dense_valve_left", "left", (0.71, 0.03, 0.90))]
+DENSE_EXECUTIONS = [("dense_valve_right", "right", (0.71, 0.03, 0.90)),
+                    ("dense_valve_left", "left", (0.71, 0.03, 0.90))]
 
 
 class Bench:
@@ -143,7 +144,8 @@ class Bench:
         dt = time.monotonic() - t0
         self.js_record = False
         lines = {n: log_lines_at_or_above(p.log()[sizes[n]:]) * 60.0 / dt for n, p in procs.items()}
-        return {"gaps": dict(self.gaps), "cpu": cpu, "info_lines_per_min": lines, "probe_gap_ms": max_gap_ms(self.js_times), "window_s": dt}
+        return {"gaps": dict(self.gaps), "cpu": cpu, "info_lines_per_min": lines,
+                "probe_gap_ms": max_gap_ms(self.js_times), "window_s": dt}
 
     def plan_request(self, arm: str, target: tuple[float, float, float] | None, budget: float = 5.0):
         from humanoid_reach_ros.demo import arm_code
@@ -291,7 +293,8 @@ def session(out: Path, scene: Path, executions, idle_s: float, plan_calls: int, 
                     res.setdefault("failed", []).append(r)
                     continue
                 log(f"  {r['name']}: {r['steps']} steps, {r['overruns']} overruns, wall/duration "
-                    f"{r['wall_over_duration']:.3f}, p99 {r['step_ms_p99']:.2f} ms, feet {r['feet_drift_mm']:.4f} mm, COG {r['com_drift_mm']:.3f} mm, "
+                    f"{r['wall_over_duration']:.3f}, p99 {r['step_ms_p99']:.2f} ms, feet {r['feet_drift_mm']:.4f} mm, "
+                    f"COG {r['com_drift_mm']:.3f} mm, "
                     f"hand {r.get('hand_error_final_mm', float('nan')):.3f} mm")
                 res["executions"].append(r)
         res["joint_states_gap_ms_by_node"] = {**res.get("idle", {}).get("gaps", {}), **dict(b.gaps)}

@@ -184,29 +184,29 @@ def main() -> None:
               f"mean it {r['numerical_mean_iterations']:.1f}")
 
     limbs = list(res)
-    t = {k: [res[l]["_t"][j] for l in limbs] for j, k in enumerate(("cf1", "cfN", "num1", "numN"))}
+    t = {k: [res[limb]["_t"][j] for limb in limbs] for j, k in enumerate(("cf1", "cfN", "num1", "numN"))}
     avg = {
         "closed_form_batch1_per_s": len(limbs) / sum(t["cf1"]),
         "closed_form_batch10000_per_s": len(limbs) / sum(t["cfN"]),
         "numerical_batch1_per_s": len(limbs) / sum(t["num1"]),
         "numerical_batch10000_per_s_extrapolated": len(limbs) / sum(t["numN"]),
     }
-    all_it = np.concatenate([res[l]["_t"][4] for l in limbs])
-    all_ok = np.concatenate([res[l]["_t"][5] for l in limbs])
+    all_it = np.concatenate([res[limb]["_t"][4] for limb in limbs])
+    all_ok = np.concatenate([res[limb]["_t"][5] for limb in limbs])
     avg["ratio_batch1_analytic_over_numerical"] = avg["closed_form_batch1_per_s"] / avg["numerical_batch1_per_s"]
     avg["ratio_batch10000_analytic_over_numerical"] = (
         avg["closed_form_batch10000_per_s"] / avg["numerical_batch10000_per_s_extrapolated"])
     avg["numerical_success_rate"] = float(all_ok.mean())
     avg["numerical_converged_rate_ignoring_limits"] = float(
-        np.concatenate([res[l]["_t"][6] for l in limbs]).mean())
+        np.concatenate([res[limb]["_t"][6] for limb in limbs]).mean())
     avg["numerical_mean_iterations"] = float(all_it.mean())
     avg["numerical_mean_iterations_successful"] = float(all_it[all_ok].mean()) if all_ok.any() else None
-    for l in limbs:
-        del res[l]["_t"]
-        res[l]["ratio_batch1_analytic_over_numerical"] = (
-            res[l]["closed_form_batch1_per_s"] / res[l]["numerical_batch1_per_s"])
-        res[l]["ratio_batch10000_analytic_over_numerical"] = (
-            res[l]["closed_form_batch10000_per_s"] / res[l]["numerical_batch10000_per_s_extrapolated"])
+    for limb in limbs:
+        del res[limb]["_t"]
+        res[limb]["ratio_batch1_analytic_over_numerical"] = (
+            res[limb]["closed_form_batch1_per_s"] / res[limb]["numerical_batch1_per_s"])
+        res[limb]["ratio_batch10000_analytic_over_numerical"] = (
+            res[limb]["closed_form_batch10000_per_s"] / res[limb]["numerical_batch10000_per_s_extrapolated"])
     print(f"avg (aggregate over 4 limbs): closed form batch1 {avg['closed_form_batch1_per_s']:.0f}/s, "
           f"batch10k {avg['closed_form_batch10000_per_s']:.0f}/s; CLIK batch1 {avg['numerical_batch1_per_s']:.0f}/s, "
           f"10k {avg['numerical_batch10000_per_s_extrapolated']:.0f}/s; ratio batch1 "

@@ -116,7 +116,8 @@ def main() -> None:
     model = RobotModel()
     j = model.half_sitting_joints.copy()
     j[model.joint_index["HEAD_JOINT1"]] = HEAD_PITCH_RAD
-    T_head = np.asarray(model.frame_pose(model.config(j, model.base_on_feet(j)), "head_camera_optical_frame").homogeneous)
+    T_head = np.asarray(model.frame_pose(model.config(j, model.base_on_feet(j)),
+                                         "head_camera_optical_frame").homogeneous)
     cast_t, cast2_t, shade_t, depth_t = [], [], [], []
     noise, noise_rng = C.DepthNoise(), np.random.default_rng(0)
     C.cast(scene, cam, T_head, threads=2)
@@ -168,7 +169,8 @@ def main() -> None:
               f"valve centre error {v['valve_centre_error']}")
     print(f"detection + PnP: median {det_med:.2f} ms, p95 {det_p95:.2f} ms -> {1e3 / det_med:.0f} Hz (target >= 10 Hz)")
     print(f"simulated camera 640x480: cast {result['sim_camera_ms_per_frame']['cast']} ms, shade "
-          f"{result['sim_camera_ms_per_frame']['shade']} ms, depth {result['sim_camera_ms_per_frame']['depth_cloud']} ms "
+          f"{result['sim_camera_ms_per_frame']['shade']} ms, depth "
+          f"{result['sim_camera_ms_per_frame']['depth_cloud']} ms "
           f"-> {result['sim_camera_rate_hz']} Hz; cast on 2 threads "
           f"{result['sim_camera_ms_per_frame']['cast_2_threads']} ms -> {result['sim_camera_rate_hz_2_threads']} Hz")
     print(json.dumps(result))

@@ -41,7 +41,6 @@ from humanoid_reach_ros.machine import describe as describe_machine  # noqa: E40
 from humanoid_reach_ros.codes import ARM_NAMES  # noqa: E402
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree  # noqa: E402
 from humanoid_reach_ros.planning.goal_sampler import cog_errors, sample_goals  # noqa: E402
-from humanoid_reach_ros.planning.path import ShortcutOptions, plan as run_planner, shortcut_path  # noqa: E402
 from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner  # noqa: E402
 from humanoid_reach_ros.planning.wgr import valve_region  # noqa: E402
 from humanoid_reach_ros.robot.model import RobotModel  # noqa: E402

@@ -100,7 +100,7 @@ def main() -> None:
     per_config_batch = {}
     for name, sel in (("all", np.ones(len(hit), bool)), ("free", ~hit), ("colliding", hit)):
         A, B = np.ascontiguousarray(P0[sel]), np.ascontiguousarray(P1[sel])
-        med, _ = median_time(lambda: tree.any_intersection_configs(A, B, R), 7)
+        med, _ = median_time(lambda A=A, B=B: tree.any_intersection_configs(A, B, R), 7)
         per_config_batch[name] = 1e6 * med / max(1, sel.sum())
     # per configuration, one Python call each (what a Python planner loop pays)
     per_config_call = {}
@@ -108,7 +108,7 @@ def main() -> None:
         A = [P0[c] for c in np.flatnonzero(sel)]
         B = [P1[c] for c in np.flatnonzero(sel)]
 
-        def loop():
+        def loop(A=A, B=B):
             for a, b in zip(A, B):
                 tree.any_intersection(a, b, R)
 

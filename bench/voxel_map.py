@@ -142,14 +142,16 @@ def head_scan(scene, poses, cam, resolutions, rng) -> tuple[list[dict], dict]:
         rows.append({
             "resolution_m": h, "occupied_voxels": int(len(occ)), "ground_truth_voxels": int(len(gt)),
             "visible_ground_truth_voxels": int(len(visible)),
-            "completeness": near_fraction(visible, occ_set, 0), "completeness_within_1": near_fraction(visible, occ_set, 1),
+            "completeness": near_fraction(visible, occ_set, 0),
+            "completeness_within_1": near_fraction(visible, occ_set, 1),
             "false_occupancy_within_1": 1.0 - near_fraction(occ, gt_set, 1),
             "false_occupancy_exact": 1.0 - near_fraction(occ, gt_set, 0),
             "build_time_s": float(sum(times)), "points": int(points),
             "throughput_points_per_s": points / sum(times),
             "integrate_ms_median": 1e3 * float(np.median(times)), "memory_mb": m.nbytes / 1e6,
         })
-    return rows, {"poses": len(poses), "raycast_s": cast_s, "points_per_scan": float(np.mean([len(s[2]) for s in scans]))}
+    return rows, {"poses": len(poses), "raycast_s": cast_s,
+                  "points_per_scan": float(np.mean([len(s[2]) for s in scans]))}
 
 
 def stereo_plane(repeats: int) -> dict:

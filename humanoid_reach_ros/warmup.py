@@ -42,7 +42,8 @@ def warm_up_all() -> dict[str, float]:
     from humanoid_reach_ros.reach.torso_regression import ReachWorkspace, TorsoRegression
 
     robot = RobotModel()
-    ctl = DualArmReachController(robot, TorsoRegression.load(robot.spec.torso_regression), ReachWorkspace.for_robot(robot),
+    ctl = DualArmReachController(robot, TorsoRegression.load(robot.spec.torso_regression),
+                                 ReachWorkspace.for_robot(robot),
                                  ControllerConfig())
     ctl.reset(robot.half_sitting())
     ws = ctl.ws

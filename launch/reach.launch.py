@@ -1,4 +1,4 @@
-"""The whole reaching graph: simulated robot and head sensors, mapping, marker localization,
+r"""The whole reaching graph: simulated robot and head sensors, mapping, marker localization,
 planning and execution, each node with its parameter file from share/humanoid_reach_ros/config.
 
     ros2 launch humanoid_reach_ros reach.launch.py
@@ -11,7 +11,8 @@ Arguments:
 
 Then, from another shell, reach the valve the marker shows (see README):
 
-    ros2 service call /plan_reach humanoid_reach_interfaces/srv/PlanReach "{use_marker_target: true, execute: true, ...}"
+    ros2 service call /plan_reach humanoid_reach_interfaces/srv/PlanReach \
+        "{use_marker_target: true, execute: true, ...}"
     ros2 run humanoid_reach_ros reach_operator --marker --execute
 
 (For ROS 2 installs that have `launch`; without it, `hr_graph` (`make up`) starts the same

@@ -321,7 +321,7 @@ def test_operator_md_replay_recipe_runs_as_written(ros_env, ros_probe, tmp_path:
     try:
         for argv in cmds[:2]:   # the two nodes, then "once both nodes say ready"
             background(argv)
-        for (name, p, log), ready in zip(procs, ("voxel mapper ready", "reach planner ready")):
+        for (_name, p, log), ready in zip(procs, ("voxel mapper ready", "reach planner ready")):
             wait_for_text(log, ready, p, 180.0, logs)
         _, play, play_log = background(cmds[2])
         wait_for_text(play_log, "playing ", play, 60.0, logs)

@@ -288,7 +288,7 @@ def test_dual_arm_goals_follow_and_bad_inputs(start_node, ros_probe, model, ws) 
                 PoseArray(header=msgs.header("world"), poses=[bad_pose("quaternion"), bad_pose("")])]
     for i, msg in enumerate(bad_msgs):   # one at a time: the subscription keeps the latest only
         pub.publish(msg)
-        ros_probe.spin_until(lambda: int(execution()["target_messages_rejected"]) == i + 1, 20.0,
+        ros_probe.spin_until(lambda i=i: int(execution()["target_messages_rejected"]) == i + 1, 20.0,
                              f"rejection {i + 1}", on_timeout=ex.log_tail)
     assert wait_log(ros_probe, ex, r"rejected /dual_arm/targets #\d+ \(INVALID_GOAL\): PoseArray has 1 poses")
     n_hold = len(commands)

@@ -210,7 +210,7 @@ def test_planner_restart_executor_holds_and_second_requests(start_node, ros_prob
             futures.append(planner.client.call_async(req))
             resend_at = time.monotonic() + RESEND_S
 
-            def answered():
+            def answered(resend_at=resend_at):
                 done = [f.result() for f in futures if f.done()]
                 return next((r for r in done if r.error_code != E.BUSY), None) or time.monotonic() > resend_at
 

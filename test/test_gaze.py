@@ -79,7 +79,8 @@ def test_a_point_ahead_moves_the_head_only(solver) -> None:
     j0 = robot.half_sitting_joints
     g = solver.solve(j0, AHEAD)
     assert g.visible and g.chest_moved_rad == 0.0 and not g.balanced
-    assert g.off_axis_deg < AIMED_DEG and off_axis_deg(robot, g.joints, AHEAD) == pytest.approx(g.off_axis_deg, abs=1e-6)
+    assert g.off_axis_deg < AIMED_DEG
+    assert off_axis_deg(robot, g.joints, AHEAD) == pytest.approx(g.off_axis_deg, abs=1e-6)
     np.testing.assert_array_equal(g.joints[solver.index[:2]], j0[solver.index[:2]])
     assert only_gaze_joints_moved(solver, g.joints, j0)
     assert g.range_m == pytest.approx(np.linalg.norm(AHEAD - g.camera_position))

@@ -173,7 +173,8 @@ def test_writer_reader_round_trip_other_reader(tmp_path: Path) -> None:
         # start offset and topic filter
         late = list(r.messages(["/joint_states"], start_offset_s=0.25))
         assert [m.log_time_ns for m in late] == [1_000_000_002 + i * 10_000_000 for i in range(25, 50)]
-        with pytest.raises(BagError, match=r"topic\(s\) /nope not in sample.mcap; it has: /joint_states, /robot_description"):
+        with pytest.raises(BagError, match=r"topic\(s\) /nope not in sample.mcap; "
+                                           r"it has: /joint_states, /robot_description"):
             r.select(["/joint_states", "/nope"])
 
 
@@ -324,7 +325,8 @@ def test_record_and_replay_round_trip(start_node, ros_probe, ros_env, tmp_path: 
 
     # replay /joint_states + the latched description at rate 2 (the driver stopped: nothing else publishes)
     assert driver.stop() == 0
-    states = ros_probe.collect(JointState, "/joint_states", QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+    states = ros_probe.collect(JointState, "/joint_states",
+                               QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
     desc = ros_probe.collect(String, "/robot_description", LATCHED)
     diags = ros_probe.collect(DiagnosticArray, "/diagnostics")
     play_log = tmp_path / "play.log"

@@ -69,7 +69,8 @@ def test_model_joints_ignores_unknown_names_and_requires_every_model_joint() -> 
     np.testing.assert_array_equal(q, hs)
     # a missing model joint: refused, naming it
     q, why = msgs.model_joints(_joint_state(names[:-2] + ["gripper_finger"], [*hs[:-2], 0.0]), model)
-    assert q is None and why == f"joint state is missing 2 of the {model.n_joints} model joints: {names[-2]}, {names[-1]}"
+    assert q is None and why == (f"joint state is missing 2 of the {model.n_joints} model joints: "
+                                 f"{names[-2]}, {names[-1]}")
     q, why = msgs.model_joints(_joint_state([], []), model)
     assert q is None and why.startswith(f"joint state is missing {model.n_joints} of the") and why.endswith("(24 more)")
     bad = hs.copy()

@@ -61,7 +61,7 @@ def look_result(ros_probe, client: ActionClient, goal: Look.Goal, timeout: float
 
 def test_scan_then_reach_the_marker_from_the_command_line(start_node, ros_env, ros_probe) -> None:
     procs = []
-    for name, ready in NODES:
+    for name, _ready in NODES:
         params = {}
         if name in ("reach_planner", "reach_executor"):
             # a shared 2-core machine can starve a node of /joint_states for a second (as in the demo)

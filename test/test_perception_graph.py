@@ -272,7 +272,8 @@ def test_stereo_map_agrees_with_the_scene_and_the_depth_map(start_node, ros_prob
     stereo_mapper = start_node("voxel_mapper", params_file="config/voxel_mapper.yaml",
                                params={**MAPPER, "use_stereo": True}, ready_log=r"voxel mapper ready",
                                extra_ros_args=["-r", "head_camera/points:=unused_points",
-                                               "-r", "voxel_map:=stereo_map", "-r", "voxel_map/markers:=stereo_map/markers",
+                                               "-r", "voxel_map:=stereo_map",
+                                               "-r", "voxel_map/markers:=stereo_map/markers",
                                                "-r", "__node:=stereo_mapper"])
     g.mapper = start_node("voxel_mapper", params_file="config/voxel_mapper.yaml", params=MAPPER,
                           ready_log=r"voxel mapper ready")

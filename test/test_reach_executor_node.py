@@ -321,7 +321,7 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
     topic_bad = [bad_trajectories(valve_plan, model)[k][0] for k in ("unknown joint", "NaN", "non-increasing times")]
     for i, t in enumerate(topic_bad):  # one at a time: the subscription keeps only the latest (depth 1)
         traj_pub.publish(t)
-        ros_probe.spin_until(lambda: (s := status(diags, ": execution")) is not None
+        ros_probe.spin_until(lambda i=i: (s := status(diags, ": execution")) is not None
                              and int(msgs.diagnostic_values(s)["trajectories_rejected"]) == i + 1, 20.0,
                              f"rejection {i + 1} in /diagnostics", on_timeout=ex.log_tail)
     wait_log(ros_probe, ex, r"rejected /reach_trajectory #1 \(INVALID_GOAL\): .*NO_SUCH_JOINT")
@@ -503,6 +503,7 @@ def test_dual_arm_workspace_is_the_robots_unless_given(model) -> None:
     assert p["dual_arm_workspace"] == ""
     assert ExecutionRequests(model, p).dual_arm_workspace() == model.spec.dual_arm_workspace
     talos = RobotModel("talos")
-    assert ExecutionRequests(talos, p).dual_arm_workspace() == talos.spec.dual_arm_workspace != model.spec.dual_arm_workspace
+    assert (ExecutionRequests(talos, p).dual_arm_workspace() == talos.spec.dual_arm_workspace
+            != model.spec.dual_arm_workspace)
     p["dual_arm_workspace"] = "elsewhere/ws.yaml"
     assert ExecutionRequests(talos, p).dual_arm_workspace() == "elsewhere/ws.yaml"

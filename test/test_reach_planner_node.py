@@ -170,7 +170,8 @@ def test_valve_plan_execute_markers_and_bad_requests(start_node, ros_probe, mode
     # execute -> /reach_trajectory
     ros_probe.spin_until(lambda: ros_probe.node.count_publishers("/reach_trajectory") > 0, 10.0,
                          "reach_trajectory publisher")
-    resp = planner.call(valve_request(execute=True, seed=3, arm=PlanReach.Request.ARM_RIGHT, time_budget_s=SUCCESS_BUDGET_S))
+    resp = planner.call(valve_request(execute=True, seed=3, arm=PlanReach.Request.ARM_RIGHT,
+                                      time_budget_s=SUCCESS_BUDGET_S))
     assert resp.success, resp.message
     assert resp.arm == PlanReach.Request.ARM_RIGHT
     ros_probe.spin_until(lambda: len(trajectories) > 0, 10.0, "/reach_trajectory")

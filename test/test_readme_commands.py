@@ -383,8 +383,8 @@ def test_readme_service_call_plans_on_a_running_planner(start_node, ros_probe) -
     resp = None
     for _ in range(3):
         future = client.call_async(service_request(typ, payload))
-        resp = ros_probe.spin_until(lambda: future.done() and future.result(), 60.0, "a /plan_reach response",
-                                    on_timeout=proc.log_tail)
+        resp = ros_probe.spin_until(lambda future=future: future.done() and future.result(), 60.0,
+                                    "a /plan_reach response", on_timeout=proc.log_tail)
         assert resp.error_code not in (E.INVALID_REQUEST, E.INVALID_BOUNDS, E.UNKNOWN_FRAME), resp.message
         if resp.error_code not in (E.NO_JOINT_STATES, E.NO_GOAL_FOUND, E.NO_PATH):
             break

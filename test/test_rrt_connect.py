@@ -257,12 +257,12 @@ def test_prefix_edge_checks_in_bisect_order_match_in_order_checks():
         centres = rng.random((3, 3))
         radius = rng.uniform(0.05, 0.2)
 
-        def valid(Q):
+        def valid(Q, centres=centres, radius=radius):
             return np.all(np.linalg.norm(Q[:, None] - centres[None], axis=-1) > radius, axis=1)
 
         calls = []
 
-        def in_order(Q):
+        def in_order(Q, calls=calls):
             calls.append(len(Q))
             return valid(Q)
 

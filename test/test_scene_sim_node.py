@@ -97,7 +97,8 @@ def test_headers_sizes_clouds_stereo_and_disabled_primitives(start_node, ros_pro
     assert img.header.frame_id == info.header.frame_id == cloud.header.frame_id == "head_camera_optical_frame"
     assert (info.width, info.height) == (320, 240) and info.k[0] > 0 and info.k[0] == info.k[4]
     right = stereo["right"].last
-    assert right.encoding == "mono8" and right.header.frame_id == model.camera_frame + "_right"   # the default: camera frame + _right
+    # the default: camera frame + _right
+    assert right.encoding == "mono8" and right.header.frame_id == model.camera_frame + "_right"
     assert stereo_info.last.p[3] == pytest.approx(-stereo_info.last.k[0] * 0.07)
     # the cloud (no range noise, every 2nd pixel, within 5 m) lies on the scene's surfaces
     pts = world_points(model, cloud, joints.messages)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from humanoid_reach_ros.planning.reach import PlanError, PlannerParams, PlanRequest, ReachPlanner
+from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner
 from humanoid_reach_ros.planning.suite import load_suite
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.spec import robots

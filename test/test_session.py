@@ -30,7 +30,7 @@ pytestmark = pytest.mark.node
 
 TOUCH = ("0.35", "-0.15", "0.78")    # 1 cm above the passage pipe's top (axis x 0.35, z 0.72, radius 0.05)
 UNDER_PIPE = ("0.50", "0.20", "1.08")   # under the left shoulder pipe (bench/graph.py's target)
-HOME_TOL_RAD = 0.01                  # measured joints at half-sitting within this (the legs keep the exact COG: up to 7 mrad off)
+HOME_TOL_RAD = 0.01   # measured joints at half-sitting within this (the legs keep the exact COG: up to 7 mrad off)
 
 
 def refused(out: dict) -> list[str]:

@@ -64,7 +64,8 @@ def _expect_error(doc, robot, match, mutate):
 
 def test_unknown_link(doc, robot):
     _expect_error(doc, robot, "unknown link 'NO_SUCH_LINK'",
-                  lambda d: d["links"].update(NO_SUCH_LINK=[{"name": "x", "sphere": {"center": [0, 0, 0], "radius": 0.1}}]))
+                  lambda d: d["links"].update(
+                      NO_SUCH_LINK=[{"name": "x", "sphere": {"center": [0, 0, 0], "radius": 0.1}}]))
 
 
 def test_negative_radius(doc, robot):

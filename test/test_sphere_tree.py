@@ -49,8 +49,8 @@ def subtree_leaves(tree: SphereTree) -> list[np.ndarray]:
     leaf = tree.leaf_sphere
     out = [None] * tree.n_nodes
     for i in range(tree.n_nodes - 1, -1, -1):
-        l, r = tree.children[i]
-        out[i] = np.array([leaf[i]]) if l < 0 else np.concatenate([out[l], out[r]])
+        left, right = tree.children[i]
+        out[i] = np.array([leaf[i]]) if left < 0 else np.concatenate([out[left], out[right]])
     return out
 
 

@@ -52,7 +52,8 @@ def test_consistency_check_rejects_occluded_pixels(occluder_pair) -> None:
         for shift in (1, -1):
             core &= np.roll(occ, shift, axis=axis)
     assert core.sum() > 500
-    m = StereoMatcher(pair.calibration, StereoParams(num_disparities=48, block_size=3, uniqueness_ratio=0, speckle_window_size=0))
+    m = StereoMatcher(pair.calibration, StereoParams(num_disparities=48, block_size=3, uniqueness_ratio=0,
+                                                     speckle_window_size=0))
     Z = m.depth(pair.left, pair.right)
     Z0 = m.depth(pair.left, pair.right, check=False)
     kept, unchecked = (np.isfinite(Z) & core).sum(), (np.isfinite(Z0) & core).sum()

@@ -11,7 +11,8 @@ import pytest
 
 from humanoid_reach_ros.codes import ExecuteCode as C
 from humanoid_reach_ros.execution.engines import StepOutcome
-from humanoid_reach_ros.execution.supervisor import HOLD, IDLE, RUN, SETTLE, ExecutionSupervisor, Motion, SupervisorConfig
+from humanoid_reach_ros.execution.supervisor import (HOLD, IDLE, RUN, SETTLE, ExecutionSupervisor, Motion,
+                                                    SupervisorConfig)
 
 DT = 0.005
 NQ = 7 + 3

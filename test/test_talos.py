@@ -211,7 +211,7 @@ def test_the_reach_centres_of_a_seven_dof_arm_hold_every_posture(talos, ik, arm)
         j[list(talos.limbs[arm].joint_index)] = row
         full = talos.config(j)
         chest = talos.frame_pose(full, talos.limbs[arm].root)
-        to_chest = lambda p: chest.rotation.T @ (p - chest.translation)   # noqa: E731
+        to_chest = lambda p, chest=chest: chest.rotation.T @ (p - chest.translation)   # noqa: E731
         centre.append(to_chest(talos.frame_pose(full, names[1].replace("_joint", "_link")).translation))
         wrist.append(to_chest(talos.frame_pose(full, names[4].replace("_joint", "_link")).translation))
     centre, wrist = np.array(centre), np.array(wrist)
@@ -264,7 +264,8 @@ def test_the_collision_model_covers_the_meshes(talos, cm):
                                                        talos.limbs["left_arm"].joints[-1], *talos.spec.gripper_joints)}
     grasp = {talos.model.frames[talos.frame_id(f)].parentJoint: talos.frame_id(f) for f in talos.hand_frames.values()}
     rng = np.random.default_rng(8)
-    postures = [talos.half_sitting(), talos.config(np.zeros(talos.n_joints))] + [_random_q(talos, rng) for _ in range(3)]
+    postures = ([talos.half_sitting(), talos.config(np.zeros(talos.n_joints))]
+                + [_random_q(talos, rng) for _ in range(3)])
     checked = 0
     for q in postures:
         data = talos.forward(q)

@@ -12,7 +12,6 @@ from humanoid_reach_ros.reach.balance import com_projection, polygon_margin, sup
 from humanoid_reach_ros.reach.controller import DualArmReachController
 from humanoid_reach_ros.reach.kinematics import HandTargets
 from humanoid_reach_ros.reach.torso_regression import WORKSPACE_YAML, ReachWorkspace
-from humanoid_reach_ros.reach.whole_body_ik import ProposedWholeBodyIK
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 
 MARGIN_M = 0.02
@@ -29,7 +28,8 @@ def test_each_robot_reads_its_own_workspace(ctl):
     assert ctl.robot.spec.dual_arm_workspace == "torso_regression/talos_workspace.yaml"
     assert not np.allclose(ctl.ws.right_lower, ReachWorkspace.load(WORKSPACE_YAML).right_lower)
     hrp2 = RobotModel()
-    assert ReachWorkspace.for_robot(hrp2).right_lower.tolist() == ReachWorkspace.load(WORKSPACE_YAML).right_lower.tolist()
+    assert (ReachWorkspace.for_robot(hrp2).right_lower.tolist()
+            == ReachWorkspace.load(WORKSPACE_YAML).right_lower.tolist())
     # the initial posture: the arms set by initial_joints_deg, the CoM lowered
     for name, v in ctl.ws.initial_joints.items():
         assert ctl.q_init[N_BASE_Q + ctl.robot.joint_index[name]] == pytest.approx(v)

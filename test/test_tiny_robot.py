@@ -61,8 +61,8 @@ def tiny_urdf() -> str:
                ("hip_pitch", "y", (0, 0, 0), -1.8, 0.6), ("knee", "y", (0, 0, -0.2), 0.0, 2.4),
                ("ankle_pitch", "y", (0, 0, -0.2), -1.2, 0.8), ("ankle_roll", "x", (0, 0, 0), -0.4, 0.4)]
         small = (0.2, (0.04, 0.04, 0.04), (0, 0, 0))
-        links = {0: small, 1: small, 2: (1.5, (0.07, 0.07, 0.2), (0, 0, -0.1)), 3: (1.0, (0.06, 0.06, 0.2), (0, 0, -0.1)),
-                 4: small, 5: (0.6, (0.14, 0.08, 0.03), (0.01, 0, -0.025))}
+        links = {0: small, 1: small, 2: (1.5, (0.07, 0.07, 0.2), (0, 0, -0.1)),
+                 3: (1.0, (0.06, 0.06, 0.2), (0, 0, -0.1)), 4: small, 5: (0.6, (0.14, 0.08, 0.03), (0.01, 0, -0.025))}
         parts += _limb(s, "waist", leg, links, "sole", -0.04)
     parts += [_box_link("chest_yaw_link", 0.3, (0.05, 0.05, 0.05)), _joint("chest_yaw", "waist", "chest_yaw_link", "z",
                                                                           (0, 0, 0.08), -0.8, 0.8),
@@ -91,7 +91,8 @@ def tiny_description() -> dict:
     arm = ["shoulder_roll", "shoulder_yaw", "elbow", "wrist_yaw", "wrist_roll", "wrist_pitch"]
     return {
         "robot_name": "tiny", "urdf": "tiny.urdf", "collision_model": "collision.yaml", "base_link": "waist",
-        "frames": {"head_camera": {"parent": "head", "xyz": [0.06, 0.0, 0.06], "rpy": [-math.pi / 2, 0.0, -math.pi / 2]}},
+        "frames": {"head_camera": {"parent": "head", "xyz": [0.06, 0.0, 0.06],
+                                   "rpy": [-math.pi / 2, 0.0, -math.pi / 2]}},
         "limbs": {f"{side}_leg": {"root": "waist", "tip": f"{s}_sole", "joints": [f"{s}_{j}" for j in leg]}
                   for side, s in (("right", "r"), ("left", "l"))}
         | {f"{side}_arm": {"root": "chest", "tip": f"{s}_hand", "joints": [f"{s}_{j}" for j in arm]}
@@ -118,7 +119,8 @@ def tiny_collision() -> dict:
                   f"{s}_elbow_link": [cap(f"{s}_forearm", (0, 0, -0.02), (0, 0, -0.12), 0.028)],
                   f"{s}_wrist_pitch_link": [cap(f"{s}_hand", (0, 0, 0), (0, 0, -0.04), 0.025)]}
     pairs = [[f"{s}_{a}", t] for s in "rl" for a in ("forearm", "hand") for t in ("chest", "waist", "head")]
-    pairs += [[f"{s}_{a}", f"{x}_{t}"] for s in "rl" for a in ("forearm", "hand") for x in "rl" for t in ("thigh", "foot")]
+    pairs += [[f"{s}_{a}", f"{x}_{t}"]
+              for s in "rl" for a in ("forearm", "hand") for x in "rl" for t in ("thigh", "foot")]
     pairs += [["r_hand", "l_hand"], ["r_forearm", "l_forearm"], ["r_hand", "l_forearm"], ["l_hand", "r_forearm"]]
     pairs += [[f"r_{a}", f"l_{b}"] for a in ("thigh", "shank", "foot") for b in ("thigh", "shank", "foot")]
     return {"padding_m": 0.0, "links": links, "self_collision_pairs": pairs}

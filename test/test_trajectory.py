@@ -27,7 +27,8 @@ def test_durations_rule():
 
 def test_passes_through_waypoints_at_times_and_rests_at_ends():
     traj = path_to_trajectory(WAYPOINTS, TrajectoryOptions(joint_velocity=(0.5, 1.0, 0.25)))
-    np.testing.assert_allclose(traj.times, np.concatenate([[0], np.cumsum(segment_durations(WAYPOINTS, [0.5, 1.0, 0.25], 0.01))]))
+    np.testing.assert_allclose(traj.times,
+                               np.concatenate([[0], np.cumsum(segment_durations(WAYPOINTS, [0.5, 1.0, 0.25], 0.01))]))
     np.testing.assert_allclose(traj.position(traj.times), WAYPOINTS, atol=1e-12)
     np.testing.assert_allclose(traj.velocity(traj.times[0]), 0.0, atol=1e-12)
     np.testing.assert_allclose(traj.velocity(traj.times[-1]), 0.0, atol=1e-12)

@@ -148,7 +148,7 @@ def test_weighted_fusion_follows_003() -> None:
     for _ in range(3):
         m.integrate(target[None], origin=origin)
         update(1.0, 1.0)
-    for n in range(6):                              # rays through the voxel: free observations
+    for _ in range(6):                              # rays through the voxel: free observations
         m.integrate(beyond[None], origin=origin)
         update(0.0, 0.5)
         v, w = m.value_at(target[None])
@@ -312,7 +312,8 @@ def test_frontier_and_unobserved_blocks_on_one_ray() -> None:
     assert len(m.frontier_centers((2.0, 2.0, 2.0), (3.0, 3.0, 3.0))) == 0     # outside the extent
     blocks = m.unobserved_blocks(*region, 5)
     assert len(blocks) == 10 ** 3 - 6                            # the ray crossed blocks x 0..5 at y = z = 5
-    seen = {tuple(np.floor(b / 0.1).astype(int)) for b in np.array([[x, 0.51, 0.51] for x in np.arange(0.05, 0.6, 0.1)])}
+    seen = {tuple(np.floor(b / 0.1).astype(int))
+            for b in np.array([[x, 0.51, 0.51] for x in np.arange(0.05, 0.6, 0.1)])}
     assert not seen & {tuple(np.floor(b / 0.1).astype(int)) for b in blocks}
     np.testing.assert_allclose(blocks[0], [0.05, 0.05, 0.05])    # a block's centre
     with pytest.raises(ValueError, match="block_voxels"):

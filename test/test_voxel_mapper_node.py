@@ -211,7 +211,8 @@ def test_head_scan_map_clearing_bad_input_and_clear(start_node, ros_probe, model
                                           [:, None] * (b - a)), axis=1) - r for a, b, r in zip(*shapes)], axis=0)
     assert d.min() > 0.25 - 1.5 * H, d.min()   # measured 0.229 m since the region reaches behind the back
     values = msgs.diagnostic_values(f.status(": map"))
-    assert int(values["unobserved_frontier_voxels"]) == len(frontier) and int(values["unobserved_blocks"]) == len(blocks)
+    assert int(values["unobserved_frontier_voxels"]) == len(frontier)
+    assert int(values["unobserved_blocks"]) == len(blocks)
 
     # a pipe removed from the scene: rescans clear it
     pipe = scene.primitive("passage_pipe")
@@ -230,7 +231,7 @@ def test_head_scan_map_clearing_bad_input_and_clear(start_node, ros_probe, model
     n_maps, before = len(f.maps), f.maps.last
     good = msgs.cloud_from_points(np.array([[0.0, 0.0, 0.9]] * 10), CAMERA_FRAME, msgs.time_from_seconds(f.t))
     rejected0 = f.counter("clouds_rejected")
-    for name, cloud in bad_clouds(good).items():
+    for _name, cloud in bad_clouds(good).items():
         f.cloud_pub.publish(cloud)
         f.wait_counter("clouds_rejected", rejected0 + 1)
         rejected0 += 1

@@ -113,7 +113,8 @@ def draw_view(ax, axes: tuple[int, int], depth_axis: int, depth_sign: float, cm,
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robot", default="hrp2", help="robot of config/robots (or a robot.yaml path)")
-    ap.add_argument("--out", default=None, help="default: doc/collision_model.png (hrp2), doc/collision_model_<robot>.png")
+    ap.add_argument("--out", default=None,
+                    help="default: doc/collision_model.png (hrp2), doc/collision_model_<robot>.png")
     ap.add_argument("--padding", type=float, default=None, help="override padding_m")
     args = ap.parse_args()
 

@@ -235,7 +235,7 @@ def record(args: argparse.Namespace, work: Path) -> tuple[Path, list[dict[str, A
             command_head(op, head_pub, yaw, pitch, timeout=30.0)
             js = op.joint_states
             arrived = js.header.stamp.sec * 1_000_000_000 + js.header.stamp.nanosec
-            op.spin_until(lambda: sum(1 for s in clouds if s >= arrived) >= frames, 60.0,
+            op.spin_until(lambda arrived=arrived, frames=frames: sum(1 for s in clouds if s >= arrived) >= frames, 60.0,
                           f"{frames} point clouds at head yaw {yaw:g}, pitch {pitch:g} deg")
             left = clouds[-1]
             scan.append({"kind": kind, "yaw_deg": float(yaw), "pitch_deg": float(pitch),
@@ -292,7 +292,8 @@ def main(argv: list[str] | None = None) -> int:
         "bag": bag.name,
         "description": "HRP-2 head scan of the plant scene (scene_sim, no robot motion but the head), for "
                        "replay into voxel_mapper, marker_localizer and reach_planner without scene_sim",
-        "generated": {"tool": "tools/record_bags.py", "command": " ".join(["tools/record_bags.py", *(argv or sys.argv[1:])]),
+        "generated": {"tool": "tools/record_bags.py",
+                      "command": " ".join(["tools/record_bags.py", *(argv or sys.argv[1:])]),
                       **git_state(), "date_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")},
         "ground_truth": truth,
         "sensors": {"node": "scene_sim", "params_file": "config/scene_sim.yaml",

@@ -21,7 +21,8 @@ from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--samples", type=int, default=None, help="target pairs tried (default: the workspace file's dataset.n_samples)")
+    ap.add_argument("--samples", type=int, default=None,
+                    help="target pairs tried (default: the workspace file's dataset.n_samples)")
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("--robot", default=DEFAULT_ROBOT, help=f"robot (config/robots/<name>; default {DEFAULT_ROBOT})")
     ap.add_argument("--out", default=None, help="output stem under config/ (default: the robot description's "

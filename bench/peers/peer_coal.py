@@ -109,7 +109,8 @@ def run(workdir) -> dict:
     from importlib.metadata import version
 
     return {"available": True, "version": version("coal"), "n_configs": len(Q), "us_per_config": 1e6 * dt / len(Q),
-            "valid": verdict, "robot_shapes": len(chk.objs), "scene_objects": len(chk.env), "self_pairs": len(chk.pairs),
+            "valid": verdict, "robot_shapes": len(chk.objs), "scene_objects": len(chk.env),
+            "self_pairs": len(chk.pairs),
             "method": "coal: pinocchio FK, robot capsules/spheres vs scene primitives (exact) by two "
                       "DynamicAABBTreeCollisionManager, then the self pairs by coal.collide (Python loop)"}
 

@@ -50,7 +50,6 @@ def _setup(workdir):
     names = [f"hrp2/{n}" for n in P["joint_names"]]
     if list(m.names[2:]) != names or m.nq != len(P["q_start"]):
         raise RuntimeError("HPP's joint order differs from the project's")
-    bounds = []
     for j, n in enumerate(P["joint_names"]):
         robot.setJointBounds(f"hrp2/{n}", [float(P["lower"][j]), float(P["upper"][j])])
     robot.setJointBounds("hrp2/root_joint", [-1, 1, -1, 1, 0, 1.5] + [-1.0001, 1.0001] * 4)

@@ -69,7 +69,8 @@ def run(workdir) -> dict:
             out["ours"]["success"] += 1
             out["ours"]["time_s"].append(dt)
             t1 = time.perf_counter()
-            shortcut_path(r.path, is_valid, space_ours, rng, ShortcutOptions(pp.shortcut_iterations, pp.shortcut_time_s))
+            shortcut_path(r.path, is_valid, space_ours, rng,
+                          ShortcutOptions(pp.shortcut_iterations, pp.shortcut_time_s))
             out["ours"]["shortcut_time_s"].append(time.perf_counter() - t1)
         # ---- OMPL
         d = len(W)
@@ -83,9 +84,9 @@ def run(workdir) -> dict:
         n_checks = [0]
         buf = np.empty((1, d))
 
-        def valid(s, _buf=buf, _v=is_valid, _n=n_checks):
+        def valid(s, _buf=buf, _v=is_valid, _n=n_checks, _d=d):
             _n[0] += 1
-            for i in range(d):
+            for i in range(_d):
                 _buf[0, i] = s[i] / W[i]
             return bool(_v(_buf)[0])
 

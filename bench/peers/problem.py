@@ -41,7 +41,6 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from humanoid_reach_ros.geometry.distance import RobotCollision  # noqa: E402
-from humanoid_reach_ros.geometry.sphere_tree import SphereTree  # noqa: E402
 from humanoid_reach_ros.planning.projector import Projector  # noqa: E402
 from humanoid_reach_ros.planning.reach import PlannerParams, ReachPlanner  # noqa: E402
 from humanoid_reach_ros.planning.wgr import valve_region  # noqa: E402
@@ -204,7 +203,7 @@ def robot_urdf_with_capsules(prob: Problem) -> str:
     cm = prob.planner.collision_model
     root = ET.fromstring(prob.robot.urdf_xml)
     per_link: dict[str, list[str]] = {}
-    for s, name in enumerate(cm.names):
+    for s, _name in enumerate(cm.names):
         link = cm.links[int(cm.shape_link[s])]
         per_link.setdefault(link, []).append(_capsule_xml(cm.p0_local[s], cm.p1_local[s], float(cm.radii[s])))
     # shapes are expressed in the link *frame*; pinocchio frames of links coincide with the URDF links

@@ -109,7 +109,8 @@ def ours_paths(prob, goals, k: int) -> dict:
         is_valid = rp.validity_fn(arm, rp.collision)
         rng = np.random.default_rng(i)
         t0 = time.perf_counter()
-        r = run_planner("rrt_connect", sp, gp, is_valid, space, rng, rp._planner_options("rrt_connect", pp.time_budget_s))
+        r = run_planner("rrt_connect", sp, gp, is_valid, space, rng,
+                        rp._planner_options("rrt_connect", pp.time_budget_s))
         dt = time.perf_counter() - t0
         if r.success:
             ok += 1

@@ -8,7 +8,8 @@ The priority levels are those of the paper:
 
 1. joint position limits over one step, joint velocity limits (``velocity_scale`` of
    the URDF limits) and Faverjon-Tournassoud velocity dampers
-   ``delta_d >= -xi max(d - d_s, 0)`` (never a forced push-out: always feasible) between every environment sphere within the distance
+   ``delta_d >= -xi max(d - d_s, 0)`` (never a forced push-out: always feasible) between every
+   environment sphere within the distance
    bound ``d_i`` of a robot shape (sphere-tree query ``spheres_within_batch``) and
    between the self-collision pairs closer than ``d_i`` (inequalities
    ``G dq <= h``, :mod:`humanoid_reach_ros.control.limits`);
@@ -117,7 +118,8 @@ class ExecutorParams:
             ("max_saturation_iter", self.max_saturation_iter >= 1),
             ("active_set_min_rows", self.active_set_min_rows >= 0),
             ("com_recenter_speed_mps", self.com_recenter_speed_mps > 0),
-            ("max_catch_up_periods", self.max_catch_up_periods >= 1), ("blas_threads", self.blas_threads >= 0), ("osqp_max_iter", self.osqp_max_iter >= 1),
+            ("max_catch_up_periods", self.max_catch_up_periods >= 1), ("blas_threads", self.blas_threads >= 0),
+            ("osqp_max_iter", self.osqp_max_iter >= 1),
         ]
         for name, ok in checks:
             v = getattr(self, name)

@@ -169,13 +169,14 @@ class _LevelSolver:
         Ad = np.zeros((M, n))
         Ad[: self.n_fixed] = F
         Ad[self.n_fixed: self.n_fixed + mi] = C
-        l = np.full(M, -_INF)
-        u = np.full(M, _INF)
-        l[: self.n_fixed] = lF
-        u[: self.n_fixed] = uF
-        u[self.n_fixed: self.n_fixed + mi] = d
+        lower = np.full(M, -_INF)
+        upper = np.full(M, _INF)
+        lower[: self.n_fixed] = lF
+        upper[: self.n_fixed] = uF
+        upper[self.n_fixed: self.n_fixed + mi] = d
         q = np.concatenate([g, np.zeros(mi)])
-        self.solver.update(q=q, l=l, u=u, Px=self._p_data(H), Ax=np.concatenate([Ad.ravel(order="F"), self._neg]))
+        self.solver.update(q=q, l=lower, u=upper, Px=self._p_data(H),
+                           Ax=np.concatenate([Ad.ravel(order="F"), self._neg]))
         if warm_level and x0 is not None and (self.level_warm or not self.solved_once):
             w0 = np.maximum(C @ x0 - d, 0.0)
             self.solver.warm_start(x=np.concatenate([x0, w0]))
@@ -339,8 +340,10 @@ def solve_dense_reference(levels: Sequence[Level], n: int, damping: float = 1e-1
     import itertools
 
     parts = [lv.parts(n) for lv in levels]
-    FE = np.zeros((0, n)); fe = np.zeros(0)      # frozen equalities
-    FI = np.zeros((0, n)); fi = np.zeros(0)      # frozen inequalities
+    FE = np.zeros((0, n))      # frozen equalities
+    fe = np.zeros(0)
+    FI = np.zeros((0, n))      # frozen inequalities
+    fi = np.zeros(0)
     x = np.zeros(n)
     norms = []
 
@@ -372,8 +375,10 @@ def solve_dense_reference(levels: Sequence[Level], n: int, damping: float = 1e-1
         eq_s = A @ x - b
         in_s = np.maximum(C @ x - d, 0.0)
         norms.append(float(np.sqrt(eq_s @ eq_s + in_s @ in_s)))
-        FE = np.vstack([FE, A]); fe = np.concatenate([fe, A @ x])
-        FI = np.vstack([FI, C]); fi = np.concatenate([fi, d + in_s])
+        FE = np.vstack([FE, A])
+        fe = np.concatenate([fe, A @ x])
+        FI = np.vstack([FI, C])
+        fi = np.concatenate([fi, d + in_s])
     return x, norms
 
 

@@ -117,8 +117,8 @@ def point_normal_rows(model: pin.Model, data: pin.Data, frame_ids: np.ndarray, p
         return np.zeros((0, model.nv))
     uniq, inv = np.unique(frame_ids, return_inverse=True)
     J = np.array([pin.getFrameJacobian(model, data, int(f), LWA) for f in uniq])      # (U, 6, nv)
-    O = np.array([data.oMf[int(f)].translation for f in uniq])                       # (U, 3)
-    r = points - O[inv]
+    origins = np.array([data.oMf[int(f)].translation for f in uniq])                 # (U, 3)
+    r = points - origins[inv]
     rxn = np.cross(r, normals)
     return np.einsum("ki,kin->kn", normals, J[inv, :3]) + np.einsum("ki,kin->kn", rxn, J[inv, 3:])
 
@@ -343,6 +343,6 @@ def warm_up() -> None:
                     P[1:])
 
 
-__all__ = ["joint_step_bounds", "LimitRows", "damper_bound", "joint_limit_rows", "point_normal_rows", "environment_damper_rows",
-           "self_collision_damper_rows", "velocity_damper_rows", "self_pair_geometry", "env_pair_geometry",
-           "support_masks", "world_point_rows", "pair_point_rows", "warm_up"]
+__all__ = ["joint_step_bounds", "LimitRows", "damper_bound", "joint_limit_rows", "point_normal_rows",
+           "environment_damper_rows", "self_collision_damper_rows", "velocity_damper_rows", "self_pair_geometry",
+           "env_pair_geometry", "support_masks", "world_point_rows", "pair_point_rows", "warm_up"]

@@ -335,7 +335,7 @@ class ExecutionRequests:
         if solver is None:
             from humanoid_reach_ros.control.gaze import GazeSolver
             with self._fk_lock:
-                self.robot.stance_soles          # cached on the shared data now, never under a gaze
+                _ = self.robot.stance_soles      # cached on the shared data now, never under a gaze
             solver = self._gaze_solver = GazeSolver(self.robot)
         return solver
 

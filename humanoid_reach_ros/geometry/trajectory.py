@@ -47,7 +47,8 @@ cubic does not: it starts and stops at rest and is smooth, so between waypoints 
 moves faster (for a single segment the peak is ``1.5 v_j``; PCHIP slopes reach up to
 ``3 d``). :attr:`SplineTrajectory.max_velocity` reports the exact peak and
 ``TrajectoryOptions.respect_velocity_limit`` rescales time by
-``kappa = max_j max|q_j'| / v_j`` (``v`` there: ``velocity_limit`` when given): the slopes are time-scale equivariant (``d`` and
+``kappa = max_j max|q_j'| / v_j`` (``v`` there: ``velocity_limit`` when given): the slopes are
+time-scale equivariant (``d`` and
 ``m`` scale by ``1 / kappa``, the weights' ratios do not change), so the interpolant
 through the same points at times ``kappa t_i`` is ``q(t / kappa)`` with velocities
 ``q' / kappa``, which restores the bound exactly.

@@ -568,7 +568,8 @@ def reach_request(req: PlanReach.Request, waist: pin.SE3 | None = None) -> Reach
     """Validate and convert a ``PlanReach`` request (``RequestError`` with the response code).
 
     Checks, in order: NaN/inf anywhere -> INVALID_REQUEST; arm not 0/1/2, unknown planner,
-    time budget outside [0, MAX_TIME_BUDGET_S], goal_count above MAX_GOAL_COUNT -> INVALID_REQUEST; target frame not world/""/base_link ->
+    time budget outside [0, MAX_TIME_BUDGET_S], goal_count above MAX_GOAL_COUNT -> INVALID_REQUEST;
+    target frame not world/""/base_link ->
     UNKNOWN_FRAME (skipped with ``use_marker_target``: the marker's pose replaces it);
     lower > upper or rotation bounds beyond +-pi by more than ``wgr.ANGLE_TOL`` -> INVALID_BOUNDS
     (bounds within it are clamped to +-pi).

@@ -4,7 +4,8 @@ Why: in one Python interpreter the ROS callbacks (200 Hz ``/joint_states``, the 
 server, map messages), the solver and the tick share one global interpreter lock, and the
 5 ms deadlines then wait on whatever callback holds it. Here the supervisor, both engines
 and the :class:`~humanoid_reach_ros.execution.loop.ControlLoop` run in a child process
-(a fresh interpreter, ``python -m humanoid_reach_ros.nodes.reach_executor_loop``) that owns nothing else: no subscriptions, no executor spinning.
+(a fresh interpreter, ``python -m humanoid_reach_ros.nodes.reach_executor_loop``) that owns
+nothing else: no subscriptions, no executor spinning.
 It publishes ``/joint_command`` and ``/executor/metrics`` itself through a publish-only
 rclpy node (``<node>_loop``), so a command never crosses the parent's interpreter.
 

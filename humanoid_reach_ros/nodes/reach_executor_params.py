@@ -58,7 +58,8 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "map_frame": ParamSpec("world", "frame of /voxel_map and of the metrics"),
     "target_exclusion_radius_m": ParamSpec(0.15, "voxels of a /voxel_map within this distance of the motion's "
                                            "start or final hand position are the object reached or left, and "
-                                           "left out of the collision map [m]; 0 = keep all (as reach_planner)", (0.0, 1.0)),
+                                           "left out of the collision map [m]; 0 = keep all (as reach_planner)",
+                                           (0.0, 1.0)),
     "joint_states_timeout_s": ParamSpec(0.5, "/joint_states older than this [s]: a start is refused (NO_JOINT_STATES)",
                                         (0.001, 3600.0), read_only=False),
     "joint_states_abort_s": ParamSpec(2.0, "/joint_states older than this [s] while a motion runs: it is aborted "
@@ -84,8 +85,8 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "scan_poses_deg": ParamSpec([0.0, 35.0, -30.0, 30.0, 30.0, 30.0, 0.0, 45.0, -35.0, 45.0, 35.0, 45.0, -25.0, 5.0,
                                  25.0, 5.0, 0.0, 10.0, 0.0, 25.0],
                                 "head scan of the look action with no poses: yaw, pitch pairs [deg] (pitch > 0 looks "
-                                "down; the pitch-45 poses see the space in front of the chest the arms and the trunk move through); the "
-                                "last one looks at the workspace in front"),
+                                "down; the pitch-45 poses see the space in front of the chest the arms and the trunk "
+                                "move through); the last one looks at the workspace in front"),
     "marker_look_deg": ParamSpec([2.0, 40.0], "where the head looks for the target's marker: yaw, pitch [deg] "
                                  "(reach_operator --marker turns it there when /target_pose is stale and no marker "
                                  "position is known; the plant's valve from half-sitting, the demo's aim)"),

@@ -80,7 +80,8 @@ ERROR_NAMES: dict[int, str] = {getattr(E, n): n for n in dir(E)
 # These map one to one onto ``PlannerParams`` fields and take their defaults from it.
 _D = PlannerParams()
 PLANNER_PARAMETERS: dict[str, ParamSpec] = {
-    "resolution_m": ParamSpec(_D.resolution_m, "voxel size of the environment map [m] (scene-file maps are voxelised at it)",
+    "resolution_m": ParamSpec(_D.resolution_m,
+                              "voxel size of the environment map [m] (scene-file maps are voxelised at it)",
                               (0.001, 1.0)),
     # the executor's velocity dampers keep d_s = 0.01 m (reach_executor security_distance_m): a plan closer
     # than that ends with the hand held off its goal (TARGET_NOT_REACHED), so plans keep it too
@@ -90,7 +91,8 @@ PLANNER_PARAMETERS: dict[str, ParamSpec] = {
     "planner": ParamSpec(_D.planner, "default path planner (a request's non-empty planner overrides)",
                          constraints=f"one of {', '.join(msgs.PLANNERS)}"),
     "time_budget_s": ParamSpec(_D.time_budget_s, "default wall-time budget of one request [s]", (0.01, 600.0)),
-    "joint_velocity_rad_s": ParamSpec(_D.joint_velocity_rad_s, "joint speed used to time the trajectory [rad/s]", (0.01, 10.0)),
+    "joint_velocity_rad_s": ParamSpec(_D.joint_velocity_rad_s, "joint speed used to time the trajectory [rad/s]",
+                                      (0.01, 10.0)),
     "output_period_s": ParamSpec(_D.output_period_s, "sample period of the output trajectory [s]", (0.001, 1.0)),
     "edge_resolution": ParamSpec(_D.edge_resolution, "collision-check step along path edges [rad, planning space]",
                                  (1e-4, 1.0)),
@@ -308,7 +310,8 @@ class ReachPlannerNode(Node):
         if msg is None:
             return None, "use_marker_target but no /target_pose received"
         if age > self._p["target_timeout_s"]:
-            return None, f"use_marker_target but /target_pose is stale ({age:.2f} s > {self._p['target_timeout_s']:g} s)"
+            return None, (f"use_marker_target but /target_pose is stale "
+                          f"({age:.2f} s > {self._p['target_timeout_s']:g} s)")
         return msg, ""
 
     # ------------------------------------------------------------ service

@@ -288,8 +288,10 @@ class SceneSim(Node):
         rate = w["frames"] / max(now - w["start"], 1e-9)
         values = {"frames_total": self.frames, "rate_hz": rate, "nominal_rate_hz": 1.0 / p["period_s"],
                   "mean_render_ms": 1e3 * w["sum_render_s"] / w["frames"] if w["frames"] else 0.0,
-                  "max_render_ms": 1e3 * w["max_render_s"], "joint_states_age_s": age if math.isfinite(age) else "never",
-                  "bad_joint_states_total": self.bad_joint_states, "frames_from_cache": self.cached_frames, "last_bad_joint_states": self.last_bad_reason,
+                  "max_render_ms": 1e3 * w["max_render_s"],
+                  "joint_states_age_s": age if math.isfinite(age) else "never",
+                  "bad_joint_states_total": self.bad_joint_states, "frames_from_cache": self.cached_frames,
+                  "last_bad_joint_states": self.last_bad_reason,
                   "disabled_primitives": ",".join(n for n in p["disabled_primitives"] if n) or "none",
                   "width": self.camera.width, "height": self.camera.height}
         level, message = msgs.LEVEL_OK, f"publishing at {rate:.1f} Hz"

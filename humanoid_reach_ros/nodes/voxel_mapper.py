@@ -605,7 +605,8 @@ class VoxelMapperNode(Node):
                   "points_per_s": (c.points_integrated + c.points_outside + c.points_floor) / c.integration_time_s
                   if c.integration_time_s > 0 else 0.0, "clears": c.clears,
                   "map_version": version, "published_version": published,
-                  "unobserved_frontier_voxels": 0 if self._published_frontier is None else len(self._published_frontier),
+                  "unobserved_frontier_voxels": (0 if self._published_frontier is None
+                                                 else len(self._published_frontier)),
                   "unobserved_blocks": 0 if self._published_blocks is None else len(self._published_blocks)}
         statuses = [msgs.diagnostic_status(f"{name}: map", msgs.LEVEL_OK,
                                            f"{occupied} occupied voxels from {depth_maps} depth maps", values)]

@@ -432,6 +432,6 @@ def same_camera_pose(a: np.ndarray, b: np.ndarray, tol_m: float = 1e-3, tol_rad:
 
 __all__ = [
     "MARKER_KEYS", "transform", "object_pose", "marker_corners", "MarkerSpec", "MarkerTable", "marker_table",
-    "load_marker_config", "MarkerDetection", "DetectionResult", "MarkerDetector", "refine_corners_by_edges", "solve_marker_pose",
-    "JointStateBuffer", "camera_pose", "same_camera_pose",
+    "load_marker_config", "MarkerDetection", "DetectionResult", "MarkerDetector", "refine_corners_by_edges",
+    "solve_marker_pose", "JointStateBuffer", "camera_pose", "same_camera_pose",
 ]

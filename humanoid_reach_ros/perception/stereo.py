@@ -101,7 +101,8 @@ class StereoCalibration:
         if not isinstance(other, StereoCalibration):
             return NotImplemented
         return self.size == other.size and all(
-            np.array_equal(getattr(self, k), getattr(other, k)) for k in ("K1", "D1", "R1", "P1", "K2", "D2", "R2", "P2"))
+            np.array_equal(getattr(self, k), getattr(other, k))
+            for k in ("K1", "D1", "R1", "P1", "K2", "D2", "R2", "P2"))
 
     @property
     def baseline_m(self) -> float:
@@ -152,7 +153,8 @@ class StereoCalibration:
         camera's pose as OpenCV's stereoCalibrate gives it: x_right = R x_left + T)."""
         R1, R2, P1, P2, _Q, _r1, _r2 = cv2.stereoRectify(np.asarray(K1, float), np.asarray(D1, float),
                                                           np.asarray(K2, float), np.asarray(D2, float),
-                                                          tuple(size), np.asarray(R, float), np.asarray(T, float).reshape(3, 1),
+                                                          tuple(size), np.asarray(R, float),
+                                                          np.asarray(T, float).reshape(3, 1),
                                                           flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)
         return StereoCalibration(np.asarray(K1, float), np.asarray(D1, float).ravel(), R1, P1,
                                  np.asarray(K2, float), np.asarray(D2, float).ravel(), R2, P2, tuple(size))

@@ -16,7 +16,8 @@ which :class:`VoxelMap` applies to every voxel a depth map ``M`` observes:
   precedence within one depth map), with weight ``w_M = free_weight``.
 
 Each voxel is updated at most once per depth map (a per-voxel stamp: 8 x the depth
-map's number + flags hit / freed / ray end). ``V`` is thus the weighted fraction of depth maps that saw the voxel occupied;
+map's number + flags hit / freed / ray end). ``V`` is thus the weighted fraction of depth maps
+that saw the voxel occupied;
 a voxel is *occupied* when ``V > occupied_threshold`` and ``W >= min_weight``.
 
 Simplification of 003, named: the accumulated weight is capped,

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,6 +24,9 @@ from humanoid_reach_ros.codes import ARM_LEFT, ARM_RIGHT
 from humanoid_reach_ros.planning.projector import Projector
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion
 from humanoid_reach_ros.robot.model import RobotModel
+
+if TYPE_CHECKING:
+    from humanoid_reach_ros.planning.trunk_region import TrunkSampler
 
 
 @dataclass(frozen=True)

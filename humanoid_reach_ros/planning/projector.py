@@ -84,7 +84,8 @@ def quat_xyzw_matrix(quat: np.ndarray) -> np.ndarray:
 
 @nb.njit(**_JIT)
 def rpy_into(R, roll, pitch, yaw) -> None:
-    """``R`` (3, 3) = ``Rz(yaw) Ry(pitch) Rx(roll)`` (compiled; :func:`~humanoid_reach_ros.planning.wgr.rpy_matrix`'s)."""
+    """``R`` (3, 3) = ``Rz(yaw) Ry(pitch) Rx(roll)`` (compiled;
+    :func:`~humanoid_reach_ros.planning.wgr.rpy_matrix`'s)."""
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
     cy, sy = math.cos(yaw), math.sin(yaw)

@@ -250,6 +250,10 @@ class _Failure(Exception):
         self.extra = extra
 
 
+#: ReachPlanner's default ``retreat`` (one frozen instance, shared by every planner)
+_DEFAULT_RETREAT = RetreatParams()
+
+
 class ReachPlanner:
     """Goal sampling + path planning + trajectory for reach requests (see module doc).
 
@@ -264,7 +268,7 @@ class ReachPlanner:
 
     def __init__(self, robot: RobotModel | None = None, params: PlannerParams = PlannerParams(),
                  compiled_kinematics: bool = True, early_exit_checks: bool = True,
-                 scene: PlanningScene | None = None, retreat: RetreatParams = RetreatParams(),
+                 scene: PlanningScene | None = None, retreat: RetreatParams = _DEFAULT_RETREAT,
                  observable=None) -> None:
         self.robot = RobotModel() if robot is None else robot
         self.params = params
@@ -384,7 +388,8 @@ class ReachPlanner:
         if collision.tree.n_spheres:
             hit = collision.tree.intersects_batch(P0, P1, collision.radii)
             out += [names[s] for s in np.flatnonzero(hit)]
-        out += [f"{a}<->{b}" for a, b, _ in self.collision_model.colliding_pairs(P0, P1, margin=collision.self_margin_m)]
+        out += [f"{a}<->{b}"
+                for a, b, _ in self.collision_model.colliding_pairs(P0, P1, margin=collision.self_margin_m)]
         return out
 
     def check_start(self, start_joints) -> tuple[bool, str]:
@@ -955,9 +960,11 @@ class ReachPlanner:
                                                      self._reverse_of_last(joints), min_retreat_m)
         if retreat is None:
             raise _Failure(PlanError.START_IN_COLLISION,
-                           f"{contact.describe()} and no retreat of {1e3 * self.retreat_planner.params.min_distance_m:.0f}"
+                           f"{contact.describe()} and no retreat of "
+                           f"{1e3 * self.retreat_planner.params.min_distance_m:.0f}"
                            f"-{1e3 * self.retreat_planner.params.max_distance_m:.0f} mm frees it: "
-                           + "; ".join(reasons[:6]) + (f"; ... {len(reasons) - 6} more lines" if len(reasons) > 6 else ""))
+                           + "; ".join(reasons[:6])
+                           + (f"; ... {len(reasons) - 6} more lines" if len(reasons) > 6 else ""))
         end = retreat.joints[-1]
         if not collision.check(self.start_config(end)):
             shapes = self.colliding_shapes(self.start_config(end), collision)

@@ -136,7 +136,8 @@ def load_suite(path: str | Path = SUITE_FILE) -> list[SuiteCase]:
         by_robot = entry.get("expect_by_robot", {})
         known = robots()
         if not isinstance(by_robot, dict) or not all(
-                r in known and isinstance(e, dict) and e and set(e) <= set(ARMS) and all(v in EXPECTATIONS for v in e.values())
+                r in known and isinstance(e, dict) and e and set(e) <= set(ARMS)
+                and all(v in EXPECTATIONS for v in e.values())
                 for r, e in by_robot.items()):
             raise ValueError(f"{where}: expect_by_robot must map robots of config/robots ({', '.join(known)}) to "
                              f"{{arm: one of {sorted(EXPECTATIONS)}}} for some of {ARMS}, got {by_robot!r}")

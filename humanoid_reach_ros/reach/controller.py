@@ -282,7 +282,8 @@ class DualArmReachController:
         return self.ik.step(self.q_init, t, chest, self.leg_targets(com.p_com), self.sole_support, measure=False,
                             tracking=False)
 
-    def sample_reachable(self, rng: np.random.Generator, n: int, max_draws: int = 100000) -> tuple[np.ndarray, np.ndarray]:
+    def sample_reachable(self, rng: np.random.Generator, n: int,
+                         max_draws: int = 100000) -> tuple[np.ndarray, np.ndarray]:
         """``n`` right and ``n`` left hand target positions, uniform in the workspace boxes
         and each kept only if this method *reaches* it: the symmetric pair it forms with
         its own mirror image in the sagittal plane (``y -> -y``, the other hand's target)
@@ -328,7 +329,8 @@ class DualArmReachController:
         if pairs is None:
             pairs = self.sample_reachable(np.random.default_rng(seed), count)
         PR, PL = (np.asarray(a, float) for a in pairs)
-        if PR.shape != (count, 3) or PL.shape != (count, 3) or not (np.all(np.isfinite(PR)) and np.all(np.isfinite(PL))):
+        if (PR.shape != (count, 3) or PL.shape != (count, 3)
+                or not (np.all(np.isfinite(PR)) and np.all(np.isfinite(PL)))):
             raise ValueError(f"pairs must be two finite ({count}, 3) arrays")
         self._seq = (PR, PL)
         self._remaining = count

@@ -250,7 +250,8 @@ def solve_legs_packed(q, qcols, com_now, inp, C, m_tot, tol, max_iter, h, J, jst
     link; updated in place on success): ``c_up`` from the whole-body CoM ``com_now`` of
     ``q`` minus its legs, then :func:`legs_newton`. ``qcols`` (2, 6) configuration indices
     of the support / swing leg; ``C`` (2, N_CONST) packed constants; ``inp`` (N_INPUT,)
-    packed targets; ``J``, ``jstate`` the kept Jacobian (:func:`legs_newton`). Returns ``(status, iterations, |p*_CoM - p_CoM|)``."""
+    packed targets; ``J``, ``jstate`` the kept Jacobian (:func:`legs_newton`). Returns
+    ``(status, iterations, |p*_CoM - p_CoM|)``."""
     kc_R = np.empty((2, 2, 3, 3))
     kc_t = np.empty((2, 2, 3))
     kc_len = np.empty((2, 2))

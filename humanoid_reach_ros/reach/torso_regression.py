@@ -74,8 +74,8 @@ class ReachWorkspace:
             org = {s: np.array(y["orientation_origin_m"][s], float) for s in ("right", "left")}
             joints = {str(k): float(np.radians(float(v))) for k, v in (y.get("initial_joints_deg") or {}).items()}
             out = cls(box["right"][0], box["right"][1], box["left"][0], box["left"][1], rot["right"], rot["left"],
-                      org["right"], org["left"], float(y["initial_com_drop_m"]), float(y["com_offset_m"]), dict(y["svr"]),
-                      dict(y["dataset"]), joints)
+                      org["right"], org["left"], float(y["initial_com_drop_m"]), float(y["com_offset_m"]),
+                      dict(y["svr"]), dict(y["dataset"]), joints)
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise ValueError(f"{p}: malformed workspace file ({exc!r})") from exc
         for lo, hi in ((out.right_lower, out.right_upper), (out.left_lower, out.left_upper)):
@@ -95,7 +95,8 @@ class ReachWorkspace:
                 raise ValueError(f"workspace initial_joints_deg: robot {robot.name!r} has no joint {name!r}")
             i = robot.joint_index[name]
             if not robot.lower[i] <= v <= robot.upper[i]:
-                raise ValueError(f"workspace initial_joints_deg: {name} = {np.degrees(v):.1f} deg is outside its limits")
+                raise ValueError(f"workspace initial_joints_deg: {name} = {np.degrees(v):.1f} deg "
+                                 "is outside its limits")
             q[N_BASE_Q + i] = v
         return lowered_initial_posture(robot, self.initial_com_drop_m, q)
 

@@ -38,7 +38,9 @@ import numpy as np
 import pinocchio as pin
 
 from humanoid_reach_ros.reach.fast_legs import ClosedFormLowerBodyIK
-from humanoid_reach_ros.reach.kinematics import HandTargets, as_joints, as_position, as_rotation, pose_error, rot_error, spd_solve
+from humanoid_reach_ros.reach.kinematics import (
+    HandTargets, as_joints, as_position, as_rotation, pose_error, rot_error, spd_solve,
+)
 from humanoid_reach_ros.reach.lower_body_ik import (
     LegTargets, LowerBodyIK, LowerBodyResult, _FloatingKinematics, lowered_initial_posture,
 )

@@ -20,7 +20,6 @@ from typing import Mapping, Sequence
 
 import numpy as np
 import pinocchio as pin
-import yaml
 
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT, check_against_model, load_robot_spec
 

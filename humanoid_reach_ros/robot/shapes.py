@@ -2,7 +2,8 @@
 
 Kanehiro et al. (Sec. II, Fig. 2) approximate the humanoid by spheres and capped
 cylinders (capsules) because distances between them and the environment's sphere
-tree are cheap. The model lives in the robot description's ``collision_model`` (``config/robots/hrp2/collision.yaml``); this module
+tree are cheap. The model lives in the robot description's ``collision_model``
+(``config/robots/hrp2/collision.yaml``); this module
 loads and validates it and evaluates it in numpy (no ROS).
 
 Every shape is stored as a *capsule*: a segment ``p0 -> p1`` swept by a ball of

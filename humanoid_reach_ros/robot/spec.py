@@ -13,7 +13,8 @@ URDF's (``frames``: e.g. a grasp point the URDF lacks).
 The URDF is a file beside ``robot.yaml`` or a packaged resource
 ``package://<package>/<path>`` (:func:`resolve_package_uri`: the package's ament share
 directory, else the ``cmeel.prefix/share`` of a pip-installed cmeel wheel on ``sys.path``),
-so a third-party model is read where its package installs it, not copied. :class:`~humanoid_reach_ros.robot.model.RobotModel`
+so a third-party model is read where its package installs it, not copied.
+:class:`~humanoid_reach_ros.robot.model.RobotModel`
 loads it and every layer receives it from there: no robot-specific name or number is
 written anywhere else in the package (``test/test_robot_spec.py`` checks).
 
@@ -298,4 +299,5 @@ def check_against_model(spec: RobotSpec, joint_names, has_frame) -> None:
 
 
 __all__ = ["RobotSpec", "LimbDef", "FrameDef", "load_robot_spec", "robot_config_path", "robots",
-           "check_against_model", "resolve_package_uri", "DEFAULT_ROBOT", "DEFAULT_DUAL_ARM_WORKSPACE", "LIMB_NAMES", "LIMB_JOINTS"]
+           "check_against_model", "resolve_package_uri", "DEFAULT_ROBOT", "DEFAULT_DUAL_ARM_WORKSPACE", "LIMB_NAMES",
+           "LIMB_JOINTS"]

@@ -279,7 +279,8 @@ def _shading_table(primitives: Sequence[Primitive]) -> tuple[np.ndarray, np.ndar
         elif isinstance(prim, Cylinder):
             a, b = np.asarray(prim.p0), np.asarray(prim.p1)
             length = float(np.linalg.norm(b - a))
-            kinds[i], r[0:3], r[3:6], r[6], r[7] = _K_CYLINDER, 0.5 * (a + b), (b - a) / length, 0.5 * length, prim.radius
+            kinds[i], r[0:3], r[3:6], r[6], r[7] = (_K_CYLINDER, 0.5 * (a + b), (b - a) / length,
+                                                    0.5 * length, prim.radius)
         elif isinstance(prim, Sphere):
             kinds[i], r[0:3] = _K_SPHERE, prim.center
         elif isinstance(prim, Torus):

@@ -409,9 +409,9 @@ def _entry(kind, p, ox, oy, oz, dx, dy, dz):
 
 
 @nb.njit(cache=True, nogil=True)
-def _raycast_kernel(O, D, kinds, params, enabled, max_range, out_t, out_k):
-    for n in range(O.shape[0]):
-        ox, oy, oz = O[n, 0], O[n, 1], O[n, 2]
+def _raycast_kernel(origins, D, kinds, params, enabled, max_range, out_t, out_k):
+    for n in range(origins.shape[0]):
+        ox, oy, oz = origins[n, 0], origins[n, 1], origins[n, 2]
         dx, dy, dz = D[n, 0], D[n, 1], D[n, 2]
         best = max_range
         bk = -1
