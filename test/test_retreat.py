@@ -88,3 +88,19 @@ def test_bad_requests(planner) -> None:
     out = planner.plan(planner.robot.half_sitting_joints,
                        PlanRequest(valve_region(), approach=np.array([np.nan, 0.0, 0.0])))
     assert out.error == PlanError.INVALID_REQUEST and "approach" in out.message
+
+
+def test_the_retreat_does_not_depend_on_the_next_target(planner, at_valve) -> None:
+    """The contact is the start's, in the map as it is: a target whose object (the 15 cm left out
+    around it) overlaps the contact's voxels does not change the contact's normal, its allowed
+    voxels or the retreat (bench/session, dense_pipes: a target 26 cm from the hand left part of
+    the pipe under the forearm out and every retreat failed, while the way home, on the whole
+    map, found one). Was: another direction for each of these two targets."""
+    home = planner.plan(at_valve, PlanRequest(None, home=True, seed=3, time_budget_s=5.0))
+    assert home.success and home.retreat, home.message
+    v = valve_region().target_p
+    for offset in ([0.0, 0.2, 0.0], [0.0, -0.15, -0.1]):
+        region = dataclasses.replace(valve_region(), target_p=v + np.array(offset))
+        out = planner.plan(at_valve, PlanRequest(region, seed=2, time_budget_s=5.0))
+        assert out.success, (offset, out.message)
+        assert out.retreat == home.retreat, (offset, out.retreat, home.retreat)

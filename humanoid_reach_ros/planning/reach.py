@@ -42,6 +42,7 @@ import threading
 import time
 import traceback
 from dataclasses import dataclass, field, replace
+from typing import Callable
 
 import numpy as np
 import pinocchio as pin
@@ -818,8 +819,11 @@ class ReachPlanner:
         stats["map_voxels"] = int((known or collision).tree.n_spheres)   # occupied, the target's object left out
         c0 = replace(collision.counters)
         q_first = self.start_config(joints)
+        # a retreat leaves the contact in the map as it is: the new target's object is left out of
+        # the reach's checker only (around the target), not of the start's contact
+        whole = (lambda: self._scene_collision(snap, None)[0]) if collisions is None and region is not None else None
         retreat, joints = self._start_or_retreat(joints, q_first, collision, snap, self._approach_at(joints, request),
-                                                 force_retreat, min_retreat_m)
+                                                 force_retreat, min_retreat_m, whole)
         q_start = self.start_config(joints)
         prefix = q_first[None] if retreat is None else np.array([self.start_config(j) for j in retreat.joints])
         retreat_kw = {} if retreat is None else {"retreat": retreat.describe()}
@@ -935,15 +939,26 @@ class ReachPlanner:
     # ------------------------------------------------------------ start, retreat, home
     def _start_or_retreat(self, joints: np.ndarray, q_start: np.ndarray, collision: RobotCollision,
                           snap: SceneSnapshot, approach: np.ndarray | None, force: bool = False,
-                          min_retreat_m: float | None = None) -> tuple[Retreat | None, np.ndarray]:
+                          min_retreat_m: float | None = None,
+                          whole: Callable[[], RobotCollision] | None = None) -> tuple[Retreat | None, np.ndarray]:
         """The start as it is, or, when a hand touches the map, the end of a retreat
         (planning/retreat.py). START_IN_COLLISION names the links and the nearest voxels when
         something else collides, or when no retreat works; a colliding start is never moved at
-        random."""
+        random. ``whole``: the checker of the whole map (nothing left out around the reach's
+        target), on which a contact found in ``collision`` is described and retreated from:
+        the contact's normal, its allowed voxels and the retreat's checks do not depend on
+        where the next target is (bench/session, dense_pipes: a target 26 cm from the hand left
+        part of the pipe under the forearm out, every retreat failed; the way home, on the whole
+        map, found one from the same posture)."""
         margin = snap.params.safety_margin_m
-        contact, hit = self.retreat_planner.classify_start(
-            q_start, collision.tree, margin,
-            self.retreat_planner.params.contact_radius_m if force else None)
+        reach = self.retreat_planner.params.contact_radius_m if force else None
+        contact, hit = self.retreat_planner.classify_start(q_start, collision.tree, margin, reach)
+        tree = collision.tree
+        if contact is not None and hit is None and whole is not None:
+            wc = whole()
+            contact_w, hit_w = self.retreat_planner.classify_start(q_start, wc.tree, margin, reach)
+            if contact_w is not None and hit_w is None:
+                contact, tree = contact_w, wc.tree
         if hit is not None:
             more = f"; also {contact.describe()}" if contact is not None else ""
             raise _Failure(PlanError.START_IN_COLLISION,
@@ -956,7 +971,7 @@ class ReachPlanner:
                 raise _Failure(PlanError.START_IN_COLLISION,
                                "start posture in collision: " + (", ".join(shapes) if shapes else "unknown shapes"))
             return None, joints
-        retreat, reasons = self.retreat_planner.plan(joints, contact, collision.tree, margin, approach,
+        retreat, reasons = self.retreat_planner.plan(joints, contact, tree, margin, approach,
                                                      self._reverse_of_last(joints), min_retreat_m)
         if retreat is None:
             raise _Failure(PlanError.START_IN_COLLISION,
