@@ -225,3 +225,35 @@ def test_invalid_construction_and_parameters(model: RobotModel) -> None:
         sim.velocity_scale = 0.0
     with pytest.raises(ValueError):
         sim.time_constant_s = -1.0
+
+
+def test_a_late_command_is_caught_up_on_a_straight_line_keeping_the_feet(model: RobotModel) -> None:
+    """Velocity limit coordinated over the joints: a command 40 ms ahead of the joints (a burst of
+    late /joint_command messages) is caught up on the straight line toward it, every joint
+    slowed together, so a balanced leg motion keeps the soles where they are (a per-joint clip
+    moved the left sole 0.8 mm from the right, bench/session)."""
+    sim = JointSimulator(model, time_constant_s=0.005, velocity_scale=1.0)
+    q0 = sim.q.copy()
+    rs, ls = model.sole_frames
+
+    def left_in_right(q: np.ndarray) -> np.ndarray:
+        c = model.config(q, model.base_on_feet(q))
+        return model.frame_pose(c, rs).actInv(model.frame_pose(c, ls)).translation
+    # the same crouch of both legs (the soles stay put), 40 ms of motion at the legs' limit at once
+    legs = [i for i, n in enumerate(model.joint_names) if "LEG" in n]
+    target = q0.copy()
+    v = model.velocity_limit[legs]
+    pattern = np.array([0.0, 0.0, -1.0, 2.0, -1.0, 0.0] * 2)   # hip, knee, ankle pitch: a crouch
+    target[legs] += pattern * np.min(v) * 0.04
+    assert np.linalg.norm(left_in_right(target) - left_in_right(q0)) < 1e-6
+    sim.set_command(model.joint_names, target)
+    drift, line = 0.0, 0.0
+    for _ in range(40):
+        sim.step(DT)
+        drift = max(drift, float(np.linalg.norm(left_in_right(sim.q) - left_in_right(q0))))
+        d = (sim.q - q0)[legs]
+        u = pattern / np.linalg.norm(pattern)
+        line = max(line, float(np.linalg.norm(d - (d @ u) * u)))
+    assert line < 1e-12              # on the straight line toward the command
+    assert drift < 1e-6, drift       # the soles kept where they were
+    np.testing.assert_allclose(sim.q, target, atol=1e-9)

@@ -104,3 +104,36 @@ def test_the_retreat_does_not_depend_on_the_next_target(planner, at_valve) -> No
         out = planner.plan(at_valve, PlanRequest(region, seed=2, time_budget_s=5.0))
         assert out.success, (offset, out.message)
         assert out.retreat == home.retreat, (offset, out.retreat, home.retreat)
+
+
+def test_a_start_off_the_manifold_goes_by_home_whatever_the_longer_retreats_say(planner, monkeypatch) -> None:
+    """The pre-segment fails, then no longer retreat exists ("no retreat ... frees it"): the reach
+    still goes by the rest posture (bench/session, dense_pipes: that answer ended the reach while
+    the way home from the same posture planned)."""
+    from humanoid_reach_ros.planning import reach as reach_mod
+
+    calls, home_calls = [], []
+
+    def fake_plan(joints, request, stats, t0, snap, collisions=None, force_retreat=False, min_retreat_m=None):
+        calls.append(min_retreat_m)
+        if min_retreat_m is None:
+            raise reach_mod._Failure(PlanError.START_IN_COLLISION, "the start posture cannot be moved to the "
+                                     "planning manifold without collision (right arm: pre_segment)")
+        raise reach_mod._Failure(PlanError.START_IN_COLLISION, "the right hand touches the map and no retreat "
+                                 "of 120-250 mm frees it")
+
+    def fake_via_home(joints, request, snap, t0, failed):
+        home_calls.append(failed.message)
+        return dataclasses.replace(failed, success=True, error=PlanError.SUCCESS, message="by the rest posture")
+
+    monkeypatch.setattr(planner, "_plan", fake_plan)
+    monkeypatch.setattr(planner, "_via_home", fake_via_home)
+    monkeypatch.setattr(planner, "_unobserved_check", lambda outcome, *a, **k: outcome)
+    monkeypatch.setattr(planner, "_remember_end", lambda outcome: None)
+    out = planner.plan(planner.robot.half_sitting_joints, PlanRequest(valve_region(), seed=1))
+    assert calls == [None, 0.12] and len(home_calls) == 1, (calls, home_calls)
+    assert out.success and out.message == "by the rest posture"
+    # a home request is not sent home again
+    calls.clear(), home_calls.clear()
+    out = planner.plan(planner.robot.half_sitting_joints, PlanRequest(None, home=True))
+    assert not out.success and not home_calls

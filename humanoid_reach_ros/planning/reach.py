@@ -588,9 +588,8 @@ class ReachPlanner:
                     outcome = self._plan(joints, request, stats, t0, snap)
                 except _Failure as e:
                     outcome = self._fail(e.error, e.message, stats, t0, **e.extra)
-                for farther in (0.12, 0.2):
-                    if outcome.error != PlanError.START_IN_COLLISION or "pre_segment" not in outcome.message:
-                        break
+                manifold = outcome.error == PlanError.START_IN_COLLISION and "pre_segment" in outcome.message
+                for farther in (0.12, 0.2) if manifold else ():
                     # the start (or the retreat's end) is clear but the way onto the planning manifold
                     # is not: the pre-segment moves the trunk and the chest, the hand with them (seen
                     # after the demo's reach: the hand back into the valve at 38 % of it). Retreat
@@ -600,8 +599,11 @@ class ReachPlanner:
                                              min_retreat_m=farther)
                     except _Failure as e:
                         outcome = self._fail(e.error, e.message, stats, t0, **e.extra)
-                if not request.home and outcome.error == PlanError.START_IN_COLLISION \
-                        and "pre_segment" in outcome.message:
+                    if outcome.error != PlanError.START_IN_COLLISION or "pre_segment" not in outcome.message:
+                        break   # planned, or no retreat that long (a longer one is no easier)
+                if manifold and not request.home and outcome.error == PlanError.START_IN_COLLISION:
+                    # whatever the longer retreats answered (bench/session: "no retreat of 50-250 mm
+                    # frees it" ended the reach, while the way home from the same posture planned)
                     outcome = self._via_home(joints, request, snap, t0, outcome)
             except _Failure as e:
                 outcome = self._fail(e.error, e.message, stats, t0, **e.extra)

@@ -10,9 +10,13 @@ exactly over one step ``dt`` (first-order tracking with time constant ``tau`` =
 ``time_constant_s``, saturated by the joint's velocity limit ``vmax_i`` times
 ``velocity_scale`` ``s``). The step is the exponential one,
 
-    Delta q_i = clip( (1 - exp(-dt / tau)) (q*_i - q_i),  -s vmax_i dt, s vmax_i dt ),
+    Delta q = k (1 - exp(-dt / tau)) (q* - q),   k = min(1, min_i s vmax_i dt / |(1 - exp(-dt / tau)) (q*_i - q_i)|)
 
-so a joint never overshoots its target, never moves faster than ``s * vmax_i`` and,
+(the velocity limit is *coordinated*: where a joint would exceed it, the whole step is scaled
+so that every joint keeps moving on the straight line toward the command, as an interpolating
+joint controller does; a per-joint clip bent that line and, after a late command, moved one
+sole against the other), so a joint never overshoots its target, never moves faster than
+``s * vmax_i`` and,
 because targets are clipped into ``[lower, upper]`` on arrival, never leaves its
 position limits. ``tau = 0`` gives pure rate-limited tracking.
 
@@ -230,7 +234,14 @@ class JointSimulator:
         error = self.target - self.q
         gain = 1.0 if self._tau == 0.0 else -math.expm1(-dt / self._tau)
         bound = self.velocity_bound * dt
-        delta = np.clip(gain * error, -bound, bound)
+        delta = gain * error
+        # coordinated velocity limit: where a joint would exceed its bound the whole step is scaled
+        # down, so every joint keeps moving on the straight line toward the command (a per-joint
+        # clip bends it: after a late /joint_command the legs caught up joint by joint and the left
+        # sole moved 0.8 mm from the right for 15 ms, measured in bench/session)
+        over = np.abs(delta) > bound
+        if over.any():
+            delta *= float(np.min(bound[over] / np.abs(delta[over])))
         q_new = np.clip(self.q + delta, self.lower, self.upper)
         self.dq[:] = (q_new - self.q) / dt
         self.q[:] = q_new
