@@ -93,7 +93,7 @@ def test_a_limb_off_the_hand_derived_patterns_gets_the_general_closed_form(tmp_p
     """HRP-2 with its right shoulder's first axis tilted (a robot the hand-derived arm pattern
     refuses): the limb set gives it the general solver, behind the same protocol, and the goal
     sampler's projector reaches through it."""
-    from humanoid_reach_ros.robot.general_ik import GeneralLimb
+    from humanoid_reach_ros.robot.general_limb import GeneralLimb
     from humanoid_reach_ros.robot.spec import robot_config_path
 
     src = robot_config_path("hrp2").parent

@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from humanoid_reach_ros.reach.balance import polygon_margin, support_polygon
-from humanoid_reach_ros.robot.general_ik import GeneralLimb
+from humanoid_reach_ros.robot.general_limb import GeneralLimb
 from humanoid_reach_ros.robot.limb_ik import LimbIK, LimbIKSet
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.shapes import load_collision_model

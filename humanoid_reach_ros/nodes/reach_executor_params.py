@@ -69,9 +69,10 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "hold_timeout_s": ParamSpec(1.0, "republish the held command this long after a motion [s], then stop "
                                 "publishing (the joint driver holds its last command; the loop sleeps until the "
                                 "next motion); 0 = republish until the next motion", (0.0, 1e6)),
-    "lookahead_steps": ParamSpec(2, "the solver computes this many steps before their deadlines (1: only the "
-                                 "next one); 2 absorbs a late wake-up of the loop's threads at the cost of one "
-                                 "period more before a stop or a new map reaches the command", (1, 8)),
+    "lookahead_steps": ParamSpec(3, "the solver computes this many steps before their deadlines (1: only the "
+                                 "next one); each one more absorbs a longer stall of the loop's threads at the "
+                                 "cost of one period more before a stop or a new map reaches the command",
+                                 (1, 8)),
     "rt_priority": ParamSpec(80, "SCHED_FIFO priority of the control loop's tick thread (solver: one below) where "
                              "the OS allows it; 0 = normal scheduling"),
     "lock_memory": ParamSpec(True, "mlockall the control loop process (with rt_priority > 0) where the OS allows it"),

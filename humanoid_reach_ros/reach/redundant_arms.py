@@ -34,7 +34,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from humanoid_reach_ros.robot.general_ik import Chain6, GeneralLimbIK, rotations
+from humanoid_reach_ros.robot.general_ik import Chain6, rotations
+from humanoid_reach_ros.robot.general_ik_compiled import CompiledGeneralLimbIK
 from humanoid_reach_ros.robot.ik_types import IKReason
 
 
@@ -50,8 +51,9 @@ class RedundantArmTracker:
             raise ValueError(f"step_rad must be > 0 and window >= 1, got {step_rad}, {window}")
         self.limb = limb
         self.chain = c
-        # joints 2..7 from joint 2's placement: the subchain RedundantLimbIK solves too
-        self.sub = GeneralLimbIK(Chain6(c.R[1:], c.t[1:], c.axes[1:], c.Re, c.te, c.lower[1:], c.upper[1:]),
+        # joints 2..7 from joint 2's placement: the subchain RedundantLimbIK solves too (compiled:
+        # the same answers as GeneralLimbIK, one numba call for the window's first-joint values)
+        self.sub = CompiledGeneralLimbIK(Chain6(c.R[1:], c.t[1:], c.axes[1:], c.Re, c.te, c.lower[1:], c.upper[1:]),
                                  np.asarray(limb.q_default, float)[1:])
         self.offsets = step_rad * np.linspace(-1.0, 1.0, 2 * window + 1)
         self.margin, self.weight = float(limit_margin_rad), float(limit_weight)

@@ -106,7 +106,7 @@ import numba as nb
 import numpy as np
 import pinocchio as pin
 
-from humanoid_reach_ros.robot.general_ik import GeneralLimb
+from humanoid_reach_ros.robot.general_limb import GeneralLimb
 from humanoid_reach_ros.robot.ik_types import IKReason, IKResult
 from humanoid_reach_ros.robot.model import RobotModel
 
@@ -992,24 +992,29 @@ def _kernel_arg(a: np.ndarray) -> np.ndarray:
 
 
 def warm_up() -> None:
-    """Compile (or load from the numba cache) the leg kernel on a tiny batch."""
+    """Compile (or load from the numba cache) the leg kernel on a tiny batch, and the general
+    closed form's twins (robot/general_ik_compiled.py: Talos's arms, any 6R / 7R limb)."""
+    from humanoid_reach_ros.robot import general_ik_compiled
+
     eye = np.eye(3)[None]
     z = np.zeros((1, 3))
     out = (np.empty((1, 6)), np.empty(1, np.bool_), np.empty(1, np.int8), np.empty(1, np.int64))
     _leg_ik_kernel(z, eye, z - [0.0, 0.0, 0.6], eye, np.zeros((1, 6)), eye[0], z[0], eye[0], z[0], 0.3, 0.3,
                    np.full(6, -3.0), np.full(6, 3.0), *out)
+    general_ik_compiled.warm_up()
 
 
 def _limb_solver(model: RobotModel, name: str, compiled: bool):
     """The limb's closed form: :class:`LimbIK` (the two hand-derived patterns, legs compiled)
     where the chain has them, else the general closed form of ``robot/general_ik.py`` (any
     axis directions and offsets with three intersecting axes at one end and two at the
-    other; numpy). ValueError naming both reasons when neither applies."""
+    other; ``robot/general_limb.py``, its numba twin when ``compiled``). ValueError naming
+    both reasons when neither applies."""
     try:
         return LimbIK(model, name, compiled)
     except LimbStructureError as specific:
         try:
-            return GeneralLimb(model, name)
+            return GeneralLimb(model, name, compiled)
         except ValueError as general:
             raise LimbStructureError(f"{specific}; and the general closed form: {general}") from None
 
