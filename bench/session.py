@@ -99,7 +99,7 @@ STEP_TIMEOUT_S = 300.0       # one reach_operator process at most
 HOME_TOL_RAD = 0.01          # after --home: every joint within this of half-sitting (measured, settled; the
                              # executor holds the exact COG of the motion's start, so the legs end up to 7 mrad off)
 MOTION_START_TFS_S = 0.2     # the first /executor/metrics of a motion: time_from_start_s below this
-READY_LOGS = {               # a node's log line once it serves (test_operator_flow's)
+READY_LOGS = {               # a node's log line once it serves (test_session's)
     "joint_driver": r"simulated \w+", "scene_sim": r"scene sensors ready", "voxel_mapper": r"voxel mapper ready",
     "marker_localizer": r"marker localizer ready", "reach_planner": r"reach planner ready",
     "reach_executor": r"reach executor ready"}

@@ -10,7 +10,7 @@ Used by the demo (``humanoid_reach_ros.demo``) and by the node-level tests.
 * ``NodeProcess.start`` runs ``python -m humanoid_reach_ros.nodes.<name> --ros-args ...``
   as a real process with its output in a log file; ``stop`` sends SIGINT, waits, kills. A
   node ends with exit code 0 within ``STOP_DEADLINE_S`` of a SIGINT (the demo and
-  test_operator_flow check it).
+  test_session check it).
 * ``wait_for`` polls a condition with a timeout.
 * ``Graph`` is the node processes of one run (the demo, ``hr_graph``, benches, tools): each
   node with its ``config/<name>.yaml``, stopped in reverse order; ``GRAPH_NODES`` the six

@@ -7,7 +7,7 @@ the valve is planned with the frontier of unobserved space as an obstacle; after
 level look (the head as the launch leaves it) the same request is ``UNOBSERVED_SPACE``,
 naming where the permissive plan would enter unobserved space; the occupied voxels alone
 (``unobserved_space: free``) still plan it. The node side (the target-block check, the
-topics) runs in test_operator_flow.
+topics) runs in test_session.
 """
 from __future__ import annotations
 
