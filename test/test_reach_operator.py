@@ -118,6 +118,8 @@ def test_progress_bar_and_printer() -> None:
     (["--look", "nan", "20"], "'nan' is not a finite number"),
     (["--dwell", "1"], "--dwell needs --scan or --look"),
     (["--scan", "--dwell", "0"], "must be > 0"),
+    (["--marker", "--marker-wait", "0"], "must be > 0"),
+    (["--target", "0.7", "0", "0.9", "--marker-wait", "5"], "--marker-wait needs --marker"),
     # no abbreviations on a command that moves a robot
     (["--target", "0.7", "0", "0.9", "--exec"], "unrecognized arguments: --exec"),
     (["--tar", "0.7", "0", "0.9"], "unrecognized arguments: --tar"),

@@ -255,6 +255,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "(UNOBSERVED_SPACE) instead of looking there with a balanced whole-body gaze and planning again")
     p.add_argument("--max-looks", type=_int_in(0, 10, "10"), default=3,
                    help="automatic looks per request at most (default 3)")
+    p.add_argument("--marker-wait", type=_positive, default=None, metavar="S",
+                   help=f"with --marker: after turning the head, wait this long [s] for a fresh /target_pose "
+                        f"(default {MARKER_WAIT_S:g})")
     p.add_argument("--no-collision-avoidance", action="store_true", help="execute without velocity dampers")
     p.add_argument("--no-com-compensation", action="store_true", help="execute without the exact-COG task")
     p.add_argument("--smooth-reshaping", action="store_true", help="reshape colliding segments before executing")
@@ -299,6 +302,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     a.plan = not (a.scan or a.look is not None) or a.marker or a.target is not None or a.execute or a.home
     if a.dwell is not None and not (a.scan or a.look is not None):
         p.error("--dwell needs --scan or --look")
+    if a.marker_wait is not None and not a.marker:
+        p.error("--marker-wait needs --marker")
+    a.marker_wait = MARKER_WAIT_S if a.marker_wait is None else a.marker_wait
     if a.home and (a.rpy is not None or a.wgr is not None or a.arm != "auto"):
         p.error("--home takes no --rpy/--wgr/--arm: it goes back to the rest posture")
     if a.target is None and not a.home:
@@ -668,7 +674,7 @@ def ensure_marker_target(op: Operator, args: argparse.Namespace, text: TextIO, e
     publisher, within ``MARKER_DISCOVERY_S``), the head is turned
     (``/look``) toward the marker's last known position (from ``marker_localizer``'s diagnostics,
     aimed from the current posture) or, with none known, to the executor's ``marker_look_deg``;
-    then a fresh pose is awaited for ``MARKER_WAIT_S`` with a countdown. Returns the exit code to
+    then a fresh pose is awaited for ``--marker-wait`` (``MARKER_WAIT_S``) with a countdown. Returns the exit code to
     stop with, or ``EXIT["success"]`` to plan. Without a ``marker_localizer`` it leaves the answer
     to the planner (``NO_TARGET`` with its hint); without an executor the look says so (exit 3)."""
     from diagnostic_msgs.msg import DiagnosticArray
@@ -749,6 +755,7 @@ def ensure_marker_target(op: Operator, args: argparse.Namespace, text: TextIO, e
             return EXIT["unavailable"] if outcome in ("unavailable", "timeout") else EXIT["execution"]
         t1 = time.monotonic()
         note = [t1]
+        wait_s = args.marker_wait
 
         def fresh() -> bool:
             if since(t1)():
@@ -757,11 +764,11 @@ def ensure_marker_target(op: Operator, args: argparse.Namespace, text: TextIO, e
             if now >= note[0]:
                 note[0] += WAIT_NOTE_EVERY_S
                 err.write(f"reach_operator: waiting for /target_pose (marker_localizer) ... "
-                          f"{max(0.0, MARKER_WAIT_S - (now - t1)):.0f} s left\n")
+                          f"{max(0.0, wait_s - (now - t1)):.0f} s left\n")
                 err.flush()
             return False
-        if not op.spin_until(fresh, MARKER_WAIT_S):
-            err.write(f"reach_operator: no /target_pose within {MARKER_WAIT_S:g} s after turning the head {where}: "
+        if not op.spin_until(fresh, wait_s):
+            err.write(f"reach_operator: no /target_pose within {wait_s:g} s after turning the head {where}: "
                       "is the marker in view? Scan (--scan), look (--look YAW PITCH) or give --target\n")
             return EXIT["no_input"]
         report["fresh"] = True
