@@ -57,7 +57,10 @@ def set_parameters(probe, names_values, timeout=20.0):
 def world_points(model, cloud: PointCloud2, joint_msgs) -> np.ndarray:
     """The cloud's points in world, with R_T_C from the joint state of the cloud's stamp."""
     stamp = msgs.nanoseconds_from_time(cloud.header.stamp)
-    js = next(m for m in joint_msgs if msgs.nanoseconds_from_time(m.header.stamp) == stamp)
+    # the joint state of that stamp, or the nearest one the probe received (a loaded machine drops
+    # some: fresh clone, three xdist workers; the robot stands still in these tests)
+    js = min(joint_msgs, key=lambda m: abs(msgs.nanoseconds_from_time(m.header.stamp) - stamp))
+    assert abs(msgs.nanoseconds_from_time(js.header.stamp) - stamp) < 0.5e9, "no joint state near the cloud's stamp"
     joints = model.joints_from_dict(dict(zip(js.name, js.position)))
     T = camera_pose(model, joints, "head_camera_optical_frame")
     pts = msgs.points_from_cloud(cloud).points
