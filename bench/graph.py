@@ -259,9 +259,10 @@ def reversed_trajectory(traj):
     return msgs.joint_trajectory(list(traj.joint_names), t[-1] - t[::-1], pos[::-1], frame_id=traj.header.frame_id)
 
 
-def judge(figures: dict[str, Any]) -> dict[str, dict[str, Any]]:
+def judge(figures: dict[str, Any], targets: dict[str, tuple[str, float]] = TARGETS) -> dict[str, dict[str, Any]]:
+    """Each figure of ``targets`` (key: (comparison, bound)) against its bound (bench/session.py too)."""
     out = {}
-    for key, (op, bound) in TARGETS.items():
+    for key, (op, bound) in targets.items():
         v = figures.get(key)
         ok = None if v is None else {"<=": v <= bound, ">=": v >= bound, "==": v == bound}[op]
         out[key] = {"value": v, "target": f"{op} {bound}", "met": ok}

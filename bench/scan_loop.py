@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import subprocess
 import sys
 import tempfile
@@ -26,10 +25,12 @@ from pathlib import Path
 from humanoid_reach_ros.graph import GRAPH_NODES, Graph, allocate_domain, graph_env
 from humanoid_reach_ros.machine import describe as describe_machine
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from session import executor_motion_overruns  # noqa: E402  (bench/session.py: the executor's outcome lines)
+
 READY = {"joint_driver": "simulated", "scene_sim": "scene sensors ready", "voxel_mapper": "voxel mapper ready",
          "marker_localizer": "marker localizer ready", "reach_planner": "reach planner ready",
          "reach_executor": "reach executor ready"}
-MOTION_LINE = re.compile(r"\[[\d.]+ s, (\d+) steps, (\d+) overruns")
 
 
 def run(depth: int, scans: int, out: Path) -> dict:
@@ -52,10 +53,9 @@ def run(depth: int, scans: int, out: Path) -> dict:
     finally:
         graph.stop()
         lease.release()
-    motions = [(int(a), int(b)) for log in out.glob("reach_executor*.log")
-               for a, b in MOTION_LINE.findall(log.read_text(errors="replace"))]
-    steps, overruns = sum(a for a, _ in motions), sum(b for _, b in motions)
-    return {"lookahead_steps": depth, "motions": len(motions), "steps": steps, "overruns": overruns,
+    counts = executor_motion_overruns(out)
+    steps, overruns = counts["executor_steps"], counts["executor_overruns"]
+    return {"lookahead_steps": depth, "motions": counts["executor_motions"], "steps": steps, "overruns": overruns,
             "overruns_per_10k_steps": round(1e4 * overruns / steps, 2) if steps else None,
             "scans": scans, "scan_failures": failures, "wall_s": round(wall, 1)}
 

@@ -24,6 +24,7 @@ from humanoid_reach_ros.robot.general_ik_compiled import (
     CompiledGeneralLimbIK, CompiledRedundantLimbIK, compiled_general_ik, warm_up,
 )
 from humanoid_reach_ros.robot.model import RobotModel
+from test_general_ik import _random_chain   # the random 6R chain of the class, drawn the same way
 
 Q_TOL = 1e-9          # random poses: the two orders of operations agree this well
 Q_TOL_NEAR = 1e-7     # within 1e-6 of a limit (a knee or elbow that close to straight: ill-conditioned)
@@ -112,21 +113,6 @@ def test_the_seven_joint_arms_subchain_in_the_direct_form(robots):
     rng = np.random.default_rng(21)
     for _name, P, R, q_ref, tol in _pose_sets(sub, rng, 300):
         _same(ref, comp, P, R, q_ref, tol)
-
-
-def _random_chain(rng, wrist_at_tip: bool) -> Chain6:
-    """test_general_ik.py's random 6R chain of the class: random axis directions and link
-    rotations, offsets only where the class allows them."""
-    R = Rotation.random(6, random_state=rng.integers(1 << 31)).as_matrix()
-    t = rng.uniform(-0.3, 0.3, size=(6, 3))
-    if wrist_at_tip:
-        t[1] = t[4] = t[5] = 0.0
-    else:
-        t[1] = t[2] = t[5] = 0.0
-    axes = rng.normal(size=(6, 3))
-    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
-    Re = Rotation.random(random_state=rng.integers(1 << 31)).as_matrix()
-    return Chain6(R, t, axes, Re, rng.uniform(-0.1, 0.1, 3), np.full(6, -np.pi), np.full(6, np.pi))
 
 
 @pytest.mark.parametrize("wrist_at_tip", [True, False])

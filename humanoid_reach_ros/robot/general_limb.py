@@ -42,9 +42,8 @@ class GeneralLimb:
         self.q_default = np.clip(q_hs, self.lower, self.upper)
         c = self.chain
         self.n_joints = len(c.axes)
-        #: numba twins of the closed forms (robot/general_ik_compiled.py: the same answers, 16 us
-        #: instead of 51 ms a Talos arm pose), or the numpy references (``compiled_solver=False``)
-        self.compiled_solver = bool(compiled_solver)
+        # numba twins of the closed forms (robot/general_ik_compiled.py: the same answers, 16 us
+        # instead of 51 ms a Talos arm pose), or the numpy references (``compiled_solver=False``)
         if self.n_joints == 7:
             self.kind = "redundant"
             self.ik = CompiledRedundantLimbIK(c, self.q_default) if compiled_solver \
