@@ -205,9 +205,9 @@ def test_dual_arm_goals_follow_and_bad_inputs(start_node, ros_probe, model, ws) 
           f"{res.final_hand_error_m * 1e3:.4f} mm, max CoM error {res.max_com_error_m * 1e3:.3f} mm")
     assert res.final_hand_error_m < HAND_TOL_M and res.max_com_error_m < 2e-3 and res.steps > 100
     assert g.feedback and 0.0 <= g.feedback[0].progress <= g.feedback[-1].progress <= 1.0
-    J, _ = command_array(commands, model)
+    J, stamps = command_array(commands, model)
     assert np.all(np.isfinite(J)) and all(model.in_limits(j, 1e-9) for j in J)
-    assert max_jump_ratio(J, model, period) <= JUMP_PERIODS
+    assert max_jump_ratio(J, model, period, stamps) <= JUMP_PERIODS
     assert max(left_sole_offset(model, j) for j in J[::10]) < 1e-3      # the feet do not move
     assert max(hand_errors(model, settled_joints(), right, left)) < HAND_TOL_M
     m = metrics.last
@@ -232,8 +232,8 @@ def test_dual_arm_goals_follow_and_bad_inputs(start_node, ros_probe, model, ws) 
     st, res = g.result()
     assert st == GoalStatus.STATUS_CANCELED and res.error_code == R.CANCELED, res.message
     held = settled_joints()
-    Jc, _ = command_array(commands, model, n_c - 1)
-    assert max_jump_ratio(Jc, model, period) <= JUMP_PERIODS and np.all(np.isfinite(Jc))
+    Jc, sc = command_array(commands, model, n_c - 1)
+    assert max_jump_ratio(Jc, model, period, sc) <= JUMP_PERIODS and np.all(np.isfinite(Jc))
     assert max(left_sole_offset(model, j) for j in Jc[::10]) < 1e-3
     assert min(hand_errors(model, held, c_r, c_l)) > 0.01            # stopped short of the targets
 
@@ -274,8 +274,8 @@ def test_dual_arm_goals_follow_and_bad_inputs(start_node, ros_probe, model, ws) 
                          on_timeout=ex.log_tail)
     assert wait_log(ros_probe, ex, rf"/dual_arm/targets #{first}: PREEMPTED .*preempted by /dual_arm/targets #{second}")
     assert max(hand_errors(model, settled_joints(), right, left)) < HAND_TOL_M
-    Jf, _ = command_array(commands, model, n0 - 1)     # from the command before the first followed pair
-    assert max_jump_ratio(Jf, model, period) <= JUMP_PERIODS
+    Jf, sf = command_array(commands, model, n0 - 1)     # from the command before the first followed pair
+    assert max_jump_ratio(Jf, model, period, sf) <= JUMP_PERIODS
     assert max(left_sole_offset(model, j) for j in Jf[::10]) < 1e-3
     # the same targets again (within the threshold): ignored, no restart
     pub.publish(pose_array(right, left))
@@ -313,8 +313,8 @@ def test_dual_arm_goals_follow_and_bad_inputs(start_node, ros_probe, model, ws) 
     st, res = Run(ros_probe, client, ExecuteReach.Goal(mode=G.MODE_TRAJECTORY, trajectory=traj,
                                                         arm=exec_msgs.ARM_AUTO)).result(60.0)
     assert st == GoalStatus.STATUS_SUCCEEDED and res.success, res.message
-    Jt, _ = command_array(commands, model, n1)
-    assert max_jump_ratio(np.vstack([Jh[-1:], Jt]), model, period) <= JUMP_PERIODS
+    Jt, s_t = command_array(commands, model, n1 - 1)    # from the last held command (== Jh[-1])
+    assert max_jump_ratio(Jt, model, period, s_t) <= JUMP_PERIODS
     assert max(left_sole_offset(model, j) for j in Jt[::10]) < 1e-3
     np.testing.assert_allclose(Jt[-1], hs, atol=0.05)     # back near half-sitting (hand task + posture)
     # and a dual-arm goal after the trajectory goal starts from its last command
@@ -340,8 +340,8 @@ def test_dual_arm_goals_follow_and_bad_inputs(start_node, ros_probe, model, ws) 
                                    r"\d infeasible", 60.0)
     reached, skipped = (int(v) for v in re.search(r"(\d) reached, (\d) infeasible", line).groups())
     assert reached + skipped == 2 and reached >= 1, line
-    Js = command_array(commands, model, n2 - 1)[0]
-    assert np.all(np.isfinite(Js)) and max_jump_ratio(Js, model, period) <= JUMP_PERIODS
+    Js, ss = command_array(commands, model, n2 - 1)
+    assert np.all(np.isfinite(Js)) and max_jump_ratio(Js, model, period, ss) <= JUMP_PERIODS
     assert max(left_sole_offset(model, j) for j in Js[::10]) < 1e-3
     future = params.set_parameters([Parameter("dual_arm_sequential_count", value=0)])
     ros_probe.spin_until(future.done, 10.0, "set a bad count")

@@ -139,18 +139,19 @@ def log_time(line: str) -> float:
     return float(line.split("] [", 1)[1].split("]", 1)[0])
 
 
-def wait_held(probe, commands, model: RobotModel, since: int, after_s: float, what: str, on_timeout) -> np.ndarray:
+def wait_held(probe, commands, model: RobotModel, since: int, after_s: float, what: str,
+              on_timeout) -> tuple[np.ndarray, np.ndarray]:
     """Until the last ``HELD_COMMANDS`` /joint_command (index >= ``since``) are identical and
     all stamped after ``after_s`` + the executor's hold settling (the probe may lag behind
     the executor on a loaded machine: older, pre-fault commands do not count); returns all
-    commands since ``since``."""
+    commands since ``since`` and their stamps."""
     def held():
         J, stamps = command_array(commands, model, since)
         return len(J) > HELD_COMMANDS and stamps[-HELD_COMMANDS] > after_s + HOLD_SETTLE_S \
             and bool(np.all(J[-HELD_COMMANDS:] == J[-1]))
 
     probe.spin_until(held, 30.0, what, on_timeout=on_timeout)
-    return command_array(commands, model, since)[0]
+    return command_array(commands, model, since)
 
 
 def check_still_held(probe, commands, model: RobotModel, q_held: np.ndarray, count: int = 100) -> None:
@@ -282,8 +283,9 @@ def test_planner_restart_executor_holds_and_second_requests(start_node, ros_prob
     print(line)
     next_topic_no = int(re.search(r"/reach_trajectory #(\d+): SUCCESS", line).group(1)) + 1
     assert log_time(line) > killed_at, "the motion ended before the planner was killed: nothing tested"
-    J = wait_held(ros_probe, commands, model, n0, log_time(line), "the robot held after the planner's motion", logs)
-    assert max_jump_ratio(J, model, PERIOD_S) <= JUMP_PERIODS
+    J, stamps = wait_held(ros_probe, commands, model, n0, log_time(line), "the robot held after the planner's motion",
+                          logs)
+    assert max_jump_ratio(J, model, PERIOD_S, stamps) <= JUMP_PERIODS
     assert max(left_sole_offset(model, j) for j in J[::10]) < 1e-3   # the feet never moved
     q_valve = J[-1]
     assert np.max(np.abs(q_valve - published.positions[0])) > 0.1    # it moved: the whole reach was executed
@@ -336,8 +338,8 @@ def test_planner_restart_executor_holds_and_second_requests(start_node, ros_prob
     assert st2 == GoalStatus.STATUS_SUCCEEDED and res2.error_code == R.SUCCESS and res2.success, res2.message
     assert res2.min_distance_m >= 0.0
     line = wait_log(ros_probe, ex, r"goal #2: SUCCESS at progress 1\.00")
-    J = wait_held(ros_probe, commands, model, n1, log_time(line), "the robot held after the second goal", logs)
-    jump = max_jump_ratio(J, model, PERIOD_S)
+    J, stamps = wait_held(ros_probe, commands, model, n1, log_time(line), "the robot held after the second goal", logs)
+    jump = max_jump_ratio(J, model, PERIOD_S, stamps)
     print(f"preemption: first {res1.message!r}; second {res2.message!r}; {len(J)} commands, max jump "
           f"{jump:.2f} x v_max * period")
     assert jump <= JUMP_PERIODS
@@ -359,8 +361,8 @@ def test_planner_restart_executor_holds_and_second_requests(start_node, ros_prob
     assert "/joint_states stale" in line and "holding the last command" in line
     aborted_at = float(line.split("ABORTED at progress ")[1].split(":")[0])
     assert aborted_at < 1.0
-    J = wait_held(ros_probe, commands, model, n2, log_time(line), "the robot held without /joint_states", logs)
-    assert max_jump_ratio(J, model, PERIOD_S) <= JUMP_PERIODS
+    J, stamps = wait_held(ros_probe, commands, model, n2, log_time(line), "the robot held without /joint_states", logs)
+    assert max_jump_ratio(J, model, PERIOD_S, stamps) <= JUMP_PERIODS
     assert np.max(np.abs(J[-1] - at_valve)) > 1e-3    # it had moved before the abort: held mid-way
     check_still_held(ros_probe, commands, model, J[-1])
     assert ex.alive() and ex.pid == ex_pid
