@@ -37,7 +37,7 @@ import numpy as np
 
 from humanoid_reach_ros.codes import ARM_NAMES
 from humanoid_reach_ros.demo import GRAPH_NODES, SIM_JOINT_STATES_ABORT_S, SIM_JOINT_STATES_TIMEOUT_S, Graph, \
-    Operator, scan_plant, wait_marker
+    DemoClient, scan_plant, wait_marker
 from humanoid_reach_ros.graph import allocate_domain, graph_env
 from humanoid_reach_ros.graph_metrics import CpuSampler, log_lines_at_or_above, max_gap_ms, measured_balance, \
     percentile
@@ -84,7 +84,7 @@ class Bench:
                 if name == "reach_executor":
                     params["joint_states_abort_s"] = SIM_JOINT_STATES_ABORT_S
             self.graph.start(name, params)
-        self.op = Operator(self.lease.domain_id, self.graph)
+        self.op = DemoClient(self.lease.domain_id, self.graph)
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.qos import qos_profile_sensor_data
         from sensor_msgs.msg import JointState

@@ -57,7 +57,9 @@ ARM_REQUESTS = {"auto": ARM_AUTO, **ARM_CODES}  # what a request may name
 
 
 class RequestError(ValueError):
-    """An input that cannot be executed; ``code`` is an :class:`ExecuteCode`."""
+    """An input that cannot be served, with its code: a :class:`PlanError` for a
+    ``/plan_reach`` request (``io/msgs.py``), an :class:`ExecuteCode` for an execution or a
+    look (``execution/requests.py``). One class for both (issue 25)."""
 
     def __init__(self, code: int, message: str) -> None:
         super().__init__(message)

@@ -54,7 +54,7 @@ def arm_code(arm: str) -> int:
     return ARM_REQUESTS[arm]
 
 
-class Operator:
+class DemoClient:
     """The operator's side in the demo process: topics to watch, the service and the action."""
 
     def __init__(self, domain_id: int, graph: Graph) -> None:
@@ -152,7 +152,7 @@ class Operator:
         rclpy.try_shutdown(context=self.context)
 
 
-def scan_plant(op: Operator, settle_s: float) -> int:
+def scan_plant(op: DemoClient, settle_s: float) -> int:
     """The head scan through ``/look`` (the executor's scan pattern); then waits until the
     mapper has integrated it (no new /voxel_map for a second); returns the voxel count."""
     t0 = time.monotonic()
@@ -175,7 +175,7 @@ def aim_head_deg(robot_name: str, point, step_deg: float = 1.0) -> tuple[float, 
     return aim(RobotModel(robot_name), point, step_deg=step_deg)
 
 
-def wait_marker(op: Operator, look_at: tuple[float, float], timeout: float = 30.0):
+def wait_marker(op: DemoClient, look_at: tuple[float, float], timeout: float = 30.0):
     """Looks at the valve and waits for five consistent /target_pose messages."""
     from humanoid_reach_ros.io import msgs
 
@@ -192,7 +192,7 @@ def wait_marker(op: Operator, look_at: tuple[float, float], timeout: float = 30.
     return op.targets[-1]
 
 
-def plan(op: Operator, args: argparse.Namespace, home: bool = False, max_looks: int = 3):
+def plan(op: DemoClient, args: argparse.Namespace, home: bool = False, max_looks: int = 3):
     """``/plan_reach`` as ``reach_operator`` asks it: while the answer is UNOBSERVED_SPACE with the
     points to look at, a whole-body gaze there (``/look``), then plan again (at most
     ``max_looks``). ``(response, operator wait [s] without the looks, region, looks)``."""
@@ -262,7 +262,7 @@ class ProgressBar:
             self.out.flush()
 
 
-def execute(op: Operator, trajectory, arm: int):
+def execute(op: DemoClient, trajectory, arm: int):
     goal = op.ExecuteReach.Goal(mode=op.ExecuteReach.Goal.MODE_TRAJECTORY, trajectory=trajectory, arm=arm)
     op.spin_until(lambda: op.action_client.server_is_ready(), 30.0, "/execute_reach")
     bar = ProgressBar(sys.stdout)
@@ -283,7 +283,7 @@ def execute(op: Operator, trajectory, arm: int):
     return res, time.monotonic() - t0
 
 
-def final_hand_in_region(op: Operator, region, arm: str, tol: float = 2e-3, robot_name: str | None = None) -> bool:
+def final_hand_in_region(op: DemoClient, region, arm: str, tol: float = 2e-3, robot_name: str | None = None) -> bool:
     """Is the measured hand pose (FK of /joint_states) inside the WGR (bounds grown by ``tol``, m / rad)?"""
     from humanoid_reach_ros.io import msgs
     from humanoid_reach_ros.robot.model import RobotModel
@@ -371,7 +371,7 @@ def run(args: argparse.Namespace) -> dict:
             bag.unlink(missing_ok=True)
             graph.start_command("bag_record", [sys.executable, "-m", "humanoid_reach_ros.nodes.bag_record",
                                                "-o", str(bag), *RECORDED_TOPICS])
-        op = Operator(lease.domain_id, graph)
+        op = DemoClient(lease.domain_id, graph)
         names = set(GRAPH_NODES)
         op.spin_until(lambda: names <= set(op.node.get_node_names()) and op.joint_states is not None, 90.0,
                       f"the nodes {sorted(names)} in the graph")

@@ -261,15 +261,15 @@ def _two_marker_frame(model, joints, cam):
 
 def test_hand_marker_parameters_are_checked() -> None:
     known = {7: None, 3: None, 5: None}
-    assert ML.hand_marker_setup([-1, -1], "workspace", "torso_regression/workspace.yaml", known) == (None, None)
-    ids, ws = ML.hand_marker_setup([3, 5], "workspace", "torso_regression/workspace.yaml", known)
+    assert ML.hand_marker_setup([-1, -1], "workspace", "robots/hrp2/dual_arm_workspace.yaml", known) == (None, None)
+    ids, ws = ML.hand_marker_setup([3, 5], "workspace", "robots/hrp2/dual_arm_workspace.yaml", known)
     assert ids == (3, 5) and ws is not None
     assert ML.hand_marker_setup([5, 3], "marker", "unused.yaml", known) == ((5, 3), None)
     for args, msg in ((([3], "workspace"), "needs 2 ids"), (([3, 3], "workspace"), "two different markers"),
                       (([3, 9], "workspace"), r"\[9\] are not among marker_ids"),
                       (([3, 5], "gripper"), "must be 'workspace' or 'marker'")):
         with pytest.raises(ValueError, match=msg):
-            ML.hand_marker_setup(*args, "torso_regression/workspace.yaml", known)
+            ML.hand_marker_setup(*args, "robots/hrp2/dual_arm_workspace.yaml", known)
 
 
 @pytest.mark.node

@@ -63,8 +63,8 @@ def _write(tmp_path, edit) -> Path:
     edit(doc)
     d = tmp_path / "bot"
     d.mkdir(exist_ok=True)
-    for f in ("hrp2.urdf", "collision.yaml"):
-        (d / f).write_text((robot_config_path("hrp2").parent / f).read_text())
+    for f in robot_config_path("hrp2").parent.iterdir():   # the robot's files: URDF, collision, dual-arm data
+        (d / f.name).write_bytes(f.read_bytes())
     (d / "robot.yaml").write_text(yaml.safe_dump(doc))
     return d / "robot.yaml"
 
@@ -79,9 +79,9 @@ def _write(tmp_path, edit) -> Path:
     (lambda d: d.update(sole_rectangle_m=[0.1, -0.1, -0.07, 0.07]), "sole_rectangle_m"),
     (lambda d: d["half_sitting"].update(RLEG_JOINT2=float("nan")), "half_sitting"),
     (lambda d: d.update(dual_arm_workspace=3), "dual_arm_workspace must be a YAML file"),
-    (lambda d: d.update(dual_arm_workspace="torso_regression/hrp2_torso_svr"), "dual_arm_workspace must be a YAML"),
-    (lambda d: d.update(dual_arm_workspace="torso_regression/nope.yaml"), "dual_arm_workspace .*no such file"),
-    (lambda d: d.update(dual_arm_workspace="torso_regression/hrp2_torso_svr.yaml"),
+    (lambda d: d.update(dual_arm_workspace="torso_svr"), "dual_arm_workspace must be a YAML"),
+    (lambda d: d.update(dual_arm_workspace="nope.yaml"), "dual_arm_workspace .*no such file"),
+    (lambda d: d.update(dual_arm_workspace="torso_svr.yaml"),
      "not a dual-arm workspace file"),
 ])
 def test_bad_descriptions_are_refused(tmp_path, edit, text):
@@ -111,3 +111,16 @@ def test_dual_arm_workspace_defaults_to_the_first_robots_and_is_per_robot(tmp_pa
     assert config_path(load_robot_spec("hrp2")[0].dual_arm_workspace).is_file()
     if "talos" in ROBOTS:
         assert load_robot_spec("talos")[0].dual_arm_workspace != load_robot_spec("hrp2")[0].dual_arm_workspace
+
+
+def test_dual_arm_files_are_read_beside_robot_yaml(tmp_path):
+    """A robot's trained files live in its directory (issue 23 part 5): a copy of the directory
+    elsewhere reads its own copies, not config/'s."""
+    doc_path = _write(tmp_path, lambda d: None)
+    spec = load_robot_spec(doc_path)[0]
+    assert spec.dual_arm_workspace == str(doc_path.parent / "dual_arm_workspace.yaml")
+    assert spec.torso_regression == str(doc_path.parent / "torso_svr")
+    for name in ROBOTS:   # every shipped robot with a torso model keeps it beside its robot.yaml
+        s = load_robot_spec(name)[0]
+        assert s.torso_regression is None or s.torso_regression.startswith(str(s.path.parent) + "/"), name
+        assert s.dual_arm_workspace.startswith(str(config_path("robots")) + "/"), name

@@ -1,6 +1,6 @@
 """The dual-arm whole-body reaching method (reach/) on the second robot, Talos: 7-DOF arms
 (RedundantLimbIK behind the limb protocol, RedundantArmTracker in the control steps), its own
-workspace file (config/torso_regression/talos_workspace.yaml) and torso regression model."""
+workspace file (config/robots/talos/dual_arm_workspace.yaml) and torso regression model."""
 from __future__ import annotations
 
 import numpy as np
@@ -25,7 +25,7 @@ def ctl():
 
 
 def test_each_robot_reads_its_own_workspace(ctl):
-    assert ctl.robot.spec.dual_arm_workspace == "torso_regression/talos_workspace.yaml"
+    assert ctl.robot.spec.dual_arm_workspace == str(config_path("robots/talos/dual_arm_workspace.yaml"))
     assert not np.allclose(ctl.ws.right_lower, ReachWorkspace.load(WORKSPACE_YAML).right_lower)
     hrp2 = RobotModel()
     assert (ReachWorkspace.for_robot(hrp2).right_lower.tolist()

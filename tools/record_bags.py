@@ -218,7 +218,7 @@ def record(args: argparse.Namespace, work: Path) -> tuple[Path, list[dict[str, A
         graph.start("scene_sim", {"period_s": float(args.sensor_period), "scene_file": SCENE_FILE})
         rec = graph.start_command("bag_record", [sys.executable, "-m", "humanoid_reach_ros.nodes.bag_record",
                                                  "-o", str(raw), *TOPICS])
-        op = demo.Operator(lease.domain_id, graph)
+        op = demo.DemoClient(lease.domain_id, graph)
         head_pub = op.node.create_publisher(JointState, "/joint_command", 10)
         clouds: list[int] = []
         op.node.create_subscription(

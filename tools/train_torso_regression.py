@@ -2,18 +2,20 @@
 """Regenerate a robot's dual-arm torso regression model (dissertation Sec. 4.1).
 
 Algorithm 2 dataset over the robot's workspace file (robot.yaml dual_arm_workspace; HRP-2:
-config/torso_regression/workspace.yaml) from the initial posture (half-sitting with its
+config/robots/hrp2/dual_arm_workspace.yaml) from the initial posture (half-sitting with its
 initial_joints_deg, lowered by its initial_com_drop_m), then one RBF SVR per chest angle with the Table 1 parameters,
-written to the robot's torso_regression stem (.npz + .yaml). Usage:
+written to the robot's torso_regression stem (.npz + .yaml, beside its robot.yaml). Usage:
 
     python tools/train_torso_regression.py [--robot NAME] [--samples N] [--seed S] [--out STEM]
 """
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 
+from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.reach.torso_regression import ReachWorkspace, TorsoRegression, generate_dataset
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
@@ -49,7 +51,8 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     reg = TorsoRegression.fit(X, Y, **{k: float(ws.svr[k]) for k in ("kernel_width_m", "C", "epsilon")})
     reg.meta.update({"n_tried": tried, "seed": seed, "dataset_seconds": round(t_data, 1),
-                     "workspace": robot.spec.dual_arm_workspace})
+                     # the workspace file, relative to the model's directory (the robot's)
+                     "workspace": os.path.relpath(robot.spec.dual_arm_workspace, config_path(str(out)).parent)})
     npz, yml = reg.save(out)
     print(f"{len(X)}/{tried} pairs solvable ({t_data:.1f} s); wrote {npz} and {yml}; "
           f"train RMSE {reg.meta['train_rmse_rad']}")

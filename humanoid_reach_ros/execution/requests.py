@@ -121,7 +121,7 @@ def targets_in_world(targets: tuple[HandTarget, HandTarget], waist: pin.SE3 | No
 
 
 @dataclass
-class Counters:
+class RequestCounters:
     goals: int = 0
     goals_rejected: int = 0
     trajectories: int = 0
@@ -151,7 +151,7 @@ class ExecutionRequests:
     def __init__(self, robot: RobotModel, p: dict[str, Any]) -> None:
         self.robot = robot
         self.p = p
-        self.counters = Counters()
+        self.counters = RequestCounters()
         self._fk_lock = threading.Lock()
         # the executor avoids occupied voxels only: unobserved space is the planner's concern
         self.scene = PlanningScene(robot, self._scene_params())

@@ -323,7 +323,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E
 from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
 from humanoid_reach_ros.planning.path import PLANNER_NAMES  # noqa: E402
-from humanoid_reach_ros.codes import ARM_REQUESTS  # noqa: E402
+from humanoid_reach_ros.codes import ARM_REQUESTS, RequestError  # noqa: E402  (a PlanReach refusal: PlanError codes)
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion  # noqa: E402
 
 
@@ -504,14 +504,6 @@ def parse_joint_trajectory(msg: JointTrajectory) -> TrajectoryArrays:
 REQUEST_FRAMES = ("", "world", "base_link")
 ARM_NAMES = {code: name for name, code in ARM_REQUESTS.items()}   # PlanReach.Request.ARM_* -> name
 PLANNERS = PLANNER_NAMES  # the planners ReachPlanner knows, one list for node and planner
-
-
-class RequestError(ValueError):
-    """A PlanReach request that cannot be planned; ``code`` is a ``PlanReach.Response`` error code."""
-
-    def __init__(self, code: int, message: str) -> None:
-        super().__init__(message)
-        self.code = int(code)
 
 
 @dataclass(frozen=True)

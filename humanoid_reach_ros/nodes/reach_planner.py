@@ -158,7 +158,7 @@ class MapInfo:
 
 
 @dataclass
-class PlanResult:
+class PlanReply:
     """What one request produced, for the response, the log line, markers and diagnostics."""
 
     code: int = E.INTERNAL_ERROR
@@ -204,7 +204,7 @@ class ReachPlannerNode(Node):
         self._plan_lock = threading.Lock()   # one request at a time; a second one gets BUSY
         self.map_info = MapInfo()
         self.requests = self.successes = self.busy_rejections = 0
-        self.last: PlanResult | None = None
+        self.last: PlanReply | None = None
         self.last_total_s = 0.0
 
         if p["scene_file"]:
@@ -321,7 +321,7 @@ class ReachPlannerNode(Node):
         n = self.requests
         if not self._plan_lock.acquire(blocking=False):
             self.busy_rejections += 1
-            result = PlanResult(E.BUSY, "another /plan_reach request is being planned; try again when it is done")
+            result = PlanReply(E.BUSY, "another /plan_reach request is being planned; try again when it is done")
             self._fill_response(resp, result, time.monotonic() - t0)
             self.get_logger().warning(f"plan_reach #{n}: BUSY ({result.message})")
             return resp
@@ -329,13 +329,13 @@ class ReachPlannerNode(Node):
             try:
                 result = self._plan(req)
             except Exception as exc:  # the node never dies on a request
-                result = PlanResult(E.INTERNAL_ERROR, f"internal error while planning: {type(exc).__name__}: {exc}")
+                result = PlanReply(E.INTERNAL_ERROR, f"internal error while planning: {type(exc).__name__}: {exc}")
                 self.get_logger().error(f"plan_reach #{n}: {result.message}\n{traceback.format_exc()}")
             total = time.monotonic() - t0
             try:
                 self._fill_response(resp, result, total)
             except Exception as exc:  # e.g. an outcome that does not convert
-                result = PlanResult(E.INTERNAL_ERROR, f"internal error building the response: "
+                result = PlanReply(E.INTERNAL_ERROR, f"internal error building the response: "
                                                       f"{type(exc).__name__}: {exc}", region=result.region)
                 self.get_logger().error(f"plan_reach #{n}: {result.message}\n{traceback.format_exc()}")
                 resp = PlanReach.Response()
@@ -359,15 +359,15 @@ class ReachPlannerNode(Node):
         self._publish_diagnostics()
         return resp
 
-    def _plan(self, req: PlanReach.Request) -> PlanResult:
+    def _plan(self, req: PlanReach.Request) -> PlanReply:
         """Validate, convert, plan. Errors of the request are results, not exceptions."""
         joints, joints_reason = self.current_joints()
         waist = self.model.base_on_feet(joints) if joints is not None else None
         try:
             rr = msgs.reach_request(req, waist)
         except msgs.RequestError as exc:
-            return PlanResult(exc.code, str(exc), joints=joints, waist=waist)
-        result = PlanResult(region=rr.region, joints=joints, waist=waist, execute=rr.execute)
+            return PlanReply(exc.code, str(exc), joints=joints, waist=waist)
+        result = PlanReply(region=rr.region, joints=joints, waist=waist, execute=rr.execute)
         # Inputs in the order an operator fixes them: the target they asked for, then the robot state.
         target = None
         if rr.use_marker_target and not rr.home:
@@ -396,7 +396,7 @@ class ReachPlannerNode(Node):
         result.stats = dict(outcome.stats or {})
         return result
 
-    def _fill_response(self, resp: PlanReach.Response, result: PlanResult, total_s: float) -> None:
+    def _fill_response(self, resp: PlanReach.Response, result: PlanReply, total_s: float) -> None:
         out = result.outcome
         resp.error_code = int(result.code)
         resp.success = resp.error_code == E.SUCCESS
@@ -463,7 +463,7 @@ class ReachPlannerNode(Node):
             return np.array([self.model.config(j, self.model.base_on_feet(j)) for j in a])
         return None
 
-    def _publish_markers(self, result: PlanResult) -> None:
+    def _publish_markers(self, result: PlanReply) -> None:
         stamp = self.get_clock().now().to_msg()
         frame = self.map_frame
         markers = []

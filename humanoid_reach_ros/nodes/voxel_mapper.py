@@ -193,7 +193,7 @@ def camera_info_arrays(info: CameraInfo) -> dict[str, np.ndarray]:
 
 
 @dataclass
-class Counters:
+class MapperCounters:
     """What happened to the inputs (diagnostics)."""
 
     clouds_received: int = 0
@@ -250,7 +250,7 @@ class VoxelMapperNode(Node):
         self.stereo: StereoMatcher | None = None
         self._stereo_params = stereo_params(p)
         self._stereo_params.validate()
-        self.counters = Counters()
+        self.counters = MapperCounters()
         self._map_lock = threading.Lock()
         self._state_lock = threading.Lock()
         self._cond = threading.Condition()
@@ -320,7 +320,7 @@ class VoxelMapperNode(Node):
 
     # ------------------------------------------------------------ problems
     def _problem(self, kind: str, text: str, counter: str = "", amount: int = 1) -> None:
-        """Count (also into ``Counters.<counter>`` by ``amount``), remember for diagnostics,
+        """Count (also into ``MapperCounters.<counter>`` by ``amount``), remember for diagnostics,
         and warn at most once per ``warn_throttle_s`` per kind."""
         now = time.monotonic()
         with self._state_lock:
@@ -593,7 +593,7 @@ class VoxelMapperNode(Node):
             occupied, depth_maps = self.map.occupied_count(), self.map.depth_maps
             version, published = self.map.version, self._published_version
         with self._state_lock:
-            c = Counters(**{k: (dict(v) if isinstance(v, dict) else v) for k, v in vars(self.counters).items()})
+            c = MapperCounters(**{k: (dict(v) if isinstance(v, dict) else v) for k, v in vars(self.counters).items()})
             buffered = len(self.joint_buffer)
         m = self.map
         recent = time.monotonic() - c.last_problem_time < self._p["problem_hold_s"]

@@ -9,7 +9,7 @@ dissertation gives the width, not gamma), constraint ``C = 1.0``, slack ``epsilo
 Dataset (Algorithm 2): hand target pairs uniform in the workspace boxes (Sec. 4.1: one box
 0.45 x 0.8 x 0.75 m in front of the robot, split at y = 0 between the hands), fixed hand
 orientations -- the robot's workspace file (robot.yaml ``dual_arm_workspace``, e.g.
-``config/torso_regression/workspace.yaml``: the box, orientation origins and initial CoM
+``config/robots/hrp2/dual_arm_workspace.yaml``: the box, orientation origins and initial CoM
 drop are fitted to one robot's arms and legs, see :meth:`ReachWorkspace.for_robot`) --, each solved by the
 LM *BothArmsIK* from the initial posture with the torso height fixed; unsolvable pairs are
 dropped and only the chest angles of the solved ones are kept. The dissertation does not

@@ -49,7 +49,7 @@ from humanoid_reach_ros.robot.model import N_BASE_Q, N_BASE_V, RobotModel
 
 
 @dataclass(frozen=True, eq=False)
-class StepResult:
+class WholeBodyStep:
     """One control step: configuration ``q`` (nq) -- never NaN --, whether every part
     succeeded, a reason string ("" when ok), the hands' and CoM errors [m]."""
 
@@ -109,7 +109,7 @@ class ProposedWholeBodyIK:
         self.step(q, hands, np.array([q[self.chest_pitch], q[self.chest_yaw]]), legs, soles[sup], measure=False)
 
     def step(self, q_prev: np.ndarray, hands: HandTargets, chest_pitch_yaw: np.ndarray,
-             legs: LegTargets, sole_world: pin.SE3, measure: bool = True, tracking: bool = True) -> StepResult:
+             legs: LegTargets, sole_world: pin.SE3, measure: bool = True, tracking: bool = True) -> WholeBodyStep:
         """One control step; ``measure=False`` skips the error bookkeeping (errors NaN)
         so that timing covers the method only (:func:`measure_errors` afterwards).
         ``tracking=False``: a 7-DOF arm's self-motion searched over its whole range (a
@@ -138,7 +138,7 @@ class ProposedWholeBodyIK:
             else:
                 reasons.append(f"{side} arm: {IKReason(code).name}")
         herr, cerr = measure_errors(self.robot, self.lower.data, q, hands, legs) if measure else (np.nan, np.nan)
-        return StepResult(q, not reasons, "; ".join(reasons), herr, cerr, low.iterations)
+        return WholeBodyStep(q, not reasons, "; ".join(reasons), herr, cerr, low.iterations)
 
     def _lim(self, joint: str) -> tuple[float, float]:
         i = self.robot.joint_index[joint]
@@ -171,7 +171,7 @@ class FullBodyLMIK(_FloatingKinematics):
         ])
 
     def step(self, q_prev: np.ndarray, hands: HandTargets, legs: LegTargets,
-             sole_world: pin.SE3, measure: bool = True) -> StepResult:
+             sole_world: pin.SE3, measure: bool = True) -> WholeBodyStep:
         q = np.array(q_prev, dtype=float)
         self.place_base(q, sole_world)
         e = np.zeros(24)
@@ -197,7 +197,7 @@ class FullBodyLMIK(_FloatingKinematics):
             self.place_base(q, sole_world)
         herr, cerr = measure_errors(self.robot, self.data, q, hands, legs) if measure else (np.nan, np.nan)
         reason = "" if converged else f"LM: |e| = {np.linalg.norm(e):.2e} after {it} iterations"
-        return StepResult(q, converged, reason, herr, cerr, it)
+        return WholeBodyStep(q, converged, reason, herr, cerr, it)
 
 
 def measure_errors(robot: RobotModel, data: pin.Data, q: np.ndarray, hands: HandTargets,
@@ -211,5 +211,5 @@ def measure_errors(robot: RobotModel, data: pin.Data, q: np.ndarray, hands: Hand
     return float(np.hypot(np.linalg.norm(er), np.linalg.norm(el))), float(np.linalg.norm(com - legs.p_com))
 
 
-__all__ = ["LegTargets", "LowerBodyIK", "LowerBodyResult", "ProposedWholeBodyIK", "FullBodyLMIK", "StepResult",
+__all__ = ["LegTargets", "LowerBodyIK", "LowerBodyResult", "ProposedWholeBodyIK", "FullBodyLMIK", "WholeBodyStep",
            "lowered_initial_posture", "measure_errors", "as_position", "as_rotation", "as_joints"]

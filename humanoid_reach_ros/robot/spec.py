@@ -40,7 +40,7 @@ LIMB_JOINTS = {"right_leg": (6,), "left_leg": (6,), "right_arm": (6, 7), "left_a
 PACKAGE_SCHEME = "package://"
 #: the dual-arm workspace file of a description that names none (config/; the first robot's,
 #: kept as the default so that descriptions written before the key read as before)
-DEFAULT_DUAL_ARM_WORKSPACE = "torso_regression/workspace.yaml"
+DEFAULT_DUAL_ARM_WORKSPACE = "robots/hrp2/dual_arm_workspace.yaml"   # config/-relative: HRP-2's
 _KEYS = {"robot_name", "urdf", "collision_model", "base_link", "limbs", "chest", "head", "gripper_joints",
          "sole_rectangle_m", "torso_regression", "dual_arm_workspace", "half_sitting", "frames"}
 _REQUIRED = _KEYS - {"gripper_joints", "torso_regression", "dual_arm_workspace", "frames"}
@@ -83,9 +83,11 @@ class RobotSpec:
     gripper_joints: tuple[str, ...]
     sole_rectangle: tuple[float, float, float, float]
     half_sitting_deg: dict
+    #: the dual-arm torso regression model: the absolute stem (no .npz/.yaml) of the
+    #: description's ``torso_regression``, which names it relative to robot.yaml's directory
     torso_regression: str | None
-    #: the dual-arm workspace YAML (config/-relative or absolute; reach/torso_regression.py's
-    #: ReachWorkspace reads it)
+    #: the dual-arm workspace YAML, absolute (robot.yaml names it relative to its directory;
+    #: reach/torso_regression.py's ReachWorkspace reads it)
     dual_arm_workspace: str
     #: name -> FrameDef: fixed frames added to the URDF's by RobotModel
     frames: dict
@@ -190,15 +192,17 @@ def _frames(doc, where: str) -> dict[str, FrameDef]:
     return out
 
 
-def _dual_arm_workspace(doc, where: str) -> str:
-    """The ``dual_arm_workspace`` entry: a YAML file under ``config/`` (or absolute) that
-    exists and holds a mapping with a ``workspace`` box. Its full content is checked by
+def _dual_arm_workspace(doc, robot_dir: Path, where: str) -> str:
+    """The ``dual_arm_workspace`` entry, as an absolute path: a YAML file beside robot.yaml
+    (or absolute) that exists and holds a mapping with a ``workspace`` box; without the key,
+    HRP-2's (``DEFAULT_DUAL_ARM_WORKSPACE``). Its full content is checked by
     ``ReachWorkspace.load`` when the dual-arm mode starts (the robot layer does not import
     reach/); this catches a wrong or missing path when the description is read."""
-    ws = doc.get("dual_arm_workspace", DEFAULT_DUAL_ARM_WORKSPACE)
-    if not isinstance(ws, str) or not ws.endswith((".yaml", ".yml")):
-        raise ValueError(f"{where}: dual_arm_workspace must be a YAML file under config/ (or absolute), got {ws!r}")
-    p = config_path(ws)
+    ws = doc.get("dual_arm_workspace")
+    if ws is not None and (not isinstance(ws, str) or not ws.endswith((".yaml", ".yml"))):
+        raise ValueError(f"{where}: dual_arm_workspace must be a YAML file beside robot.yaml (or absolute), "
+                         f"got {ws!r}")
+    p = config_path(DEFAULT_DUAL_ARM_WORKSPACE) if ws is None else (robot_dir / ws).resolve()
     if not p.is_file():
         raise ValueError(f"{where}: dual_arm_workspace {ws!r}: no such file {p}")
     with open(p) as f:
@@ -208,7 +212,7 @@ def _dual_arm_workspace(doc, where: str) -> str:
             raise ValueError(f"{where}: dual_arm_workspace {p}: not YAML ({exc})") from None
     if not isinstance(body, dict) or "workspace" not in body:
         raise ValueError(f"{where}: dual_arm_workspace {p}: not a dual-arm workspace file (no 'workspace' boxes)")
-    return ws
+    return str(p)
 
 
 def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]:
@@ -262,8 +266,10 @@ def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]
         raise ValueError(f"{where}: gripper_joints must be a list of joint names")
     reg = doc.get("torso_regression")
     if reg is not None and not isinstance(reg, str):
-        raise ValueError(f"{where}: torso_regression must be a model path (config/, no extension)")
-    workspace = _dual_arm_workspace(doc, where)
+        raise ValueError(f"{where}: torso_regression must be a model path (beside robot.yaml, no extension)")
+    if reg is not None:
+        reg = str((path.parent / reg).resolve())
+    workspace = _dual_arm_workspace(doc, path.parent, where)
     frames = _frames(doc, where)
     urdf = doc["urdf"]
     if not isinstance(urdf, str):
