@@ -529,51 +529,51 @@ def run_session(out: Path, scene_name: str, seed: int, robot: str | None, log) -
     sess = Session(out, config_path(spec["scene"]), robot, log)
     res["graph_up_s"] = round(time.monotonic() - t0, 1)
     spans: list[tuple[int, int]] = []     # each step's /joint_states (recorded messages)
-    try:
-        # (name, kind, args, whether the hand ends on something: the next step must retreat first)
-        plan_steps: list[tuple[str, str, list[str], bool]] = [("scan", "scan", ["--scan"], False)]
-        for tgt in spec["targets"]:
-            if tgt["kind"] == "marker":
-                args = ["--marker", "--execute"]
-            else:
-                args = ["--target", *(f"{v:g}" for v in tgt["target"]), "--execute"] + list(tgt.get("args", []))
-            plan_steps.append((tgt["name"], tgt["kind"], args, tgt["kind"] in ("touch", "marker")
-                               or bool(tgt.get("contact"))))
-        plan_steps.append(("home", "home", ["--home", "--execute"], False))
-        in_contact = False       # the last step that moved the robot ended with the hand on something
-        for k, (name, kind, args, contact_after) in enumerate(plan_steps):
-            if kind != "scan":
-                args = [*args, "--seed", str(seed * 100 + k), "--budget", f"{BUDGET_S:g}"]
-            i0 = len(sess.op.samples)
-            run = sess.run_operator(args, f"{k:02d}_{name}")
-            fig = step_figures(sess, kind, run)
-            fig["name"] = name
-            fig["retreat_expected"] = retreat_expected = in_contact
-            if fig["success"]:
-                in_contact = contact_after
-            if kind == "home":
-                sess.settle()
-                err = np.abs(sess.joints_now() - sess.robot.half_sitting_joints)
-                fig["home_joint_error_mrad"] = float(err.max() * 1e3)
-                fig["home_joint_error_worst"] = sess.robot.joint_names[int(np.argmax(err))]
-                fig["success"] = fig["success"] and float(err.max()) <= HOME_TOL_RAD
-            spans.append((i0, len(sess.op.samples)))
-            res["steps"].append(fig)
-            wait = fig.get("operator_wait_ms")
-            log(f"  {name:24s} {'ok  ' if fig['success'] else 'FAIL'} exit {fig['exit_code']} plans "
-                f"{fig['plan_codes']} looks {fig['auto_looks']} retreat {'yes' if fig['retreat'] else 'no'}"
-                f"{' (expected)' if retreat_expected else ''} wait "
-                f"{'-' if wait is None else f'{wait:.0f} ms'}"
-                + (f" home error {fig['home_joint_error_mrad']:.2f} mrad" if kind == "home" else ""))
-            if not fig["success"]:
-                for line in fig.get("stderr_tail", []):
-                    log(f"      | {line}")
-        sess.settle()
-    except (RuntimeError, AssertionError, TimeoutError, subprocess.SubprocessError) as exc:
-        log(f"  session failed: {exc}")
-        res["error"] = str(exc)[-3000:]
-        res["steps"].append(failed_step("session", str(exc)))
-    try:
+    try:   # the graph is stopped whatever happens, Ctrl-C (KeyboardInterrupt) included
+        try:
+            # (name, kind, args, whether the hand ends on something: the next step must retreat first)
+            plan_steps: list[tuple[str, str, list[str], bool]] = [("scan", "scan", ["--scan"], False)]
+            for tgt in spec["targets"]:
+                if tgt["kind"] == "marker":
+                    args = ["--marker", "--execute"]
+                else:
+                    args = ["--target", *(f"{v:g}" for v in tgt["target"]), "--execute"] + list(tgt.get("args", []))
+                plan_steps.append((tgt["name"], tgt["kind"], args, tgt["kind"] in ("touch", "marker")
+                                   or bool(tgt.get("contact"))))
+            plan_steps.append(("home", "home", ["--home", "--execute"], False))
+            in_contact = False       # the last step that moved the robot ended with the hand on something
+            for k, (name, kind, args, contact_after) in enumerate(plan_steps):
+                if kind != "scan":
+                    args = [*args, "--seed", str(seed * 100 + k), "--budget", f"{BUDGET_S:g}"]
+                i0 = len(sess.op.samples)
+                run = sess.run_operator(args, f"{k:02d}_{name}")
+                fig = step_figures(sess, kind, run)
+                fig["name"] = name
+                fig["retreat_expected"] = retreat_expected = in_contact
+                if fig["success"]:
+                    in_contact = contact_after
+                if kind == "home":
+                    sess.settle()
+                    err = np.abs(sess.joints_now() - sess.robot.half_sitting_joints)
+                    fig["home_joint_error_mrad"] = float(err.max() * 1e3)
+                    fig["home_joint_error_worst"] = sess.robot.joint_names[int(np.argmax(err))]
+                    fig["success"] = fig["success"] and float(err.max()) <= HOME_TOL_RAD
+                spans.append((i0, len(sess.op.samples)))
+                res["steps"].append(fig)
+                wait = fig.get("operator_wait_ms")
+                log(f"  {name:24s} {'ok  ' if fig['success'] else 'FAIL'} exit {fig['exit_code']} plans "
+                    f"{fig['plan_codes']} looks {fig['auto_looks']} retreat {'yes' if fig['retreat'] else 'no'}"
+                    f"{' (expected)' if retreat_expected else ''} wait "
+                    f"{'-' if wait is None else f'{wait:.0f} ms'}"
+                    + (f" home error {fig['home_joint_error_mrad']:.2f} mrad" if kind == "home" else ""))
+                if not fig["success"]:
+                    for line in fig.get("stderr_tail", []):
+                        log(f"      | {line}")
+            sess.settle()
+        except (RuntimeError, AssertionError, TimeoutError, subprocess.SubprocessError) as exc:
+            log(f"  session failed: {exc}")
+            res["error"] = str(exc)[-3000:]
+            res["steps"].append(failed_step("session", str(exc)))
         series, index = sess.joint_series()
         idx = index + [len(series)]
         drift = session_drift(sess.robot, series, [(idx[a], idx[b]) for a, b in spans])

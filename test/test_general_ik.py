@@ -103,8 +103,8 @@ def test_a_limb_off_the_hand_derived_patterns_gets_the_general_closed_form(tmp_p
     j = urdf.index('<axis xyz="0 1 0"/>', i)
     urdf = urdf[:j] + '<axis xyz="0.2 0.9797958971 0"/>' + urdf[j + len('<axis xyz="0 1 0"/>'):]
     (tmp_path / "hrp2.urdf").write_text(urdf)
-    (tmp_path / "collision.yaml").write_text((src / "collision.yaml").read_text())
-    (tmp_path / "robot.yaml").write_text((src / "robot.yaml").read_text())
+    for f in ("collision.yaml", "robot.yaml", "dual_arm_workspace.yaml", "torso_svr.yaml", "torso_svr.npz"):
+        (tmp_path / f).write_bytes((src / f).read_bytes())
     robot = RobotModel(tmp_path / "robot.yaml")
     ik = LimbIKSet(robot)
     assert isinstance(ik["right_arm"], GeneralLimb) and not isinstance(ik["left_arm"], GeneralLimb)

@@ -489,7 +489,7 @@ def test_dual_arm_requests_need_a_torso_model(model, tmp_path) -> None:
     src = robot_config_path("hrp2").parent
     doc = yaml.safe_load((src / "robot.yaml").read_text())
     doc.pop("torso_regression")
-    for f in ("hrp2.urdf", "collision.yaml"):
+    for f in ("hrp2.urdf", "collision.yaml", "dual_arm_workspace.yaml"):
         (tmp_path / f).write_text((src / f).read_text())
     (tmp_path / "robot.yaml").write_text(yaml.safe_dump(doc))
     p = {k: spec.default for k, spec in reach_executor_params.PARAMETERS.items()}

@@ -82,6 +82,8 @@ def test_a_package_that_is_not_installed_is_named_with_its_pip_package(tmp_path)
 
     doc = yaml.safe_load(robot_config_path("talos").read_text())
     doc["urdf"] = "package://no-such-robot-data/robots/x.urdf"
+    for key in ("dual_arm_workspace", "torso_regression"):   # named beside robot.yaml: Talos's own, by path
+        doc[key] = str(robot_config_path("talos").parent / doc[key])
     (tmp_path / "robot.yaml").write_text(yaml.safe_dump(doc))
     with pytest.raises(ValueError, match="pip install no-such-robot-data"):
         load_robot_spec(tmp_path / "robot.yaml")
