@@ -364,6 +364,45 @@ def test_exception_in_planning_is_internal_error(ros_env) -> None:
         rclpy.try_shutdown(context=ctx)
 
 
+def test_a_refused_retreat_logs_every_retreat_tried(ros_env) -> None:
+    """In process: START_IN_COLLISION with more retreats tried than the answer keeps -> one more
+    INFO line holding all of them, numbered (the answer is unchanged)."""
+    import rclpy
+
+    from humanoid_reach_ros.codes import PlanError
+    from humanoid_reach_ros.planning.reach import PlanOutcome
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    try:
+        node = reach_planner.ReachPlannerNode(context=ctx)
+        node.current_joints = lambda: (node.model.half_sitting_joints.copy(), "")
+        node.planner.set_map(np.empty((0, 3)))
+        tried = tuple(f"direction {k}: the arm cannot follow the line beyond {k} mm (IK, limits)" for k in range(9))
+        message = "the right hand touches the map and no retreat frees it: " + "; ".join(tried[:6]) + "; ... 3 more"
+        node.planner.plan = lambda joints, request: PlanOutcome(
+            False, PlanError.START_IN_COLLISION, message, None, node.model.joint_names, retreats_tried=tried)
+        lines = []
+
+        class Recorder:
+            def __getattr__(self, level):
+                return lambda text, **_: lines.append((level, text))
+        node.get_logger = lambda: Recorder()
+        resp = node._on_plan_reach(valve_request(), PlanReach.Response())
+        assert resp.error_code == E.START_IN_COLLISION and resp.message == message
+        every = [text for level, text in lines if "retreats tried" in text]
+        assert len(every) == 1 and "the 9 retreats tried: 1) direction 0" in every[0], lines
+        assert all(f"{k + 1}) {why}" in every[0] for k, why in enumerate(tried))
+        lines.clear()
+        node.planner.plan = lambda joints, request: PlanOutcome(
+            False, PlanError.NO_PATH, "no path", None, node.model.joint_names)
+        node._on_plan_reach(valve_request(), PlanReach.Response())
+        assert not [t for _, t in lines if "retreats tried" in t]
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
 def test_stale_inputs_in_order(ros_env) -> None:
     """In process: a stale /joint_states is NO_JOINT_STATES; a missing marker target is reported first."""
     import rclpy

@@ -137,3 +137,22 @@ def test_a_start_off_the_manifold_goes_by_home_whatever_the_longer_retreats_say(
     calls.clear(), home_calls.clear()
     out = planner.plan(planner.robot.half_sitting_joints, PlanRequest(None, home=True))
     assert not out.success and not home_calls
+
+
+def test_a_refused_retreat_lists_every_retreat_tried(planner, at_valve) -> None:
+    """When no retreat frees a start in contact, the answer keeps six reasons and the outcome
+    every one (``retreats_tried``; the planner node logs them: bench/session's refused retreat in
+    dense_pipes could not be explained from the six)."""
+    saved = planner.retreat_planner.params
+    planner.retreat_planner.params = dataclasses.replace(saved, end_clearance_m=10.0)   # no retreat can end
+    try:
+        out = planner.plan(at_valve, PlanRequest(None, home=True, seed=3, time_budget_s=5.0))
+    finally:
+        planner.retreat_planner.params = saved
+    assert out.error == PlanError.START_IN_COLLISION and "no retreat of" in out.message, out.message
+    tried = out.retreats_tried
+    assert len(tried) > 6 and f"... {len(tried) - 6} more lines" in out.message, (len(tried), out.message)
+    assert out.message.endswith("; ".join(tried[:6]) + f"; ... {len(tried) - 6} more lines")
+    assert any("no clearance of 10000 mm" in why for why in tried), tried
+    ok = planner.plan(at_valve, PlanRequest(None, home=True, seed=3, time_budget_s=5.0))
+    assert ok.success and ok.retreats_tried == (), ok.message

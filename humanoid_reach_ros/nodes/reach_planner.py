@@ -350,6 +350,10 @@ class ReachPlannerNode(Node):
             self.successes += int(resp.success)
             self.last, self.last_total_s = result, total
             self._log_request(n, resp, total, published, ran=result.outcome is not None)
+            tried = getattr(result.outcome, "retreats_tried", ()) if not resp.success else ()
+            if tried:   # the response keeps six; the log has them all (a refused retreat is found from here)
+                self.get_logger().info(f"plan_reach #{n}: the {len(tried)} retreats tried: "
+                                       + "; ".join(f"{k + 1}) {why}" for k, why in enumerate(tried)))
             try:
                 self._publish_markers(result)
             except Exception as exc:  # visualisation must not fail a request

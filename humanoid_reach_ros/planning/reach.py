@@ -228,6 +228,8 @@ class PlanOutcome:
     goal_index: int | None = None
     trajectory: SplineTrajectory | None = None
     retreat: str = ""                        # the retreat planned first when the start touched the map
+    #: every retreat tried and why it failed, when none freed a start in contact (the message keeps six)
+    retreats_tried: tuple[str, ...] = ()
     unobserved_points: np.ndarray | None = None   # (K, 3) where the target / best path meets unobserved space
     scene_version: int = 0
 
@@ -981,7 +983,8 @@ class ReachPlanner:
                            f"{1e3 * self.retreat_planner.params.min_distance_m:.0f}"
                            f"-{1e3 * self.retreat_planner.params.max_distance_m:.0f} mm frees it: "
                            + "; ".join(reasons[:6])
-                           + (f"; ... {len(reasons) - 6} more lines" if len(reasons) > 6 else ""))
+                           + (f"; ... {len(reasons) - 6} more lines" if len(reasons) > 6 else ""),
+                           retreats_tried=tuple(reasons))
         end = retreat.joints[-1]
         if not collision.check(self.start_config(end)):
             shapes = self.colliding_shapes(self.start_config(end), collision)
