@@ -2,6 +2,7 @@
 isolated graph, probed over ROS (service calls, topics, logs, diagnostics)."""
 from __future__ import annotations
 
+import contextlib
 import math
 import re
 import time
@@ -334,15 +335,27 @@ def test_voxel_map_switch_collision_busy_and_malformed(start_node, ros_probe, mo
     assert proc.alive()
 
 
-def test_exception_in_planning_is_internal_error(ros_env) -> None:
-    """In process: a planner that raises -> INTERNAL_ERROR with the message; the next request is served."""
+@contextlib.contextmanager
+def planner_in_process(ros_env, standing: bool = True):
+    """A ``ReachPlannerNode`` in this process, on its own context in the test's domain; ``standing``:
+    its start posture is half-sitting (no /joint_states needed)."""
     import rclpy
 
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
     try:
         node = reach_planner.ReachPlannerNode(context=ctx)
-        node.current_joints = lambda: (node.model.half_sitting_joints.copy(), "")
+        if standing:
+            node.current_joints = lambda: (node.model.half_sitting_joints.copy(), "")
+        yield node
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+def test_exception_in_planning_is_internal_error(ros_env) -> None:
+    """In process: a planner that raises -> INTERNAL_ERROR with the message; the next request is served."""
+    with planner_in_process(ros_env) as node:
         node.planner.set_map(np.empty((0, 3)))
         calls = []
 
@@ -359,24 +372,15 @@ def test_exception_in_planning_is_internal_error(ros_env) -> None:
         assert resp.success and resp.statistics.goals_requested == 3, resp.message
         statuses = {st.name.split(": ")[1]: st for st in node.diagnostic_statuses()}
         assert msgs.diagnostic_values(statuses["planning"])["last_result"] == "SUCCESS"
-        node.destroy_node()
-    finally:
-        rclpy.try_shutdown(context=ctx)
 
 
 def test_a_refused_retreat_logs_every_retreat_tried(ros_env) -> None:
     """In process: START_IN_COLLISION with more retreats tried than the answer keeps -> one more
     INFO line holding all of them, numbered (the answer is unchanged)."""
-    import rclpy
-
     from humanoid_reach_ros.codes import PlanError
     from humanoid_reach_ros.planning.reach import PlanOutcome
 
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
-    try:
-        node = reach_planner.ReachPlannerNode(context=ctx)
-        node.current_joints = lambda: (node.model.half_sitting_joints.copy(), "")
+    with planner_in_process(ros_env) as node:
         node.planner.set_map(np.empty((0, 3)))
         tried = tuple(f"direction {k}: the arm cannot follow the line beyond {k} mm (IK, limits)" for k in range(9))
         message = "the right hand touches the map and no retreat frees it: " + "; ".join(tried[:6]) + "; ... 3 more"
@@ -398,19 +402,11 @@ def test_a_refused_retreat_logs_every_retreat_tried(ros_env) -> None:
             False, PlanError.NO_PATH, "no path", None, node.model.joint_names)
         node._on_plan_reach(valve_request(), PlanReach.Response())
         assert not [t for _, t in lines if "retreats tried" in t]
-        node.destroy_node()
-    finally:
-        rclpy.try_shutdown(context=ctx)
 
 
 def test_stale_inputs_in_order(ros_env) -> None:
     """In process: a stale /joint_states is NO_JOINT_STATES; a missing marker target is reported first."""
-    import rclpy
-
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
-    try:
-        node = reach_planner.ReachPlannerNode(context=ctx)
+    with planner_in_process(ros_env, standing=False) as node:
         model = node.model
         node.joint_states.put(msgs.joint_state(model.joint_names, model.half_sitting_joints),
                               time.monotonic() - 2.0 * node._p["joint_states_timeout_s"])
@@ -421,22 +417,14 @@ def test_stale_inputs_in_order(ros_env) -> None:
         node.joint_states.put(msgs.joint_state(model.joint_names, model.half_sitting_joints))
         joints, reason = node.current_joints()
         assert reason == "" and np.allclose(joints, model.half_sitting_joints)
-        node.destroy_node()
-    finally:
-        rclpy.try_shutdown(context=ctx)
 
 
 def test_measured_map_leaves_the_target_object_out(ros_env) -> None:
     """In process: voxels of a /voxel_map around the request's target (the valve, in a measured map)
     are left out of the planner's map (target_exclusion_radius_m), per target; 0 keeps them all."""
-    import rclpy
     from rclpy.parameter import Parameter
 
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
-    try:
-        node = reach_planner.ReachPlannerNode(context=ctx)
-        node.current_joints = lambda: (node.model.half_sitting_joints.copy(), "")
+    with planner_in_process(ros_env) as node:
         # a scene's voxels as /voxel_map: no unobserved layers, so the permissive policy (set at run time)
         bad = node.set_parameters([Parameter("unobserved_space", value="maybe")])[0]
         assert not bad.successful and "unobserved_space must be one of" in bad.reason
@@ -453,6 +441,3 @@ def test_measured_map_leaves_the_target_object_out(ros_env) -> None:
         node.set_parameters([Parameter("target_exclusion_radius_m", value=0.0)])
         resp = node._on_plan_reach(valve_request(goal_count=1, time_budget_s=SUCCESS_BUDGET_S), PlanReach.Response())
         assert resp.statistics.map_voxels == len(full), resp.message
-        node.destroy_node()
-    finally:
-        rclpy.try_shutdown(context=ctx)
