@@ -336,7 +336,7 @@ class ReachPlannerNode(Node):
                 self._fill_response(resp, result, total)
             except Exception as exc:  # e.g. an outcome that does not convert
                 result = PlanReply(E.INTERNAL_ERROR, f"internal error building the response: "
-                                                      f"{type(exc).__name__}: {exc}", region=result.region)
+                                                     f"{type(exc).__name__}: {exc}", region=result.region)
                 self.get_logger().error(f"plan_reach #{n}: {result.message}\n{traceback.format_exc()}")
                 resp = PlanReach.Response()
                 self._fill_response(resp, result, total)

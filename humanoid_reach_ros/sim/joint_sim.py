@@ -75,6 +75,12 @@ BURST_COMMANDS = 3
 MAX_BUFFERED_COMMANDS = 200
 
 
+def _bound_ratio(delta: np.ndarray, bound: np.ndarray) -> float:
+    """The largest ``|delta_i| / bound_i``: above 1, ``delta / ratio`` is ``delta`` slowed
+    together onto the bound (the coordinated velocity limit)."""
+    return float(np.max(np.abs(delta) / bound))
+
+
 def _describe(names: Sequence[str], limit: int = 5) -> str:
     shown = ", ".join(repr(n) for n in list(names)[:limit])
     more = len(names) - limit
@@ -258,7 +264,7 @@ class JointSimulator:
             # limit, over as many steps as it takes (commands arriving meanwhile join the queue)
             while len(self._received) > 1:
                 diff = self._received[0] - q
-                need = float(np.max(np.abs(diff) / bound))
+                need = _bound_ratio(diff, bound)
                 if need <= budget:
                     q = self._received.popleft()
                     budget -= need
@@ -269,23 +275,16 @@ class JointSimulator:
             self._bursting = len(self._received) > 1
         if not self._bursting:
             self._received.clear()      # the newest is self.target
-        if budget <= 0.0:
-            q_new = np.clip(q, self.lower, self.upper)
-            self.dq[:] = (q_new - self.q) / dt
-            self.q[:] = q_new
-            return self.q
-        bound = bound * budget
-        error = self.target - q
-        gain = 1.0 if self._tau == 0.0 else -math.expm1(-dt / self._tau)
-        delta = gain * error
-        # coordinated velocity limit: where a joint would exceed its bound the whole step is scaled
-        # down, so every joint keeps moving on the straight line toward the command (a per-joint
-        # clip bends it: after a late /joint_command the legs caught up joint by joint and the left
-        # sole moved 0.8 mm from the right for 15 ms, measured in bench/session)
-        over = np.abs(delta) > bound
-        if over.any():
-            delta *= float(np.min(bound[over] / np.abs(delta[over])))
-        q_new = np.clip(q + delta, self.lower, self.upper)
+        if budget > 0.0:
+            gain = 1.0 if self._tau == 0.0 else -math.expm1(-dt / self._tau)
+            delta = gain * (self.target - q)
+            # coordinated velocity limit: where a joint would exceed its bound the whole step is scaled
+            # down, so every joint keeps moving on the straight line toward the command (a per-joint
+            # clip bends it: after a late /joint_command the legs caught up joint by joint and the left
+            # sole moved 0.8 mm from the right for 15 ms, measured in bench/session)
+            need = _bound_ratio(delta, bound * budget)
+            q = q + (delta / need if need > 1.0 else delta)
+        q_new = np.clip(q, self.lower, self.upper)
         self.dq[:] = (q_new - self.q) / dt
         self.q[:] = q_new
         return self.q
