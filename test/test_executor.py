@@ -402,3 +402,73 @@ def test_warm_up_leaves_no_state(robot, cm):
     assert not ex.active
     with pytest.raises(ValueError, match="not active"):
         ex.step()
+
+
+FIRST_STEP_SCRIPT = r'''
+import pickle, sys
+import numpy as np
+from numba.core.registry import CPUDispatcher
+from humanoid_reach_ros.control.executor import ExecutorParams, WholeBodyExecutor
+from humanoid_reach_ros.geometry.sphere_tree import SphereTree
+from humanoid_reach_ros.geometry.trajectory import SplineTrajectory, TrajectoryOptions
+from humanoid_reach_ros.nodes.common import scene_file_voxels
+from humanoid_reach_ros.nodes.reach_executor_loop import _warm_up_cluttered
+from humanoid_reach_ros.paths import config_path
+from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.robot.shapes import load_collision_model
+
+def signatures():
+    out = set()
+    for name, mod in list(sys.modules.items()):
+        if name.startswith("humanoid_reach_ros"):
+            for attr, f in vars(mod).items():
+                if isinstance(f, CPUDispatcher):
+                    out |= {(name, attr, str(s)) for s in f.signatures}
+    return out
+
+robot = RobotModel()
+cm = load_collision_model(None, robot)
+ex = WholeBodyExecutor(robot, cm, ExecutorParams())
+ex.warm_up()                                                   # what the loop process does before its loop
+_warm_up_cluttered(WholeBodyExecutor(robot, cm, ExecutorParams()), robot)
+warm = signatures()
+far = SphereTree.from_voxels(scene_file_voxels(str(config_path("scenes/two_valves.yaml")), 0.02, ()), 0.02)
+hand = robot.frame_pose(robot.half_sitting(), robot.hand_frames["right"]).translation
+near = SphereTree.from_voxels(hand + np.array([[0.06, 0.0, 0.0], [0.06, 0.02, 0.0]]), 0.02)
+j = robot.half_sitting_joints.copy()
+g = j.copy()
+g[[robot.joint_index[n] for n in robot.spec.head_joints]] = [0.0, 0.6]
+spl = SplineTrajectory.from_path(np.stack([j, g]), TrajectoryOptions(joint_velocity=np.full(len(j), 1.0),
+                                                                    min_segment_duration_s=0.1))
+ex.start(robot.half_sitting(), spl, "right")
+for k, tree in enumerate((None, far, near, far)):              # the maps as the pipe delivers them
+    ex.set_environment(pickle.loads(pickle.dumps(tree)))
+    for i in range(5):
+        ex.step((5 * k + i + 1) * 0.005)
+new = sorted(signatures() - warm)
+print("NEW", new)
+'''
+
+
+def test_no_kernel_is_compiled_or_loaded_in_a_control_step(tmp_path):
+    """After the loop process's warm-up, no step compiles or loads a numba kernel, whatever map
+    the pipe delivers (far from the robot, near it, none). A tree received through the pipe
+    once had writable arrays (pickle's default) where the warm-up's were read-only: its first
+    query loaded another specialisation from numba's cache inside a step (15-22 ms, the
+    overruns of a fresh graph's first motion in bench/session). A fresh interpreter: another
+    test in this process may have compiled anything already."""
+    import subprocess
+    import sys
+    script = tmp_path / "first_step.py"
+    script.write_text(FIRST_STEP_SCRIPT)
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip().splitlines()[-1] == "NEW []", out.stdout[-3000:]
+
+
+def test_a_tree_through_a_pipe_stays_read_only():
+    import pickle
+    tree = pickle.loads(pickle.dumps(SphereTree.from_voxels(np.zeros((3, 3)) + [[0, 0, 0], [1, 0, 0], [2, 0, 0]],
+                                                            0.02)))
+    for a in (tree.centers, tree.radii, tree.nodes, tree.children, tree.rule):
+        assert not a.flags.writeable

@@ -156,3 +156,53 @@ def test_a_refused_retreat_lists_every_retreat_tried(planner, at_valve) -> None:
     assert any("no clearance of 10000 mm" in why for why in tried), tried
     ok = planner.plan(at_valve, PlanRequest(None, home=True, seed=3, time_budget_s=5.0))
     assert ok.success and ok.retreats_tried == (), ok.message
+
+
+def test_the_way_back_along_the_last_plan_from_a_posture_off_its_end(planner, at_valve) -> None:
+    """The executor ends a reach with the hand where the plan put it and the other joints where
+    its own tasks took them (0.19 rad off the plan's end in bench/session's dense_pipes, where
+    every Cartesian retreat then failed). The last plan's reverse is still the first retreat
+    tried: the offset is blended out along it, every sample checked; a robot elsewhere gets none.
+    The last plan here came in along the valve's contact normal (the reverse of a retreat from
+    there): a real reach's way in often passes the object's voxels, which the planner left out
+    around its target, and its reverse is then refused (the next test)."""
+    robot = planner.robot
+    away = planner.plan(at_valve, PlanRequest(None, home=True, seed=3, time_budget_s=5.0))
+    assert away.success and "retreat" in away.message, away.message
+    arm = "right" if planner.robot.frame_pose(planner.start_config(at_valve), robot.hand_frames["right"]
+                                              ).translation[0] > 0.5 else "left"
+    tip = robot.limbs[f"{arm}_arm"].tip
+    hand = np.array([robot.frame_pose(planner.start_config(j), tip).translation for j in away.positions])
+    k = int(np.argmax(np.linalg.norm(hand - hand[0], axis=1) > 0.08)) + 1
+    planner._last_positions, planner._last_arm = away.positions[:k][::-1].copy(), arm   # came in along it
+    end = planner._last_positions[-1]
+    other = "left" if arm == "right" else "right"
+    cols = list(robot.limbs[f"{other}_arm"].joint_index)
+    q = end.copy()
+    q[cols] = np.clip(q[cols] + 0.15, robot.lower[cols], robot.upper[cols])   # the hand stays, 0.15 rad off
+    R = planner._reverse_of_last(q)
+    assert R is not None and np.array_equal(R[0], q)
+    assert np.all(R >= robot.lower - 1e-12) and np.all(R <= robot.upper + 1e-12)
+    off = np.abs(R - planner._last_positions[::-1])[:, cols].max(axis=1)
+    assert off[0] == pytest.approx(0.15, abs=1e-9) and np.all(np.diff(off) <= 1e-12), off
+    home = planner.plan(q, PlanRequest(None, home=True, seed=4, time_budget_s=5.0))
+    assert home.success and "back along the approach" in home.message, home.message
+    np.testing.assert_allclose(home.positions[0], q, atol=1e-9)
+    far = end.copy()
+    far[cols] = np.clip(far[cols] + 0.5, robot.lower[cols], robot.upper[cols])
+    assert planner._reverse_of_last(far) is None                       # too far from the plan's end
+    moved = end.copy()
+    moved[list(robot.limbs[f"{arm}_arm"].joint_index)] += 0.1          # the hand 3+ cm from the plan's
+    assert planner._reverse_of_last(moved) is None
+
+
+def test_a_way_in_through_the_object_is_not_a_way_out(planner) -> None:
+    """The reach onto the passage pipe's top came down through voxels the planner left out
+    around its target: its reverse presses into the pipe and is refused; a Cartesian retreat
+    frees the hand instead."""
+    top = dataclasses.replace(valve_region(), target_p=np.array([0.35, -0.15, 0.78]))
+    reach = planner.plan(planner.robot.half_sitting_joints, PlanRequest(top, seed=1, time_budget_s=5.0))
+    assert reach.success, reach.message
+    assert planner._reverse_of_last(reach.positions[-1]) is not None
+    home = planner.plan(reach.positions[-1], PlanRequest(None, home=True, seed=4, time_budget_s=5.0))
+    assert home.success and "retreat" in home.message and "back along" not in home.message, home.message

@@ -364,3 +364,83 @@ def test_control_loop_sleeps_while_idle_and_runs_a_motion_promptly() -> None:
         assert sup.stats.ticks - ticks <= 3                 # asleep again
     finally:
         loop.stop()
+
+
+def test_an_overrun_says_what_the_solver_was_doing() -> None:
+    """An overrun logs why (at most OVERRUN_LOGS_PER_MOTION lines a motion): the solver busy on a
+    step for so long (the deadlines pass while it computes), or not running at all (not
+    scheduled)."""
+    from humanoid_reach_ros.execution.supervisor import OVERRUN_LOGS_PER_MOTION
+    h = Harness()
+    logs: list[tuple[str, str]] = []
+    h.sup.log = lambda level, text: logs.append((level, text))
+    engine_step = h.engine.step
+
+    def slow_step(t):       # step 10 takes 2 periods: the tick thread meets the deadlines meanwhile
+        if len(h.engine.times) == 9:
+            for _ in range(2):
+                h.k += 1
+                h.clock.now = h.deadline()
+                h.sup.tick(h.deadline() + DT)
+        return engine_step(t)
+    h.engine.step = slow_step
+    h.sup.submit(h.motion(1, duration=0.3))
+    for _ in range(30):
+        h.cycle()
+    busy = [text for level, text in logs if level == "warning"]
+    assert 1 <= len(busy) < OVERRUN_LOGS_PER_MOTION and all("m1: overrun at step" in t for t in busy), logs
+    assert "the solver has been computing step" in busy[0] and "of m1 for" in busy[0], busy[0]
+    h.engine.step = engine_step
+    for i in range(20):
+        h.cycle(solve=(i % 2 == 0))                # the solver misses every other deadline
+    waiting = [text for level, text in logs if level == "warning"][len(busy):]
+    assert len(busy) + len(waiting) == OVERRUN_LOGS_PER_MOTION and "counted, not logged" in waiting[-1]
+    assert any("the solver is waiting (last work ended" in t for t in waiting), waiting
+    m = h.sup.motion or h.finished[0]
+    assert m.overruns > OVERRUN_LOGS_PER_MOTION
+
+
+def test_the_outbox_keeps_the_tick_off_a_blocked_publish() -> None:
+    """A DDS write that blocks (a subscriber joining: 335 ms once in a fresh graph) holds up the
+    outbox's thread, never the caller of ``put``; the commands go out in order after it, the
+    slow one reported; beyond ``capacity`` the oldest are dropped and counted."""
+    import threading
+    import time
+
+    from humanoid_reach_ros.execution.loop import Outbox
+    gate = threading.Event()
+    sent: list[int] = []
+    slow: list[tuple[float, int]] = []
+
+    def publish(item: int) -> None:
+        if item == 0:
+            gate.wait(10.0)          # the first write blocks until the test lets it go
+        sent.append(item)
+    def first_taken(box: Outbox) -> None:      # the outbox's thread is inside the blocked write
+        box.put(0)
+        deadline = time.monotonic() + 30.0
+        while box._queue and time.monotonic() < deadline:
+            time.sleep(0.001)
+        assert not box._queue
+    box = Outbox(publish, slow_s=0.005, capacity=50, on_slow=lambda s, b: slow.append((s, b)))
+    first_taken(box)
+    t0 = time.perf_counter()
+    for i in range(1, 40):
+        box.put(i)
+    put_s = time.perf_counter() - t0
+    assert put_s < 0.5 and sent == []          # 40 hand-overs while the write blocks: none waited on it
+    time.sleep(0.02)
+    gate.set()
+    box.close(10.0)
+    assert sent == list(range(40)) and box.published == 40 and box.dropped == 0
+    assert box.slow >= 1 and slow[0][0] >= 0.02 and slow[0][1] == 39, slow
+    gate.clear()
+    box2 = Outbox(publish, slow_s=1.0, capacity=5)
+    sent.clear()
+    first_taken(box2)
+    for i in range(1, 12):
+        box2.put(i)
+    gate.set()
+    box2.close(10.0)
+    assert sent == [0, 7, 8, 9, 10, 11] and box2.dropped == 6, (sent, box2.dropped)
+    assert box2.max_backlog == 5

@@ -551,7 +551,9 @@ class WholeBodyExecutor:
         """Compile / load the numba kernels and touch every code path once (a few steps on
         a throw-away state); call before the control loop starts. The state is reset."""
         from humanoid_reach_ros.control.limits import warm_up as limits_warm_up
+        from humanoid_reach_ros.geometry.sphere_tree import warm_up as tree_warm_up
         limits_warm_up()
+        tree_warm_up()   # every tree kernel: a step far from the map calls some the steps below do not
         saved = (self._tree, self._q, self._ref, self._arm, self._t, self._active, self._holding, self._end_t,
                  self._blend_offset, self._blend_s, self._sole_targets, self._com_target, self._com_offset,
                  self._com_blend_s)

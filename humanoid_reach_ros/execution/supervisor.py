@@ -54,6 +54,18 @@ from humanoid_reach_ros.codes import ExecuteCode as C
 from humanoid_reach_ros.execution.engines import StepOutcome
 
 IDLE, RUN, SETTLE, HOLD = "idle", "running", "settling", "holding"
+OVERRUN_LOGS_PER_MOTION = 3           # an overrun logs why (what the solver was doing); at most this many per motion
+
+
+def _describe(command: tuple) -> str:
+    """What applying a queued command is, for an overrun's report."""
+    kind = command[0]
+    if kind == "map":
+        tree = command[1]
+        return f"applying a new map ({getattr(tree, 'n_spheres', 0)} spheres)"
+    if kind == "start":
+        return f"starting {command[1].label}"
+    return f"applying a {kind}"
 
 
 @dataclass(frozen=True)
@@ -160,6 +172,9 @@ class ExecutionSupervisor:
                                hold_step_times=deque(maxlen=config.step_history))
         self.last_finished: Motion | None = None
         self.closed = False
+        # what the solver side is doing and since when (clock): an overrun says what it waited on
+        self._busy: tuple[Any, float] | None = None
+        self._last_work_end = math.nan
 
     # ------------------------------------------------------------ inputs (any thread)
     def submit(self, motion: Motion) -> None:
@@ -255,6 +270,7 @@ class ExecutionSupervisor:
             self._applying = bool(commands)
         try:
             for cmd in commands:
+                self._busy = (_describe(cmd), self.clock())
                 self._apply(cmd)
             if commands:
                 with self._cond:
@@ -273,6 +289,9 @@ class ExecutionSupervisor:
                 self._starting = False
                 self._applying = False
                 self._cond.notify_all()
+        finally:
+            self._busy = None
+            self._last_work_end = self.clock()
 
     def _apply(self, cmd: tuple) -> None:
         kind = cmd[0]
@@ -401,6 +420,7 @@ class ExecutionSupervisor:
             ahead = len(self._ready)
             last = self._ready[-1][1].metrics if self._ready else (motion.last if motion is not None else None)
             t = self._step_time(motion, ahead) if self.mode == RUN else None
+        self._busy = (("step", motion, ahead), self.clock())   # formatted only by an overrun's report
         if engine == "executor":
             result = self.engines["executor"].step(t)
         else:
@@ -415,6 +435,7 @@ class ExecutionSupervisor:
         ``next_deadline``: when the following tick is due (the reference time of the step
         the solver computes next)."""
         out = None
+        late = ""
         with self._cond:
             st = self.stats
             st.ticks += 1
@@ -452,13 +473,39 @@ class ExecutionSupervisor:
                 st.overruns += 1
                 if self.motion is not None:
                     self.motion.overruns += 1
+                    if self.motion.overruns <= OVERRUN_LOGS_PER_MOTION:
+                        late = self._overrun_report(self.motion)
             joints = self.last_joints
             st.published += 1
             self._cond.notify_all()
             if joints is not None:
                 out = (joints, metrics, overruns)
+        if late:
+            self.log("warning", late)
         if out is not None:
             self.sink(*out)
+
+    def _overrun_report(self, motion: Motion) -> str:
+        """Why the step of this deadline is not ready (caller holds the lock): what the solver
+        side is doing and for how long, or how long ago it last finished."""
+        now = self.clock()
+        busy = self._busy
+        if busy is not None:
+            what = busy[0]
+            if isinstance(what, tuple):     # ("step", motion, ahead)
+                m, ahead = what[1], what[2]
+                what = (f"computing step {(m.steps if m is not None else 0) + ahead + 1}"
+                        + (f" of {m.label}" if m is not None else " of the hold"))
+            doing = f"the solver has been {what} for {(now - busy[1]) * 1e3:.1f} ms"
+        elif math.isfinite(self._last_work_end):
+            doing = (f"the solver is waiting (last work ended {(now - self._last_work_end) * 1e3:.1f} ms ago: "
+                     "it was not scheduled, or the interpreter lock was held elsewhere)")
+        else:
+            doing = "the solver has not run yet"
+        return (f"{motion.label}: overrun at step {motion.steps + 1} (the last command goes out again): {doing}; "
+                f"{len(self._pending)} commands queued"
+                + ("" if motion.overruns < OVERRUN_LOGS_PER_MOTION else "; further overruns of this motion are "
+                   "counted, not logged"))
 
     def _after_step(self, motion: Motion, res: StepOutcome) -> None:
         """Outcome of a published step (caller holds the lock)."""

@@ -485,6 +485,18 @@ class SphereTree:
     rule: np.ndarray = field(repr=False)       # (M,) int8: -1 leaf, 0 AABB sphere, 1 child-enclosing sphere
     depth: int = 0                             # longest root-leaf path (edges)
 
+    def __post_init__(self) -> None:
+        # read-only whichever way the tree was made: numba compiles one specialisation per array
+        # flag, so a writable copy (a tree received through a pipe: pickle restores arrays
+        # writable) would load another from the on-disk cache at its first query, inside a
+        # control step (seen: the first step on the first measured map took 15-22 ms)
+        for a in (self.centers, self.radii, self.nodes, self.children, self.rule):
+            a.setflags(write=False)
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self.__post_init__()
+
     # ------------------------------------------------------------ construction
     @classmethod
     def build(cls, centers: np.ndarray, radii: np.ndarray | float) -> "SphereTree":
@@ -499,8 +511,6 @@ class SphereTree:
             nodes, children, rule, depth = np.empty((0, 4)), np.empty((0, 2), np.int32), np.empty(0, np.int8), 0
         else:
             nodes, children, rule, depth = _build_kernel(c, r)
-        for a in (c, r, nodes, children, rule):
-            a.setflags(write=False)
         return cls(c, r, nodes, children, rule, int(depth))
 
     @classmethod
@@ -622,11 +632,14 @@ def warm_up() -> None:
     tree.intersects(p, p, 0.1)
     tree.nearest(p, p, 0.1)
     tree.spheres_within(p, p, 0.1, 0.2)
-    tree.nearest_batch(P, P, 0.1)
-    tree.intersects_batch(P, P, 0.1)
-    tree.any_intersection(P, P, 0.1)
+    radii = np.full(len(P), 0.1)
+    radii.setflags(write=False)     # a collision model's radii are read-only, a scalar's broadcast is not
+    for R in (0.1, radii):
+        tree.nearest_batch(P, P, R)
+        tree.intersects_batch(P, P, R)
+        tree.any_intersection(P, P, R)
+        tree.spheres_within_batch(P, P, R, 0.2)
     tree.any_intersection_configs(P[None], P[None], 0.1)
-    tree.spheres_within_batch(P, P, 0.1, 0.2)
 
 
 __all__ = [

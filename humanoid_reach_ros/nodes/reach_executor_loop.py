@@ -41,6 +41,7 @@ from typing import Any, Callable
 
 PR_SET_PDEATHSIG = 1
 IDLE_STATUS_PERIOD_S = 1.0     # status to the node while nothing moves
+SLOW_PUBLISH_LOGS = 3          # blocked publishes logged one by one, then one line every 10 s
 _WAKE = ("wake",)              # queued on shutdown: the sender stops at once, not after its idle wait
 
 
@@ -158,7 +159,7 @@ def child_main(conn, config: LoopConfig) -> None:
     _die_with_parent()
     out: queue.SimpleQueue = queue.SimpleQueue()
     try:
-        loop, sup, node, rt = _build(config, out)
+        loop, sup, node, rt, outbox = _build(config, out)
     except Exception as exc:
         conn.send(("failed", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"))
         conn.close()
@@ -201,7 +202,10 @@ def child_main(conn, config: LoopConfig) -> None:
                 now = time.monotonic()
                 if event is not None or now >= last_status + period():
                     last_status = now
-                    conn.send(("status", sup.status()))
+                    st = sup.status()
+                    st.update(slow_publishes=outbox.slow, max_publish_ms=outbox.max_publish_s * 1e3,
+                              commands_dropped=outbox.dropped)
+                    conn.send(("status", st))
             except (OSError, EOFError, BrokenPipeError):
                 stop.set()
 
@@ -233,6 +237,7 @@ def child_main(conn, config: LoopConfig) -> None:
     finally:
         sup.close()
         loop.stop()
+        outbox.close()
         stop.set()
         out.put(_WAKE)
         send_thread.join(1.0)
@@ -253,7 +258,8 @@ def child_main(conn, config: LoopConfig) -> None:
 
 
 def _build(config: LoopConfig, out: queue.SimpleQueue):
-    """Engines, supervisor, publish-only node and the running loop; returns (loop, sup, node, rt info)."""
+    """Engines, supervisor, publish-only node, the running loop and its outbox; returns (loop, sup,
+    node, rt info, outbox)."""
     import numpy as np
     import rclpy
     from humanoid_reach_interfaces.msg import ExecutorMetrics
@@ -262,8 +268,8 @@ def _build(config: LoopConfig, out: queue.SimpleQueue):
 
     from humanoid_reach_ros.control.executor import WholeBodyExecutor
     from humanoid_reach_ros.execution.engines import DualArmEngine, TrajectoryEngine
-    from humanoid_reach_ros.execution.loop import ControlLoop
-    from humanoid_reach_ros.execution.realtime import lock_memory
+    from humanoid_reach_ros.execution.loop import ControlLoop, Outbox
+    from humanoid_reach_ros.execution.realtime import lock_memory, make_feeder_thread_realtime
     from humanoid_reach_ros.execution.supervisor import ExecutionSupervisor
     from humanoid_reach_ros.io import exec_msgs, msgs
     from humanoid_reach_ros.robot.model import RobotModel
@@ -299,13 +305,33 @@ def _build(config: LoopConfig, out: queue.SimpleQueue):
     clock = node.get_clock()
     counter = [0]
 
-    def sink(joints, metrics, overruns) -> None:
-        stamp = clock.now().to_msg()
+    def publish(item) -> None:     # the outbox's thread
+        joints, metrics, overruns, stamp = item
         command_pub.publish(msgs.fill_joint_state(command, joints, stamp=stamp))
         if metrics is not None:
             counter[0] += 1
             if counter[0] % config.metrics_decimation == 0:
                 metrics_pub.publish(exec_msgs.executor_metrics(metrics, overruns, stamp, config.map_frame))
+
+    slow_logged = [0, 0.0]         # lines so far, time of the last
+
+    def on_slow(seconds: float, backlog: int) -> None:
+        # a blocked DDS write: the first few, then at most one line every 10 s
+        now = time.monotonic()
+        if slow_logged[0] < SLOW_PUBLISH_LOGS or now - slow_logged[1] > 10.0:
+            slow_logged[0] += 1
+            slow_logged[1] = now
+            log("warning", f"publishing one command took {seconds * 1e3:.1f} ms (DDS write blocked: a subscriber "
+                           f"joining {config.command_topic} or {config.metrics_topic} does that); {backlog} commands "
+                           f"waited behind it and went out late, the control loop kept its deadlines "
+                           f"({outbox.slow} slow publishes so far)")
+
+    outbox = Outbox(publish, config.supervisor.period_s, on_slow=on_slow,
+                    set_priority=(lambda: make_feeder_thread_realtime(config.rt_priority))
+                    if config.rt_priority > 0 else None)
+
+    def sink(joints, metrics, overruns) -> None:   # the tick thread: hands over, never waits on DDS
+        outbox.put((joints, metrics, overruns, clock.now().to_msg()))
 
     def on_finish(m) -> None:
         summary = m.summary(time.monotonic())
@@ -326,7 +352,7 @@ def _build(config: LoopConfig, out: queue.SimpleQueue):
     if config.lock_memory and config.rt_priority > 0:
         rt["memory"] = lock_memory()[1]
     rt.update(loop.start())
-    return loop, sup, node, rt
+    return loop, sup, node, rt, outbox
 
 
 def _warm_up_cluttered(executor, robot) -> None:

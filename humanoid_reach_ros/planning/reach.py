@@ -255,6 +255,10 @@ class _Failure(Exception):
 
 #: ReachPlanner's default ``retreat`` (one frozen instance, shared by every planner)
 _DEFAULT_RETREAT = RetreatParams()
+#: the robot "stands at the last plan's end" (its reverse is the first retreat tried) when the
+#: plan's hand is this close to the plan's end and no joint but the head's this far off it
+REVERSE_HAND_TOL_M = 0.03
+REVERSE_JOINT_TOL_RAD = 0.35
 
 
 class ReachPlanner:
@@ -289,6 +293,7 @@ class ReachPlanner:
         self.observable = observable
         self._last_plan_end: tuple[np.ndarray, np.ndarray] | None = None   # (joints, hand approach direction)
         self._last_positions: np.ndarray | None = None   # the last successful plan's samples (its reverse: a retreat)
+        self._last_arm: str | None = None                 # and its arm
         self.projector = Projector(self.robot, LimbIKSet(self.robot, compiled=compiled_kinematics))
         self.trunk_region = TrunkRegion(self.projector, params.trunk_z_m, params.trunk_pitch_rad,
                                         params.trunk_roll_rad, params.trunk_yaw_rad)
@@ -655,6 +660,7 @@ class ReachPlanner:
         if outcome.positions is None or len(outcome.positions) < 2:
             return
         self._last_positions = np.asarray(outcome.positions, float).copy()
+        self._last_arm = outcome.arm
         if outcome.arm is None:
             return
         tip = self.robot.limbs[f"{outcome.arm}_arm"].tip
@@ -670,24 +676,57 @@ class ReachPlanner:
         if request.approach is not None:
             return np.asarray(request.approach, float)
         last = self._last_plan_end
-        if last is not None and np.max(np.abs(last[0] - joints)) < 0.02:
+        if last is not None and self._near_last_end(joints):
             return last[1]
         return None
 
-    def _reverse_of_last(self, joints: np.ndarray, tol_rad: float = 0.02) -> np.ndarray | None:
-        """The last plan's samples backwards from its end, when the robot stands there (every joint
-        but the head's within ``tol_rad``: a look since only turned the head, which the samples
-        then keep where it is now); None otherwise. The way the hand came in is a way out."""
+    def _near_last_end(self, joints: np.ndarray) -> bool:
+        """Whether the robot stands where the last plan ended: its arm's hand within
+        ``REVERSE_HAND_TOL_M`` of the plan's end and every joint but the head's within
+        ``REVERSE_JOINT_TOL_RAD`` (the executor's whole-body IK puts the hand where the plan
+        did, the chest and the legs where its own tasks take them: 0.19 rad off the plan's end,
+        seen in bench/session's dense_pipes); without a planned arm, every joint within 0.02 rad."""
         P = self._last_positions
         if P is None:
-            return None
+            return False
         head = [self.robot.joint_index[n] for n in self.robot.spec.head_joints]
         keep = np.ones(self.robot.n_joints, bool)
         keep[head] = False
-        if np.max(np.abs(P[-1] - joints)[keep]) > tol_rad:
+        off = float(np.max(np.abs(P[-1] - joints)[keep]))
+        arm = self._last_arm
+        if arm is None:
+            return off <= 0.02
+        if off > REVERSE_JOINT_TOL_RAD:
+            return False
+        tip = self.robot.limbs[f"{arm}_arm"].tip
+        hand = self.robot.frame_pose(self.start_config(joints), tip).translation
+        end = self.robot.frame_pose(self.start_config(P[-1]), tip).translation
+        return float(np.linalg.norm(hand - end)) <= REVERSE_HAND_TOL_M
+
+    def _reverse_of_last(self, joints: np.ndarray) -> np.ndarray | None:
+        """The last plan's samples backwards from its end when the robot stands there
+        (:meth:`_near_last_end`), else None: the way the hand came in is a way out. The
+        robot's offset from the plan's end (head excluded: a look since turned it, and the
+        samples keep it where it is now) is blended out along the way back: all of it at the
+        first sample (which is ``joints``), none once the hand has come back the retreat's
+        ``max_distance_m``; samples clipped to the joint limits. Every sample is then checked
+        like any retreat's (planning/retreat.py)."""
+        if not self._near_last_end(joints):
             return None
+        P = self._last_positions
+        head = [self.robot.joint_index[n] for n in self.robot.spec.head_joints]
         R = P[::-1].copy()
+        delta = joints - P[-1]
+        delta[head] = 0.0
+        w = np.ones(len(R))
+        if self._last_arm is not None:
+            tip = self.robot.limbs[f"{self._last_arm}_arm"].tip
+            h = np.array([self.robot.frame_pose(self.start_config(j), tip).translation for j in R])
+            moved = np.maximum.accumulate(np.linalg.norm(h - h[0], axis=1))
+            w = np.clip(1.0 - moved / self.retreat_planner.params.max_distance_m, 0.0, 1.0)
+        R += w[:, None] * delta[None, :]
         R[:, head] = joints[head]
+        R = np.clip(R, self.robot.lower, self.robot.upper)
         R[0] = joints
         return R
 

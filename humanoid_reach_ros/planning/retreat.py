@@ -19,12 +19,15 @@ that stage for a humanoid:
    voxels within ``contact_radius_m`` of the hand, that normal tilted up, and straight
    back toward the shoulder.
 3. **Motion**: first back along the last plan's own samples when the robot stands at its end
-   (the way the hand came in is a way out), else along a direction ``d``: the hand frame
+   (the way the hand came in is a way out; "at its end": the hand within 3 cm of the plan's,
+   no joint 0.35 rad off, the offset blended out along the way back: ``ReachPlanner.
+   _reverse_of_last``), else along a direction ``d``: the hand frame
    moves on the line ``p(s) = p_0 + s d``, ``s`` in steps of ``step_m`` up to
    ``max_distance_m``; the arm's joints follow by damped least squares on the hand's position
    error and, weighted by ``orientation_weight``, its orientation error
-   (``dq = J^T (J J^T + lambda^2 I)^-1 e``, a few iterations a step, clipped to the joint
-   limits; the line must be kept within 2 mm), every other joint
+   (``dq = J^T (J J^T + lambda^2 I)^-1 e``, a few iterations a step and up to three more
+   rounds where the line is not reached yet, clipped to the joint limits; the line must be
+   kept within 2 mm), every other joint
    and the base stay (feet fixed; the executor's exact-COG task compensates the arm's
    mass). The chest joints move with the arm; a named simplification: the legs and the
    waist do not help the retreat.
@@ -314,12 +317,17 @@ class RetreatPlanner:
             target = pin.SE3(M0.rotation, M0.translation + s * d)
             if mode == "chest home":
                 q[chest_q] = chest_0 + min(1.0, s / p.min_distance_m) * (chest_ref - chest_0)
-            for _ in range(p.iterations * (4 if k == 1 else 1)):   # the first step may start singular
+            # the first step may start singular (a stretched arm); a step that has not reached the line
+            # within its iterations gets up to three more rounds before the line counts as lost
+            # (damped least squares converges slowly near a singularity)
+            budget = p.iterations * (4 if k == 1 else 1)
+            for it in range(budget + 3 * p.iterations):
                 pin.framesForwardKinematics(model, data, q)
                 M = data.oMf[fid]
                 err = np.concatenate([target.translation - M.translation,
                                       p.orientation_weight * pin.log3(M0.rotation @ M.rotation.T)])
-                if np.linalg.norm(err[:3]) < 1e-6:
+                line = np.linalg.norm(err[:3])
+                if line < 1e-6 or (it >= budget and line <= 2e-3):
                     break
                 J = pin.computeFrameJacobian(model, data, q, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)[:, vcols]
                 J[3:] *= p.orientation_weight
