@@ -181,7 +181,7 @@ def test_replay_beside_a_live_publisher_warns(start_node, ros_env, tmp_path: Pat
     """``hr_play`` beside a running ``joint_driver``: two ``/joint_states`` sources, named (issue 22)."""
     start_node("joint_driver", params_file="config/joint_driver.yaml", ready_log=r"simulated hrp2")
     r = subprocess.run([sys.executable, "-m", "humanoid_reach_ros.nodes.bag_play", str(BAG), "--stamps-now",
-                        "--topics", "/joint_states", "--start-offset", "16"], env=dict(ros_env), cwd=REPO_ROOT,
+                        "--topics", "/joint_states", "--start-offset", "14"], env=dict(ros_env), cwd=REPO_ROOT,
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     assert "/joint_states is also published by /joint_driver: the replay mixes two sources" in r.stderr, r.stderr

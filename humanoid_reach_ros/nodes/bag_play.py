@@ -255,6 +255,7 @@ def main(argv: list[str] | None = None) -> int:
             if unacked:
                 node.get_logger().warning(f"not every reliable subscriber acknowledged the last messages within "
                                           f"{ACK_TIMEOUT_S:g} s on {', '.join(unacked)}")
+            node.warn_other_publishers()   # a last look: on a busy machine discovery names a node late
         if any(reader.topics[t].qos.transient_local for t in topics) and stop.signal is None:
             time.sleep(0.2)  # let late-joining readers of latched topics fetch before the publisher goes
     except BagError as exc:
