@@ -81,3 +81,4 @@ def test_fastdds_profile_gives_large_messages_a_shared_memory_segment() -> None:
     assert graph_env(5, base={FASTDDS_PROFILES_ENV: "/mine.xml"})[FASTDDS_PROFILES_ENV] == "/mine.xml"
     launch = (REPO_ROOT / "launch" / "reach.launch.py").read_text()
     assert f'"{FASTDDS_PROFILES_ENV}"' in launch and '"fastdds.xml"' in launch
+

@@ -317,3 +317,18 @@ def test_execute_with_progress_and_cancel(start_node, ros_env, tmp_path: Path) -
     assert "Ctrl-C: canceling the goal" in text and "execution canceled: CANCELED (4)" in text
     summary = json.loads((tmp_path / "operator.out").read_text())
     assert summary["exit_code"] == 130 and summary["execution"]["error_name"] == "CANCELED"
+
+
+def test_an_executor_in_the_graph_is_waited_for_by_an_automatic_look() -> None:
+    """An automatic look gives up on /look after AUTO_LOOK_SERVER_WAIT_S only where no
+    reach_executor node is in the graph (a planner fed by a bag); with one, its /look is waited
+    for up to --timeout (bench/session: its five endpoints took over 3 s to be discovered once)."""
+    class Node:
+        def __init__(self, names):
+            self.names = names
+
+        def get_node_names_and_namespaces(self):
+            return self.names
+    assert op.executor_in_graph(Node([("reach_planner", "/"), ("reach_executor", "/")]))
+    assert not op.executor_in_graph(Node([("reach_planner", "/"), ("reach_executor_loop", "/")]))
+    assert not op.executor_in_graph(Node([("reach_executor", "/other")]))   # not the one the CLI talks to

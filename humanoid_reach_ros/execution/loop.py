@@ -12,22 +12,12 @@
 Both threads ask for ``SCHED_FIFO`` (tick ``rt_priority``, solver one below) where the OS
 allows it (:mod:`humanoid_reach_ros.execution.realtime`); the outcome is in
 :attr:`ControlLoop.realtime`.
-
-:class:`Outbox` takes publishing off the tick thread (ros2_control's ``RealtimePublisher``
-idea): the tick hands each command over and returns; a thread of its own publishes them, in
-order. Why: a DDS write can block, most when a subscriber joins the topic (Fast DDS
-documents it; measured in this graph: 2-6 ms waits several times a minute, once 335 ms in a
-fresh graph's first motion, while the tick thread missed 67 deadlines and the solver's steps
-lined up behind it). The deadlines now hold whatever DDS does; a blocked write delays the
-commands behind it, which then go out as a burst (the simulated driver plays a burst
-through; a real driver sees what any late delivery gives it).
 """
 from __future__ import annotations
 
 import threading
 import time
-from collections import deque
-from typing import Any, Callable
+from typing import Callable
 
 from humanoid_reach_ros.execution.realtime import make_thread_realtime
 from humanoid_reach_ros.execution.supervisor import ExecutionSupervisor
@@ -101,71 +91,4 @@ class ControlLoop:
                 self.sup.missed(skipped)
 
 
-class Outbox:
-    """Items handed over by a real-time thread (:meth:`put`, which never waits on ``publish``)
-    and published in order by a thread of its own (module doc). At most ``capacity`` wait:
-    beyond that the oldest is dropped and counted. A ``publish`` that takes longer than
-    ``slow_s`` calls ``on_slow(seconds, backlog)`` from the publishing thread."""
-
-    def __init__(self, publish: Callable[[Any], None], slow_s: float, capacity: int = 400,
-                 on_slow: Callable[[float, int], None] | None = None,
-                 set_priority: Callable[[], Any] | None = None) -> None:
-        self.publish = publish
-        self.slow_s = float(slow_s)
-        self.capacity = int(capacity)
-        self.on_slow = on_slow or (lambda seconds, backlog: None)
-        self._set_priority = set_priority
-        self._queue: deque = deque()
-        self._cond = threading.Condition()
-        self._closed = False
-        self.published = 0
-        self.dropped = 0
-        self.slow = 0                 # publishes longer than slow_s
-        self.max_publish_s = 0.0
-        self.max_backlog = 0
-        self._thread = threading.Thread(target=self._run, name="executor_outbox", daemon=True)
-        self._thread.start()
-
-    def put(self, item: Any) -> None:
-        with self._cond:
-            if len(self._queue) >= self.capacity:
-                self._queue.popleft()
-                self.dropped += 1
-            self._queue.append(item)
-            if len(self._queue) > self.max_backlog:
-                self.max_backlog = len(self._queue)
-            self._cond.notify()
-
-    def close(self, timeout: float = 1.0) -> None:
-        """Publish what is queued (within ``timeout``), then stop the thread."""
-        with self._cond:
-            self._closed = True
-            self._cond.notify()
-        self._thread.join(timeout)
-
-    def _run(self) -> None:
-        if self._set_priority is not None:
-            self._set_priority()
-        while True:
-            with self._cond:
-                while not self._queue and not self._closed:
-                    self._cond.wait()
-                if not self._queue:
-                    return
-                item = self._queue.popleft()
-            t0 = time.perf_counter()
-            try:
-                self.publish(item)
-            except Exception:  # e.g. publishing while the process shuts down
-                if self._closed:
-                    return
-                raise
-            took = time.perf_counter() - t0
-            self.published += 1
-            self.max_publish_s = max(self.max_publish_s, took)
-            if took > self.slow_s:
-                self.slow += 1
-                self.on_slow(took, len(self._queue))     # the items that waited behind it
-
-
-__all__ = ["ControlLoop", "Outbox"]
+__all__ = ["ControlLoop"]

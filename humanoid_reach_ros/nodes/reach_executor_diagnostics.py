@@ -48,7 +48,6 @@ def executor_statuses(node, window: LoopWindow) -> list:
               "step_p50_ms": st.get("step_p50_ms", 0.0), "step_p99_ms": st.get("step_p99_ms", 0.0),
               "max_step_ms": st.get("step_max_ms", 0.0), "hold_step_p99_ms": st.get("hold_step_p99_ms", 0.0),
               "slow_publishes_total": st.get("slow_publishes", 0), "max_publish_ms": st.get("max_publish_ms", 0.0),
-              "commands_dropped_total": st.get("commands_dropped", 0),
               "loop_process_alive": node.loop.alive()}
     level, message = msgs.LEVEL_OK, f"{ticks / elapsed:.0f} Hz ticks, {steps} steps, {overruns} overruns"
     if st.get("mode", IDLE) == IDLE and not steps:

@@ -159,7 +159,7 @@ def child_main(conn, config: LoopConfig) -> None:
     _die_with_parent()
     out: queue.SimpleQueue = queue.SimpleQueue()
     try:
-        loop, sup, node, rt, outbox = _build(config, out)
+        loop, sup, node, rt, slow = _build(config, out)
     except Exception as exc:
         conn.send(("failed", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"))
         conn.close()
@@ -203,8 +203,7 @@ def child_main(conn, config: LoopConfig) -> None:
                 if event is not None or now >= last_status + period():
                     last_status = now
                     st = sup.status()
-                    st.update(slow_publishes=outbox.slow, max_publish_ms=outbox.max_publish_s * 1e3,
-                              commands_dropped=outbox.dropped)
+                    st.update(slow_publishes=slow["count"], max_publish_ms=slow["max_s"] * 1e3)
                     conn.send(("status", st))
             except (OSError, EOFError, BrokenPipeError):
                 stop.set()
@@ -237,7 +236,6 @@ def child_main(conn, config: LoopConfig) -> None:
     finally:
         sup.close()
         loop.stop()
-        outbox.close()
         stop.set()
         out.put(_WAKE)
         send_thread.join(1.0)
@@ -258,8 +256,8 @@ def child_main(conn, config: LoopConfig) -> None:
 
 
 def _build(config: LoopConfig, out: queue.SimpleQueue):
-    """Engines, supervisor, publish-only node, the running loop and its outbox; returns (loop, sup,
-    node, rt info, outbox)."""
+    """Engines, supervisor, publish-only node and the running loop; returns (loop, sup, node, rt
+    info, slow-publish counters)."""
     import numpy as np
     import rclpy
     from humanoid_reach_interfaces.msg import ExecutorMetrics
@@ -268,8 +266,8 @@ def _build(config: LoopConfig, out: queue.SimpleQueue):
 
     from humanoid_reach_ros.control.executor import WholeBodyExecutor
     from humanoid_reach_ros.execution.engines import DualArmEngine, TrajectoryEngine
-    from humanoid_reach_ros.execution.loop import ControlLoop, Outbox
-    from humanoid_reach_ros.execution.realtime import lock_memory, make_feeder_thread_realtime
+    from humanoid_reach_ros.execution.loop import ControlLoop
+    from humanoid_reach_ros.execution.realtime import lock_memory
     from humanoid_reach_ros.execution.supervisor import ExecutionSupervisor
     from humanoid_reach_ros.io import exec_msgs, msgs
     from humanoid_reach_ros.robot.model import RobotModel
@@ -305,33 +303,27 @@ def _build(config: LoopConfig, out: queue.SimpleQueue):
     clock = node.get_clock()
     counter = [0]
 
-    def publish(item) -> None:     # the outbox's thread
-        joints, metrics, overruns, stamp = item
+    slow = {"count": 0, "max_s": 0.0, "logged_at": -float("inf")}
+
+    def sink(joints, metrics, overruns) -> None:   # the tick thread
+        t0 = time.perf_counter()
+        stamp = clock.now().to_msg()
         command_pub.publish(msgs.fill_joint_state(command, joints, stamp=stamp))
         if metrics is not None:
             counter[0] += 1
             if counter[0] % config.metrics_decimation == 0:
                 metrics_pub.publish(exec_msgs.executor_metrics(metrics, overruns, stamp, config.map_frame))
-
-    slow_logged = [0, 0.0]         # lines so far, time of the last
-
-    def on_slow(seconds: float, backlog: int) -> None:
-        # a blocked DDS write: the first few, then at most one line every 10 s
-        now = time.monotonic()
-        if slow_logged[0] < SLOW_PUBLISH_LOGS or now - slow_logged[1] > 10.0:
-            slow_logged[0] += 1
-            slow_logged[1] = now
-            log("warning", f"publishing one command took {seconds * 1e3:.1f} ms (DDS write blocked: a subscriber "
-                           f"joining {config.command_topic} or {config.metrics_topic} does that); {backlog} commands "
-                           f"waited behind it and went out late, the control loop kept its deadlines "
-                           f"({outbox.slow} slow publishes so far)")
-
-    outbox = Outbox(publish, config.supervisor.period_s, on_slow=on_slow,
-                    set_priority=(lambda: make_feeder_thread_realtime(config.rt_priority))
-                    if config.rt_priority > 0 else None)
-
-    def sink(joints, metrics, overruns) -> None:   # the tick thread: hands over, never waits on DDS
-        outbox.put((joints, metrics, overruns, clock.now().to_msg()))
+        took = time.perf_counter() - t0
+        if took > config.supervisor.period_s:
+            # a DDS write that blocked (rclpy holds the interpreter lock meanwhile: the whole loop
+            # waited); the first few, then at most one line every 10 s
+            slow["count"] += 1
+            slow["max_s"] = max(slow["max_s"], took)
+            now = time.monotonic()
+            if slow["count"] <= SLOW_PUBLISH_LOGS or now - slow["logged_at"] > 10.0:
+                slow["logged_at"] = now
+                log("warning", f"publishing one command took {took * 1e3:.1f} ms: the DDS write blocked, and the "
+                               f"control loop with it (a write holds the interpreter lock); {slow['count']} so far")
 
     def on_finish(m) -> None:
         summary = m.summary(time.monotonic())
@@ -352,7 +344,7 @@ def _build(config: LoopConfig, out: queue.SimpleQueue):
     if config.lock_memory and config.rt_priority > 0:
         rt["memory"] = lock_memory()[1]
     rt.update(loop.start())
-    return loop, sup, node, rt, outbox
+    return loop, sup, node, rt, slow
 
 
 def _warm_up_cluttered(executor, robot) -> None:

@@ -593,7 +593,13 @@ def look(op: Operator, args: argparse.Namespace, text: TextIO, err: TextIO, summ
 
 # ---------------------------------------------------------------- look where the plan needs to see
 LOOK_START_GRACE_S = 5.0        # /look answered NO_JOINT_STATES: asked again for this long (a graph just up)
-AUTO_LOOK_SERVER_WAIT_S = 3.0   # an automatic look waits this long for /look before it gives up on looking
+AUTO_LOOK_SERVER_WAIT_S = 3.0   # an automatic look waits this long for /look before it gives up on looking ...
+EXECUTOR_NODE = "/reach_executor"       # ... unless this node is in the graph: then up to --timeout
+
+
+def executor_in_graph(node) -> bool:
+    """Whether discovery shows the ``EXECUTOR_NODE`` node."""
+    return any(f"{ns.rstrip('/')}/{name}" == EXECUTOR_NODE for name, ns in node.get_node_names_and_namespaces())
 def plan_with_looks(op: Operator, args: argparse.Namespace, req: Any, text: TextIO, err: TextIO,
                     summary: dict[str, Any]) -> tuple[Any | None, int]:
     """``/plan_reach``; while it answers UNOBSERVED_SPACE with the points where the target or the
@@ -619,7 +625,11 @@ def plan_with_looks(op: Operator, args: argparse.Namespace, req: Any, text: Text
             return resp, EXIT["success"]
         # a graph without an executor (a planner fed by a replayed bag) has nobody to look: say so at once
         # rather than wait --timeout for /look (discovery takes well under AUTO_LOOK_SERVER_WAIT_S here)
-        if not op.spin_until(op.look_client.server_is_ready, AUTO_LOOK_SERVER_WAIT_S):
+        if not op.spin_until(op.look_client.server_is_ready, AUTO_LOOK_SERVER_WAIT_S) and not (
+                executor_in_graph(op.node) and op.wait_for_server(op.look_client.server_is_ready, "/look",
+                                                                  "reach_executor")):
+            # (an executor node in the graph whose /look is not discovered yet is waited for, up to
+            # --timeout: on a busy machine the action's five endpoints took longer than 3 s)
             err.write(f"reach_operator: no /look server (is reach_executor running?): no automatic look at {where}\n")
             return resp, EXIT["success"]
         looks += 1
@@ -641,7 +651,6 @@ MARKER_DISCOVERY_S = 5.0     # a marker_localizer (a /target_pose publisher) get
 MARKER_DIAGNOSTICS_WAIT_S = 2.5   # then its diagnostics (1 Hz, the last marker position) this long at most
 MARKER_WAIT_S = 15.0         # after turning the head toward the marker: wait this long for a /target_pose
 MARKER_LOOK_DWELL_S = 0.1    # the head's hold there (the wait for the marker follows)
-EXECUTOR_NODE = "/reach_executor"
 
 
 def executor_parameters(op: Operator, names: list[str], timeout_s: float = 2.0) -> dict[str, Any]:
