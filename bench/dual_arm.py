@@ -82,7 +82,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from humanoid_reach_ros.machine import describe
+from humanoid_reach_ros.testing.machine import describe
 from humanoid_reach_ros.reach.balance import com_projection, polygon_margin, support_polygon, zmp_trajectory
 from humanoid_reach_ros.reach.controller import DualArmReachController, min_jerk
 from humanoid_reach_ros.reach.kinematics import HandTargets, rodrigues_interpolate

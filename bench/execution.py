@@ -40,7 +40,7 @@ import pinocchio as pin
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from humanoid_reach_ros.machine import describe as describe_machine  # noqa: E402
+from humanoid_reach_ros.testing.machine import describe as describe_machine  # noqa: E402
 from humanoid_reach_ros.control.executor import ExecutorParams, WholeBodyExecutor  # noqa: E402
 from humanoid_reach_ros.control.limits import warm_up as limits_warm_up  # noqa: E402
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree  # noqa: E402

@@ -35,7 +35,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from humanoid_reach_ros.machine import describe as describe_machine  # noqa: E402
+from humanoid_reach_ros.testing.machine import describe as describe_machine  # noqa: E402
 from humanoid_reach_ros.reach.fast_arms import CompiledArmIK  # noqa: E402
 from humanoid_reach_ros.robot import general_ik_compiled  # noqa: E402
 from humanoid_reach_ros.robot.general_ik import Chain6, GeneralLimbIK, RedundantLimbIK  # noqa: E402

@@ -36,7 +36,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 
-from humanoid_reach_ros.machine import describe as describe_machine  # noqa: E402
+from humanoid_reach_ros.testing.machine import describe as describe_machine  # noqa: E402
 from humanoid_reach_ros.robot.spec import robots  # noqa: E402
 
 PLANNER_PARAMS = REPO / "config" / "reach_planner.yaml"

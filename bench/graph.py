@@ -39,9 +39,9 @@ from humanoid_reach_ros.codes import ARM_NAMES
 from humanoid_reach_ros.demo import GRAPH_NODES, SIM_JOINT_STATES_ABORT_S, SIM_JOINT_STATES_TIMEOUT_S, Graph, \
     DemoClient, scan_plant, wait_marker
 from humanoid_reach_ros.graph import allocate_domain, graph_env
-from humanoid_reach_ros.graph_metrics import CpuSampler, log_lines_at_or_above, max_gap_ms, measured_balance, \
+from humanoid_reach_ros.testing.graph_metrics import CpuSampler, log_lines_at_or_above, max_gap_ms, measured_balance, \
     percentile
-from humanoid_reach_ros.machine import describe as machine
+from humanoid_reach_ros.testing.machine import describe as machine
 from humanoid_reach_ros.paths import config_path
 
 PRODUCT = tuple(n for n in GRAPH_NODES if n != "scene_sim")

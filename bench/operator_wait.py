@@ -35,7 +35,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from humanoid_reach_ros.machine import describe as describe_machine  # noqa: E402
+from humanoid_reach_ros.testing.machine import describe as describe_machine  # noqa: E402
 from humanoid_reach_ros.graph import NodeProcess, allocate_domain, graph_env, wait_for  # noqa: E402
 
 PLANNER_PARAMS = REPO / "config" / "reach_planner.yaml"

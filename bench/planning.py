@@ -37,7 +37,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from humanoid_reach_ros.machine import describe as describe_machine  # noqa: E402
+from humanoid_reach_ros.testing.machine import describe as describe_machine  # noqa: E402
 from humanoid_reach_ros.codes import ARM_NAMES  # noqa: E402
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree  # noqa: E402
 from humanoid_reach_ros.planning.goal_sampler import cog_errors, sample_goals  # noqa: E402

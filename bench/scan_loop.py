@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 from humanoid_reach_ros.graph import GRAPH_NODES, Graph, allocate_domain, graph_env
-from humanoid_reach_ros.machine import describe as describe_machine
+from humanoid_reach_ros.testing.machine import describe as describe_machine
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from session import executor_motion_overruns  # noqa: E402  (bench/session.py: the executor's outcome lines)

@@ -420,7 +420,7 @@ class Session:
 def session_drift(robot, series: np.ndarray, spans: list[tuple[int, int]]) -> dict[str, Any]:
     """bench/graph.py's measure (``graph_metrics.measured_balance``) over the whole session and,
     per step, over its samples, both against the session's first sample."""
-    from humanoid_reach_ros.graph_metrics import measured_balance
+    from humanoid_reach_ros.testing.graph_metrics import measured_balance
     if not len(series):
         return {"feet_drift_mm": None, "com_drift_mm": None, "per_step_feet_drift_mm": []}
     whole = measured_balance(robot, series)
@@ -612,7 +612,7 @@ def judge(figures: dict[str, Any]) -> dict[str, dict[str, Any]]:
 
 
 def summarize(sessions: list[dict[str, Any]]) -> dict[str, Any]:
-    from humanoid_reach_ros.graph_metrics import percentile
+    from humanoid_reach_ros.testing.graph_metrics import percentile
 
     steps = [st for s in sessions for st in s["steps"]]
     retreat_steps = [st for st in steps if st["retreat_expected"] or st["retreat"]]
@@ -667,7 +667,7 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:1] == ["--operator-child"]:
         rest = argv[2:]
         return operator_child(argv[1], rest[1:] if rest[:1] == ["--"] else rest)
-    from humanoid_reach_ros.machine import describe as machine
+    from humanoid_reach_ros.testing.machine import describe as machine
     from humanoid_reach_ros.robot.spec import robots
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

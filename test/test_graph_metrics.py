@@ -1,4 +1,4 @@
-"""The running-graph figures' arithmetic (humanoid_reach_ros/graph_metrics.py), without a graph."""
+"""The running-graph figures' arithmetic (humanoid_reach_ros/testing/graph_metrics.py), without a graph."""
 from __future__ import annotations
 
 import os
@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from humanoid_reach_ros.graph_metrics import (CpuSampler, cpu_seconds, log_lines_at_or_above, max_gap_ms,
+from humanoid_reach_ros.testing.graph_metrics import (CpuSampler, cpu_seconds, log_lines_at_or_above, max_gap_ms,
                                               measured_balance, nominal_com_in_sole, percentile, process_tree)
 
 

@@ -24,7 +24,7 @@ PKG_DIR = Path(__file__).resolve().parents[1] / PKG
 
 #: lowest first; units of one layer do not import each other
 LAYERS: list[tuple[str, ...]] = [
-    ("", "codes", "paths", "yaml_checks", "machine"),  # "" is the package itself (__init__: __version__)
+    ("", "codes", "paths", "yaml_checks"),  # "" is the package itself (__init__: __version__)
     ("robot",),
     ("geometry",),
     ("scene",),                          # the planning scene: the one world model
@@ -33,9 +33,10 @@ LAYERS: list[tuple[str, ...]] = [
     ("planning",),                       # smooth reshaping solves with control's HQP
     ("execution",),                      # supervisor and engines around control / reach / planning
     ("io",),                             # numpy <-> ROS messages, MCAP
-    ("graph", "graph_metrics"),          # process orchestration and figures of a running graph
+    ("graph",),                          # process orchestration (the demo's and hr_graph's)
     ("nodes",),                          # thin rclpy nodes (and the executor's loop process)
     ("demo", "warmup", "graph_up"),      # whole-package entry points (graph_up: hr_graph)
+    ("testing",),                        # tooling of tests and benches: nothing above imports it
 ]
 RANK = {unit: i for i, layer in enumerate(LAYERS) for unit in layer}
 CORE = ("robot", "geometry", "scene", "perception", "reach", "sim", "control", "planning", "execution")
@@ -200,10 +201,19 @@ def test_imports_point_down_the_layers() -> None:
 
 def test_core_never_imports_io_nodes_or_entry_points() -> None:
     _, edges = import_graph()
-    top = {"io", "nodes", "graph", "graph_metrics", "demo", "warmup"}
+    top = {"io", "nodes", "graph", "demo", "warmup", "testing"}
     bad = [e for e in edges if unit(e.importer) in CORE and unit(e.imported) in top]
     assert not bad, "\n".join(map(str, bad))
     assert not [e for e in edges if unit(e.importer) == "control" and unit(e.imported) == "planning"]
+
+
+def test_the_product_never_imports_the_testing_tools() -> None:
+    """``humanoid_reach_ros.testing`` (figures of a running graph, the machine's description) is
+    for tests, benches and tools: no other module of the package imports it."""
+    _, edges = import_graph()
+    bad = [e for e in edges if unit(e.importer) != "testing" and unit(e.imported) == "testing"]
+    assert not bad, "\n".join(map(str, bad))
+    assert "testing" in RANK and RANK["testing"] == len(LAYERS) - 1
 
 
 def test_core_never_imports_rclpy_or_messages() -> None:

@@ -38,7 +38,7 @@ sys.path.insert(0, str(REPO))
 
 import problem as PB  # noqa: E402
 import report  # noqa: E402
-from humanoid_reach_ros.machine import describe as describe_machine  # noqa: E402
+from humanoid_reach_ros.testing.machine import describe as describe_machine  # noqa: E402
 from humanoid_reach_ros.codes import ARM_NAMES  # noqa: E402
 from humanoid_reach_ros.planning.goal_sampler import sample_goals  # noqa: E402
 from humanoid_reach_ros.planning.path import ShortcutOptions, plan as run_planner, shortcut_path  # noqa: E402
