@@ -33,20 +33,31 @@ def test_config_matches_declared_defaults() -> None:
 
 
 # ---------------------------------------------------------------- parsers
-def test_intrinsics_from_camera_info() -> None:
+def test_camera_info_is_converted_once_and_checked() -> None:
+    """One CameraInfo conversion for every node (io/msgs.py: camera_calibration, camera_info):
+    a round trip keeps K, D, R, P and the size; unusable ones are refused with the reason."""
     cam = C.PinholeCamera.from_fov(64, 48, 1.0)
     good = camera_info_msg(cam, "c", None)
-    np.testing.assert_allclose(ML.intrinsics_from_camera_info(good).K, cam.K)
+    cal = msgs.camera_calibration(good)
+    np.testing.assert_allclose(cal.K, cam.K)
+    assert cal.size == (64, 48) and cal.D.shape == (5,) and good.distortion_model == "plumb_bob"
+    assert msgs.camera_calibration(msgs.camera_info(cal, "c")) == cal
+    right = msgs.camera_calibration(camera_info_msg(cam, "c", None, tx_m=0.1))
+    assert right.P[0, 3] == pytest.approx(-cam.fx * 0.1) and right != cal
     zero = camera_info_msg(cam, "c", None)
     zero.k[0] = 0.0
     with pytest.raises(ValueError, match="focal lengths must be > 0"):
-        ML.intrinsics_from_camera_info(zero)
+        msgs.camera_calibration(zero)
     nan = camera_info_msg(cam, "c", None)
     nan.k[4] = math.nan
     with pytest.raises(ValueError, match="non-finite"):
-        ML.intrinsics_from_camera_info(nan)
+        msgs.camera_calibration(nan)
     with pytest.raises(ValueError, match="empty"):
-        ML.intrinsics_from_camera_info(CameraInfo(k=list(cam.K.ravel())))
+        msgs.camera_calibration(CameraInfo(k=list(cam.K.ravel())))
+    odd = camera_info_msg(cam, "c", None)
+    odd.d = [0.0] * 3
+    with pytest.raises(ValueError, match="3 distortion coefficients"):
+        msgs.camera_calibration(odd)
 
 
 # ---------------------------------------------------------------- node tests

@@ -112,12 +112,16 @@ def test_bad_input(plane_pair) -> None:
                 dict(min_depth_m=5.0, max_depth_m=1.0)):
         with pytest.raises(ValueError):
             StereoMatcher(cal, StereoParams(**bad))
-    info = {"K": cal.K1, "D": cal.D1, "R": cal.R1, "P": cal.P1, "size": cal.size}
-    right = {"K": cal.K2, "D": cal.D2, "R": cal.R2, "P": cal.P2, "size": cal.size}
+    from humanoid_reach_ros.geometry.camera import CameraCalibration
+    w, h = cal.size
+    info = CameraCalibration(w, h, cal.K1, cal.D1, cal.R1, cal.P1)
+    right = CameraCalibration(w, h, cal.K2, cal.D2, cal.R2, cal.P2)
     assert StereoCalibration.from_camera_infos(info, right) == cal
     with pytest.raises(ValueError, match="baseline"):
         StereoCalibration.from_camera_infos(info, info)
     with pytest.raises(ValueError, match="sizes"):
-        StereoCalibration.from_camera_infos(info, {**right, "size": (320, 240)})
+        StereoCalibration.from_camera_infos(info, CameraCalibration(320, 240, cal.K2, cal.D2, cal.R2, cal.P2))
     with pytest.raises(ValueError, match="focal"):
-        StereoCalibration.from_camera_infos({**info, "K": np.zeros((3, 3))}, right)
+        StereoCalibration.from_camera_infos(CameraCalibration(w, h, cal.K1, cal.D1, cal.R1, np.zeros((3, 4))), right)
+    with pytest.raises(ValueError, match="focal"):
+        CameraCalibration(w, h, np.zeros((3, 3)), cal.D1, cal.R1, cal.P1)

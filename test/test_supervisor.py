@@ -399,3 +399,29 @@ def test_an_overrun_says_what_the_solver_was_doing() -> None:
     m = h.sup.motion or h.finished[0]
     assert m.overruns > OVERRUN_LOGS_PER_MOTION
 
+
+
+def test_a_slow_step_is_logged_with_what_its_thread_did() -> None:
+    """A step longer than SLOW_STEP_PERIODS periods is logged with the solver thread's CPU time,
+    page faults, waits and preemptions: a step that computes (a first call) and one that waits
+    (the interpreter lock, the CPU) read differently."""
+    import time
+
+    from humanoid_reach_ros.execution.supervisor import SLOW_STEP_PERIODS
+    h = Harness()
+    logs: list[str] = []
+    h.sup.log = lambda level, text: logs.append(text)
+    engine_step = h.engine.step
+
+    def slow_step(t):
+        if len(h.engine.times) == 4:
+            time.sleep(SLOW_STEP_PERIODS * DT + 0.01)      # waits: little CPU
+        return engine_step(t)
+    h.engine.step = slow_step
+    h.sup.submit(h.motion(1, duration=0.1))
+    for _ in range(10):
+        h.cycle()
+    slow = [t for t in logs if "took" in t]
+    assert len(slow) == 1 and "m1: step 5 took" in slow[0] and "ms of the solver thread's CPU" in slow[0], logs
+    cpu = float(slow[0].split("took ")[1].split(" ms: ")[1].split(" ms")[0])
+    assert cpu < SLOW_STEP_PERIODS * DT * 1e3, slow[0]     # it slept: the wall time is not CPU time

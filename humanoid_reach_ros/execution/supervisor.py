@@ -42,7 +42,9 @@ once per motion (``motion.code`` is an
 from __future__ import annotations
 
 import math
+import resource
 import threading
+import time
 import traceback
 from collections import deque
 from dataclasses import dataclass, field
@@ -55,6 +57,18 @@ from humanoid_reach_ros.execution.engines import StepOutcome
 
 IDLE, RUN, SETTLE, HOLD = "idle", "running", "settling", "holding"
 OVERRUN_LOGS_PER_MOTION = 3           # an overrun logs why (what the solver was doing); at most this many per motion
+
+
+SLOW_STEP_PERIODS = 2.0               # a step longer than this many periods is logged with its thread's usage ...
+SLOW_STEP_LOGS = 5                    # ... the first few of the process, then every 100th
+
+
+def _thread_usage():
+    """The calling thread's ``getrusage`` (Linux), else None."""
+    try:
+        return resource.getrusage(resource.RUSAGE_THREAD)
+    except (AttributeError, OSError):
+        return None
 
 
 def _describe(command: tuple) -> str:
@@ -144,7 +158,6 @@ class ExecutionSupervisor:
                  on_finish: Callable[[Motion], None] | None = None,
                  on_start: Callable[[Motion], None] | None = None,
                  log: Callable[[str, str], None] | None = None) -> None:
-        import time
         self.engines = {"executor": trajectory_engine}
         if dual_engine is not None:
             self.engines["dual"] = dual_engine
@@ -175,6 +188,7 @@ class ExecutionSupervisor:
         # what the solver side is doing and since when (clock): an overrun says what it waited on
         self._busy: tuple[Any, float] | None = None
         self._last_work_end = math.nan
+        self._slow_steps = 0
 
     # ------------------------------------------------------------ inputs (any thread)
     def submit(self, motion: Motion) -> None:
@@ -421,10 +435,14 @@ class ExecutionSupervisor:
             last = self._ready[-1][1].metrics if self._ready else (motion.last if motion is not None else None)
             t = self._step_time(motion, ahead) if self.mode == RUN else None
         self._busy = (("step", motion, ahead), self.clock())   # formatted only by an overrun's report
+        w0, r0 = time.perf_counter(), _thread_usage()
         if engine == "executor":
             result = self.engines["executor"].step(t)
         else:
             result = self.engines["dual"].step(t, (motion.steps if motion is not None else 0) + ahead, last)
+        wall = time.perf_counter() - w0
+        if wall > SLOW_STEP_PERIODS * self.config.period_s:
+            self._report_slow_step(motion, ahead, wall, r0, _thread_usage())
         with self._cond:
             if motion is self.motion and self.mode in (RUN, SETTLE):
                 self._ready.append((motion, result))
@@ -484,6 +502,24 @@ class ExecutionSupervisor:
             self.log("warning", late)
         if out is not None:
             self.sink(*out)
+
+    def _report_slow_step(self, motion: Motion | None, ahead: int, wall: float, r0, r1) -> None:
+        """A step that took longer than ``SLOW_STEP_PERIODS`` periods: wall time, the solver
+        thread's own CPU time, page faults and context switches (computed, or waited: for the
+        interpreter lock, the CPU, memory). The first ``SLOW_STEP_LOGS``, then every 100th."""
+        self._slow_steps += 1
+        if self._slow_steps > SLOW_STEP_LOGS and self._slow_steps % 100:
+            return
+        label = motion.label if motion is not None else "the hold"
+        n = (motion.steps if motion is not None else 0) + ahead + 1
+        if r0 is None or r1 is None:
+            usage = ""
+        else:
+            usage = (f": {1e3 * (r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime):.1f} ms of the solver "
+                     f"thread's CPU, {r1.ru_minflt - r0.ru_minflt} page faults, {r1.ru_nvcsw - r0.ru_nvcsw} waits, "
+                     f"{r1.ru_nivcsw - r0.ru_nivcsw} preemptions")
+        self.log("warning", f"{label}: step {n} took {wall * 1e3:.1f} ms{usage} ({self._slow_steps} slow steps "
+                            f"so far)")
 
     def _overrun_report(self, motion: Motion) -> str:
         """Why the step of this deadline is not ready (caller holds the lock): what the solver

@@ -74,6 +74,63 @@ class PinholeCamera:
 _RAY_CACHE: dict[PinholeCamera, np.ndarray] = {}
 
 
+#: the distortion vector lengths OpenCV takes (and camera_info's plumb_bob / rational_polynomial)
+DISTORTION_SIZES = (0, 4, 5, 8, 12, 14)
+
+
+@dataclass(frozen=True, eq=False)
+class CameraCalibration:
+    """One camera's calibration with ``sensor_msgs/CameraInfo`` semantics: image size [px],
+    intrinsics ``K`` (3x3), distortion ``D``, rectifying rotation ``R`` (3x3) and rectified
+    projection ``P`` (3x4; a right stereo camera's ``P[0, 3] = -fx B``). ``ValueError`` for an
+    empty image, non-finite values, a non-positive focal length in ``K`` or a distortion
+    vector OpenCV does not take. The one conversion of a camera_info: ``io/msgs.py``
+    (``camera_calibration``, ``camera_info``) turns messages into it and back."""
+
+    width: int
+    height: int
+    K: np.ndarray
+    D: np.ndarray
+    R: np.ndarray
+    P: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "K", np.asarray(self.K, float).reshape(3, 3))
+        object.__setattr__(self, "D", np.asarray(self.D, float).ravel())
+        object.__setattr__(self, "R", np.asarray(self.R, float).reshape(3, 3))
+        object.__setattr__(self, "P", np.asarray(self.P, float).reshape(3, 4))
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"camera_info image size {self.width} x {self.height} is empty")
+        for name in ("K", "D", "R", "P"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise ValueError(f"camera_info {name} has non-finite values")
+        if not (self.K[0, 0] > 0.0 and self.K[1, 1] > 0.0):
+            raise ValueError(f"camera_info focal lengths must be > 0 (fx {self.K[0, 0]}, fy {self.K[1, 1]})")
+        if self.D.size not in DISTORTION_SIZES:
+            raise ValueError(f"camera_info has {self.D.size} distortion coefficients (OpenCV takes 4, 5, 8, 12 "
+                             "or 14)")
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) [px]."""
+        return (int(self.width), int(self.height))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, CameraCalibration):
+            return NotImplemented
+        return self.size == other.size and all(np.array_equal(getattr(self, k), getattr(other, k))
+                                               for k in ("K", "D", "R", "P"))
+
+    @classmethod
+    def pinhole(cls, camera: PinholeCamera, tx_m: float = 0.0) -> "CameraCalibration":
+        """A distortion-free pinhole camera (5 zero plumb_bob coefficients); ``tx_m`` is the
+        stereo offset B of a right camera (``P[0, 3] = -fx B``)."""
+        P = np.zeros((3, 4))
+        P[:, :3] = camera.K
+        P[0, 3] = -camera.fx * tx_m
+        return cls(camera.width, camera.height, camera.K, np.zeros(5), np.eye(3), P)
+
+
 def _rays_cached(cam: PinholeCamera) -> np.ndarray:
     if cam not in _RAY_CACHE:
         if len(_RAY_CACHE) > 8:
@@ -104,4 +161,4 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0
     return T
 
 
-__all__ = ["PinholeCamera", "look_at"]
+__all__ = ["PinholeCamera", "CameraCalibration", "DISTORTION_SIZES", "look_at"]

@@ -20,8 +20,10 @@ import pinocchio as pin
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose, PoseStamped
-from sensor_msgs.msg import Image, JointState
+from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_msgs.msg import Header
+
+from humanoid_reach_ros.geometry.camera import CameraCalibration
 
 if TYPE_CHECKING:  # pragma: no cover
     from humanoid_reach_ros.robot.model import RobotModel
@@ -232,6 +234,22 @@ def image_msg(img: np.ndarray, encoding: str, frame_id: str, stamp: Time | None 
 
 
 # ---------------------------------------------------------------- poses
+def camera_calibration(msg: CameraInfo) -> CameraCalibration:
+    """A ``sensor_msgs/CameraInfo`` as a validated :class:`~humanoid_reach_ros.geometry.camera.
+    CameraCalibration` (``ValueError`` with the reason for an unusable one)."""
+    return CameraCalibration(int(msg.width), int(msg.height), np.asarray(msg.k, float), np.asarray(msg.d, float),
+                             np.asarray(msg.r, float), np.asarray(msg.p, float))
+
+
+def camera_info(cal: CameraCalibration, frame_id: str, stamp: Time | None = None) -> CameraInfo:
+    """The ``sensor_msgs/CameraInfo`` of ``cal`` (plumb_bob for 5 coefficients, else
+    rational_polynomial)."""
+    return CameraInfo(header=header(frame_id, stamp), height=cal.height, width=cal.width,
+                      distortion_model="plumb_bob" if cal.D.size <= 5 else "rational_polynomial",
+                      d=cal.D.tolist(), k=cal.K.ravel().tolist(), r=cal.R.ravel().tolist(),
+                      p=cal.P.ravel().tolist())
+
+
 def pose_from_se3(pose: pin.SE3) -> Pose:
     """``geometry_msgs/Pose`` from ``pin.SE3`` (quaternion x, y, z, w)."""
     x, y, z, qx, qy, qz, qw = (float(v) for v in pin.SE3ToXYZQUAT(pose))

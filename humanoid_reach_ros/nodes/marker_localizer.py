@@ -40,7 +40,6 @@ import math
 import sys
 import time
 from collections import Counter
-from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
@@ -51,6 +50,7 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, JointState
 
+from humanoid_reach_ros.geometry.camera import CameraCalibration
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes.common import LatestOnDemand, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.perception.markers import (JointStateBuffer, MarkerDetector, camera_pose, same_camera_pose,
@@ -100,31 +100,6 @@ PARAMETERS: dict[str, ParamSpec] = {
 
 
 # ---------------------------------------------------------------- message parsers
-@dataclass(frozen=True)
-class Intrinsics:
-    """What a ``CameraInfo`` contributes: image size, K (3x3), distortion coefficients."""
-
-    width: int
-    height: int
-    K: np.ndarray
-    D: np.ndarray
-
-
-def intrinsics_from_camera_info(msg: CameraInfo) -> Intrinsics:
-    """``ValueError`` for a zero image size, non-finite values or a non-positive focal length."""
-    K = np.asarray(msg.k, dtype=float).reshape(3, 3)
-    D = np.asarray(msg.d, dtype=float).ravel()
-    if msg.width <= 0 or msg.height <= 0:
-        raise ValueError(f"camera_info image size {msg.width} x {msg.height} is empty")
-    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D))):
-        raise ValueError("camera_info K or D has non-finite values")
-    if not (K[0, 0] > 0.0 and K[1, 1] > 0.0):
-        raise ValueError(f"camera_info focal lengths must be > 0 (fx {K[0, 0]}, fy {K[1, 1]})")
-    if D.size not in (0, 4, 5, 8, 12, 14):
-        raise ValueError(f"camera_info has {D.size} distortion coefficients (OpenCV takes 4, 5, 8, 12 or 14)")
-    return Intrinsics(int(msg.width), int(msg.height), K, D)
-
-
 def hand_marker_setup(ids, orientation: str, workspace_yaml: str, known) -> tuple[tuple[int, int] | None, object]:
     """Checks the dual-arm hand marker parameters: ``(None, None)`` when off (``[-1, -1]``),
     else ``((right_id, left_id), ReachWorkspace or None)``; ``ValueError`` with the reason."""
@@ -180,7 +155,7 @@ class MarkerLocalizer(Node):
         self.model.frame_id(p["camera_frame_id"])  # KeyError for a frame the URDF lacks
         self.hardware_id = self.model.name + " head camera"
         self.joints = JointStateBuffer(p["joint_buffer_s"])
-        self.intrinsics: Intrinsics | None = None
+        self.intrinsics: CameraCalibration | None = None
         self._info_stamp_s = -math.inf
         self.counts: Counter[str] = Counter()   # images, localized, no_marker, skipped, rejected, ...
         self.last_skip_reason = ""
@@ -240,7 +215,7 @@ class MarkerLocalizer(Node):
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         try:
-            self.intrinsics = intrinsics_from_camera_info(msg)
+            self.intrinsics = msgs.camera_calibration(msg)
             self._info_stamp_s = msgs.seconds_from_time(msg.header.stamp)
         except ValueError as exc:
             self._skip("camera_info", str(exc))

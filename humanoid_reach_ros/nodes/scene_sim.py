@@ -48,6 +48,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, JointState, PointCloud2
 
+from humanoid_reach_ros.geometry.camera import CameraCalibration
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes.common import LatestOnDemand, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.paths import config_path
@@ -104,13 +105,7 @@ PARAMETERS: dict[str, ParamSpec] = {
 def camera_info_msg(camera: cam.PinholeCamera, frame_id: str, stamp, tx_m: float = 0.0) -> CameraInfo:
     """``sensor_msgs/CameraInfo`` of a distortion-free pinhole camera; ``tx_m`` is the
     stereo offset B of a right camera (P[0, 3] = -fx B)."""
-    K = camera.K
-    P = np.zeros((3, 4))
-    P[:, :3] = K
-    P[0, 3] = -camera.fx * tx_m
-    return CameraInfo(header=msgs.header(frame_id, stamp), height=camera.height, width=camera.width,
-                      distortion_model="plumb_bob", d=[0.0] * 5, k=K.ravel().tolist(),
-                      r=np.eye(3).ravel().tolist(), p=P.ravel().tolist())
+    return msgs.camera_info(CameraCalibration.pinhole(camera, tx_m), frame_id, stamp)
 
 
 class SceneSim(Node):

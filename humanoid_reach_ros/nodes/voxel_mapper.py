@@ -185,13 +185,6 @@ def cube_list_marker(centres: np.ndarray, size_m: float, frame_id: str, stamp, n
     return m
 
 
-def camera_info_arrays(info: CameraInfo) -> dict[str, np.ndarray]:
-    """K, D, R, P and the image size of a ``sensor_msgs/CameraInfo`` as numpy arrays."""
-    return {"K": np.asarray(info.k, float).reshape(3, 3), "D": np.asarray(info.d, float).ravel(),
-            "R": np.asarray(info.r, float).reshape(3, 3), "P": np.asarray(info.p, float).reshape(3, 4),
-            "size": (int(info.width), int(info.height))}
-
-
 @dataclass
 class MapperCounters:
     """What happened to the inputs (diagnostics)."""
@@ -428,7 +421,8 @@ class VoxelMapperNode(Node):
     def _stereo_job(self, item: tuple) -> Job | None:
         left, right, info_l, info_r = item
         try:
-            calib = StereoCalibration.from_camera_infos(camera_info_arrays(info_l), camera_info_arrays(info_r))
+            calib = StereoCalibration.from_camera_infos(msgs.camera_calibration(info_l),
+                                                        msgs.camera_calibration(info_r))
             if self.stereo is None or self.stereo.calibration != calib:
                 self.stereo = StereoMatcher(calib, self._stereo_params)
             gl, gr = msgs.gray_from_image(left), msgs.gray_from_image(right)

@@ -44,6 +44,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from humanoid_reach_ros.geometry.camera import CameraCalibration
+
 #: StereoSGBM disparities are fixed point with 4 fractional bits
 _DISP_SCALE = 16.0
 
@@ -119,26 +121,15 @@ class StereoCalibration:
                     or not np.allclose(self.P2[:, :3], self.K2))
 
     @staticmethod
-    def from_camera_infos(left: dict, right: dict) -> "StereoCalibration":
-        """From two camera_infos as arrays (``K`` 3x3, ``D``, ``R`` 3x3, ``P`` 3x4, ``size``);
-        ``ValueError`` for an inconsistent or non-stereo pair."""
+    def from_camera_infos(left: CameraCalibration, right: CameraCalibration) -> "StereoCalibration":
+        """From the two cameras' calibrations (each validated already: size, finite values,
+        focal lengths); ``ValueError`` for a pair that is not a rectified stereo pair."""
         for side, info in (("left", left), ("right", right)):
-            for key in ("K", "R", "P"):
-                a = np.asarray(info[key], float)
-                if not np.all(np.isfinite(a)):
-                    raise ValueError(f"{side} camera_info {key} has non-finite entries")
-            if np.asarray(info["K"])[0, 0] <= 0.0 or np.asarray(info["P"])[0, 0] <= 0.0:
-                raise ValueError(f"{side} camera_info has no focal length (K/P all zero?)")
-            w, h = info["size"]
-            if w <= 0 or h <= 0:
-                raise ValueError(f"{side} camera_info has image size {w}x{h}")
-        if tuple(left["size"]) != tuple(right["size"]):
-            raise ValueError(f"left and right image sizes differ: {left['size']} vs {right['size']}")
-        cal = StereoCalibration(np.asarray(left["K"], float), np.asarray(left["D"], float).ravel(),
-                                np.asarray(left["R"], float), np.asarray(left["P"], float),
-                                np.asarray(right["K"], float), np.asarray(right["D"], float).ravel(),
-                                np.asarray(right["R"], float), np.asarray(right["P"], float),
-                                (int(left["size"][0]), int(left["size"][1])))
+            if not info.P[0, 0] > 0.0:
+                raise ValueError(f"{side} camera_info has no focal length in P (P all zero?)")
+        if left.size != right.size:
+            raise ValueError(f"left and right image sizes differ: {left.size} vs {right.size}")
+        cal = StereoCalibration(left.K, left.D, left.R, left.P, right.K, right.D, right.R, right.P, left.size)
         if not cal.baseline_m > 0.0:
             raise ValueError(f"right camera_info P[0, 3] = {cal.P2[0, 3]} gives baseline {cal.baseline_m} m: "
                              "expected Tx = -fx B < 0 (right camera along +x of the left)")
