@@ -69,7 +69,7 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "hold_timeout_s": ParamSpec(1.0, "republish the held command this long after a motion [s], then stop "
                                 "publishing (the joint driver holds its last command; the loop sleeps until the "
                                 "next motion); 0 = republish until the next motion", (0.0, 1e6)),
-    "lookahead_steps": ParamSpec(3, "the solver computes this many steps before their deadlines (1: only the "
+    "lookahead_steps": ParamSpec(4, "the solver computes this many steps before their deadlines (1: only the "
                                  "next one); each one more absorbs a longer stall of the loop's threads at the "
                                  "cost of one period more before a stop or a new map reaches the command",
                                  (1, 8)),
