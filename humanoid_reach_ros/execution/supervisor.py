@@ -57,8 +57,6 @@ from humanoid_reach_ros.execution.engines import StepOutcome
 
 IDLE, RUN, SETTLE, HOLD = "idle", "running", "settling", "holding"
 OVERRUN_LOGS_PER_MOTION = 3           # an overrun logs why (what the solver was doing); at most this many per motion
-
-
 SLOW_STEP_PERIODS = 2.0               # a step longer than this many periods is logged with its thread's usage ...
 SLOW_STEP_LOGS = 5                    # ... the first few of the process, then every 100th
 
@@ -69,6 +67,12 @@ def _thread_usage():
         return resource.getrusage(resource.RUSAGE_THREAD)
     except (AttributeError, OSError):
         return None
+
+
+def _step_of(motion, ahead: int) -> tuple[int, str]:
+    """(number, motion label) of the step computed ``ahead`` steps past the motion's last
+    published one ("the hold" without a motion)."""
+    return (motion.steps if motion is not None else 0) + ahead + 1, motion.label if motion is not None else "the hold"
 
 
 def _describe(command: tuple) -> str:
@@ -510,14 +514,13 @@ class ExecutionSupervisor:
         self._slow_steps += 1
         if self._slow_steps > SLOW_STEP_LOGS and self._slow_steps % 100:
             return
-        label = motion.label if motion is not None else "the hold"
-        n = (motion.steps if motion is not None else 0) + ahead + 1
         if r0 is None or r1 is None:
             usage = ""
         else:
             usage = (f": {1e3 * (r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime):.1f} ms of the solver "
                      f"thread's CPU, {r1.ru_minflt - r0.ru_minflt} page faults, {r1.ru_nvcsw - r0.ru_nvcsw} waits, "
                      f"{r1.ru_nivcsw - r0.ru_nivcsw} preemptions")
+        n, label = _step_of(motion, ahead)
         self.log("warning", f"{label}: step {n} took {wall * 1e3:.1f} ms{usage} ({self._slow_steps} slow steps "
                             f"so far)")
 
@@ -529,9 +532,8 @@ class ExecutionSupervisor:
         if busy is not None:
             what = busy[0]
             if isinstance(what, tuple):     # ("step", motion, ahead)
-                m, ahead = what[1], what[2]
-                what = (f"computing step {(m.steps if m is not None else 0) + ahead + 1}"
-                        + (f" of {m.label}" if m is not None else " of the hold"))
+                n, label = _step_of(what[1], what[2])
+                what = f"computing step {n} of {label}"
             doing = f"the solver has been {what} for {(now - busy[1]) * 1e3:.1f} ms"
         elif math.isfinite(self._last_work_end):
             doing = (f"the solver is waiting (last work ended {(now - self._last_work_end) * 1e3:.1f} ms ago: "

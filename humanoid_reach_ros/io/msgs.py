@@ -233,7 +233,7 @@ def image_msg(img: np.ndarray, encoding: str, frame_id: str, stamp: Time | None 
                  step=w * channels, data=np.ascontiguousarray(img, dtype=np.uint8).tobytes())
 
 
-# ---------------------------------------------------------------- poses
+# ---------------------------------------------------------------- cameras
 def camera_calibration(msg: CameraInfo) -> CameraCalibration:
     """A ``sensor_msgs/CameraInfo`` as a validated :class:`~humanoid_reach_ros.geometry.camera.
     CameraCalibration` (``ValueError`` with the reason for an unusable one)."""
@@ -250,6 +250,8 @@ def camera_info(cal: CameraCalibration, frame_id: str, stamp: Time | None = None
                       p=cal.P.ravel().tolist())
 
 
+
+# ---------------------------------------------------------------- poses
 def pose_from_se3(pose: pin.SE3) -> Pose:
     """``geometry_msgs/Pose`` from ``pin.SE3`` (quaternion x, y, z, w)."""
     x, y, z, qx, qy, qz, qw = (float(v) for v in pin.SE3ToXYZQUAT(pose))

@@ -600,6 +600,8 @@ EXECUTOR_NODE = "/reach_executor"       # ... unless this node is in the graph: 
 def executor_in_graph(node) -> bool:
     """Whether discovery shows the ``EXECUTOR_NODE`` node."""
     return any(f"{ns.rstrip('/')}/{name}" == EXECUTOR_NODE for name, ns in node.get_node_names_and_namespaces())
+
+
 def plan_with_looks(op: Operator, args: argparse.Namespace, req: Any, text: TextIO, err: TextIO,
                     summary: dict[str, Any]) -> tuple[Any | None, int]:
     """``/plan_reach``; while it answers UNOBSERVED_SPACE with the points where the target or the
