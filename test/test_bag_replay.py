@@ -209,6 +209,7 @@ def test_operator_md_replay_recipe_maps_localizes_and_plans(start_node, ros_env,
     cmds = operator_md_replay_recipe()
     assert [c[0] for c in cmds] == ["voxel_mapper", "reach_planner", "hr_play", "reach_operator"], cmds
     assert cmds[0][-1] == cmds[1][-1] == cmds[2][-1] == "&" and "--loop" in cmds[2] and cmds[3][-1] != "&"
+    assert "--no-auto-look" in cmds[3]   # no executor in this graph: nobody to look (else a --timeout wait for /look)
     assert cmds[0][-2] == MAPPER_PARAMS, cmds[0]
     side = yaml.safe_load(SIDE.read_text())
     truth = side["ground_truth"]["valve"]
@@ -296,7 +297,7 @@ def test_operator_md_replay_recipe_maps_localizes_and_plans(start_node, ros_env,
         # planner's 2 s budget (fresh clone, CI: three tries in a row NO_PATH, both arms out of time).
         # Asked again until a generous deadline: exit 5 (no motion: NO_PATH / NO_GOAL_FOUND) or 6
         # (a budget spent with the frontier as an obstacle, then a 1 s plan through it, is answered
-        # UNOBSERVED_SPACE; with no executor in this graph nobody looks).
+        # UNOBSERVED_SPACE; with no executor in this graph, --no-auto-look).
         t_checked = time.monotonic()
         tries: list[subprocess.CompletedProcess] = []
         deadline = time.monotonic() + 240.0

@@ -38,6 +38,7 @@ from std_msgs.msg import String
 from humanoid_reach_ros.execution.realtime import (REALTIME_SWITCH_INTERVAL_S, make_feeder_thread_realtime,
                                                    make_thread_realtime)
 from humanoid_reach_ros.io import msgs
+from humanoid_reach_ros.io.gil_free import GilFreePublisher
 from humanoid_reach_ros.nodes.common import LATCHED, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
@@ -107,6 +108,10 @@ class JointDriver(Node):
         self.base_pose_pub = self.create_publisher(PoseStamped, "base_pose", reliable10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", reliable10)
         self.description_pub = self.create_publisher(String, "robot_description", LATCHED)
+        # the loop's two writes release the interpreter lock (io/gil_free.py): one that blocks in DDS
+        # no longer stops the thread that takes /joint_command
+        self._joint_states_out = GilFreePublisher(self.joint_states_pub)
+        self._base_pose_out = GilFreePublisher(self.base_pose_pub)
         # a command history of a second: a loop that stood still (a DDS write held it 333 ms, and the
         # interpreter lock with it) finds every command since, and plays them through in order
         # (JointSimulator's burst) rather than cutting across the ones a 10-deep history lost
@@ -151,7 +156,8 @@ class JointDriver(Node):
             f"(period {self.period_s * 1e3:.1f} ms), initial posture {posture!r}, velocity scale "
             f"{self.sim.velocity_scale:g}, tracking tau {self.sim.time_constant_s * 1e3:.1f} ms, "
             f"command timeout {self.command_timeout_s:g} s; publishing joint_states, base_pose, "
-            f"robot_description, /diagnostics; listening on joint_command"
+            f"robot_description, /diagnostics (the loop's writes {self._joint_states_out.mode}); listening on "
+            f"joint_command"
         )
 
     # ------------------------------------------------------------ callbacks
@@ -233,12 +239,12 @@ class JointDriver(Node):
             stamp = self.get_clock().now().to_msg()
             js = msgs.fill_joint_state(self._joint_state, self.sim.q, self.sim.dq, stamp)
             odom = self.sim.odometry()
-        self.joint_states_pub.publish(js)
+        self._joint_states_out.publish(js)
         if self._pose_msg is None or self._pose_key != odom.base.translation.tobytes() + odom.base.rotation.tobytes():
             self._pose_msg = msgs.pose_stamped(odom.base, self.world_frame_id, stamp)   # standing still: reused
             self._pose_key = odom.base.translation.tobytes() + odom.base.rotation.tobytes()
         self._pose_msg.header.stamp = stamp
-        self.base_pose_pub.publish(self._pose_msg)
+        self._base_pose_out.publish(self._pose_msg)
         self._window["max_tick_s"] = max(self._window["max_tick_s"], time.monotonic() - t)
 
     def _new_window(self) -> dict[str, float]:

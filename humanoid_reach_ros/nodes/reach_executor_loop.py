@@ -270,6 +270,7 @@ def _build(config: LoopConfig, out: queue.SimpleQueue):
     from humanoid_reach_ros.execution.realtime import lock_memory
     from humanoid_reach_ros.execution.supervisor import ExecutionSupervisor
     from humanoid_reach_ros.io import exec_msgs, msgs
+    from humanoid_reach_ros.io.gil_free import GilFreePublisher
     from humanoid_reach_ros.robot.model import RobotModel
     from humanoid_reach_ros.robot.shapes import load_collision_model
 
@@ -297,8 +298,10 @@ def _build(config: LoopConfig, out: queue.SimpleQueue):
                **({"domain_id": config.domain_id} if config.domain_id is not None else {}))
     node = rclpy.create_node(config.node_name, namespace=config.namespace, start_parameter_services=False,
                              use_global_arguments=False)
-    command_pub = node.create_publisher(JointState, config.command_topic, 10)
-    metrics_pub = node.create_publisher(ExecutorMetrics, config.metrics_topic, 10)
+    # the tick thread's writes release the interpreter lock (io/gil_free.py): a DDS write that
+    # blocks holds up the tick thread only, never the solver
+    command_pub = GilFreePublisher(node.create_publisher(JointState, config.command_topic, 10))
+    metrics_pub = GilFreePublisher(node.create_publisher(ExecutorMetrics, config.metrics_topic, 10))
     command = msgs.joint_state(robot.joint_names, np.zeros(robot.n_joints))
     clock = node.get_clock()
     counter = [0]
@@ -315,15 +318,15 @@ def _build(config: LoopConfig, out: queue.SimpleQueue):
                 metrics_pub.publish(exec_msgs.executor_metrics(metrics, overruns, stamp, config.map_frame))
         took = time.perf_counter() - t0
         if took > config.supervisor.period_s:
-            # a DDS write that blocked (rclpy holds the interpreter lock meanwhile: the whole loop
-            # waited); the first few, then at most one line every 10 s
+            # a DDS write that blocked (the tick thread waited; the solver went on: the write
+            # releases the interpreter lock); the first few, then at most one line every 10 s
             slow["count"] += 1
             slow["max_s"] = max(slow["max_s"], took)
             now = time.monotonic()
             if slow["count"] <= SLOW_PUBLISH_LOGS or now - slow["logged_at"] > 10.0:
                 slow["logged_at"] = now
-                log("warning", f"publishing one command took {took * 1e3:.1f} ms: the DDS write blocked, and the "
-                               f"control loop with it (a write holds the interpreter lock); {slow['count']} so far")
+                log("warning", f"publishing one command took {took * 1e3:.1f} ms: the DDS write blocked the tick "
+                               f"thread (deadlines missed meanwhile; the solver went on); {slow['count']} so far")
 
     def on_finish(m) -> None:
         summary = m.summary(time.monotonic())
@@ -340,7 +343,7 @@ def _build(config: LoopConfig, out: queue.SimpleQueue):
                               on_finish, on_start, log)
     loop = ControlLoop(sup, config.supervisor.period_s, config.rt_priority,
                        on_error=lambda text: log("error", text))
-    rt = {"warm_up_s": warm_s}
+    rt = {"warm_up_s": warm_s, "publishing": command_pub.mode}
     if config.lock_memory and config.rt_priority > 0:
         rt["memory"] = lock_memory()[1]
     rt.update(loop.start())
