@@ -224,6 +224,21 @@ class NodeProcess:
 GRAPH_NODES = ("joint_driver", "scene_sim", "voxel_mapper", "marker_localizer", "reach_planner", "reach_executor")
 SIM_NODES = ("joint_driver", "scene_sim")
 SCENE_NODES = ("scene_sim", "reach_planner", "reach_executor")   # the launch file's scene:= goes to these
+# where each node runs when the graph spans hosts (reach.launch.py host:=, hr_graph --host; docs/deployment.md):
+# the robot's computers keep everything with a deadline or a sensor, the planner may run beside the operator
+HOST_NODES = {
+    "all": GRAPH_NODES,
+    "robot": ("joint_driver", "scene_sim", "voxel_mapper", "marker_localizer", "reach_executor"),
+    "compute": ("reach_planner",),
+}
+
+
+def host_nodes(host: str, sim_sensors: bool = True) -> tuple[str, ...]:
+    """The graph's nodes on ``host`` (``HOST_NODES``), in launch order; without ``sim_sensors``
+    the simulated robot and head sensors are left out (the real robot's drivers stand in)."""
+    if host not in HOST_NODES:
+        raise ValueError(f"host must be one of {sorted(HOST_NODES)}, got {host!r}")
+    return tuple(n for n in GRAPH_NODES if n in HOST_NODES[host] and (sim_sensors or n not in SIM_NODES))
 
 
 def launch_params(name: str, scene: str | Path | None = None, robot: str | None = None) -> dict[str, Any]:

@@ -6,7 +6,8 @@ nodes, each a process with its ``config/<name>.yaml`` (``graph.Graph``, the demo
 tests' orchestration), and the launch file's arguments: ``--scene FILE`` (its ``scene:=``, to
 ``scene_sim``, ``reach_planner`` and ``reach_executor``) and ``--no-sim-sensors`` (its
 ``use_sim_sensors:=false``: no ``joint_driver`` and ``scene_sim``, the real robot's drivers
-stand in); ``--robot NAME`` sets every node's ``robot_config``.
+stand in); ``--robot NAME`` sets every node's ``robot_config``; ``--host robot|compute``
+starts one host's share (its ``host:=``, ``graph.HOST_NODES``; docs/deployment.md).
 
 A node is *up* when its main interface is visible in the ROS graph, as another shell sees it
 (``UP_WHEN``: ``/plan_reach`` of the planner, the ``/look`` and ``/execute_reach`` actions of the
@@ -31,7 +32,7 @@ import time
 from pathlib import Path
 from typing import TextIO
 
-from humanoid_reach_ros.graph import GRAPH_NODES, SIM_NODES, STOP_DEADLINE_S, Graph, NodeProcess, graph_env, \
+from humanoid_reach_ros.graph import HOST_NODES, STOP_DEADLINE_S, Graph, NodeProcess, graph_env, host_nodes, \
     launch_params
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.robot.spec import robots
@@ -59,6 +60,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    "scene:=; default: the YAML files', config/scenes/plant.yaml)")
     p.add_argument("--no-sim-sensors", action="store_true", help="leave out joint_driver and scene_sim "
                    "(reach.launch.py's use_sim_sensors:=false: the real robot's drivers publish)")
+    p.add_argument("--host", choices=sorted(HOST_NODES), default="all",
+                   help="start only this host's nodes (reach.launch.py's host:=): robot (sensors, driver, mapper, "
+                        "localizer, executor), compute (the planner) or all (default); across hosts set "
+                        "ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET or ROS_STATIC_PEERS (docs/deployment.md)")
     p.add_argument("--log-dir", default="out/graph", help="directory of the node logs (default out/graph)")
     a = p.parse_args(argv)
     if a.scene is not None:
@@ -113,13 +118,14 @@ def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
     for key in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS"):   # the shell's own discovery settings win
         if os.environ.get(key):
             env[key] = os.environ[key]
-    names = [n for n in GRAPH_NODES if not (args.no_sim_sensors and n in SIM_NODES)]
+    names = list(host_nodes(args.host, sim_sensors=not args.no_sim_sensors))
     graph = Graph(log_dir, env, new_session=True)   # Ctrl-C reaches hr_graph, which stops the nodes in order
     watch = None
     dead: set[str] = set()
     t0 = time.monotonic()
     try:
-        out.write(f"[hr_graph] starting {len(names)} nodes (ROS_DOMAIN_ID={domain}, discovery "
+        out.write(f"[hr_graph] starting {len(names)} nodes" + (f" of host {args.host}" if args.host != "all" else "")
+                  + f" (ROS_DOMAIN_ID={domain}, discovery "
                   f"{env.get('ROS_AUTOMATIC_DISCOVERY_RANGE', '-')}); logs in {log_dir}/\n")
         out.flush()
         for name in names:

@@ -8,6 +8,10 @@ Arguments:
     scene              scene file of scene_sim (and of the planner's/executor's map until /voxel_map
                        arrives); default: the plant of the Kanehiro paper (config/scenes/plant.yaml)
     use_sim_sensors    start joint_driver and scene_sim (true) or use the real robot's drivers (false)
+    host               all (default), robot (driver, sensors, mapper, localizer, executor) or compute
+                       (the planner): the graph across hosts (docs/deployment.md), e.g.
+                       ros2 launch humanoid_reach_ros reach.launch.py host:=robot   # on the robot
+                       ros2 launch humanoid_reach_ros reach.launch.py host:=compute # on the workstation
 
 Then, from another shell, reach the valve the marker shows (see README):
 
@@ -24,20 +28,21 @@ from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
 from launch.conditions import IfCondition
-from launch.substitutions import EnvironmentVariable, LaunchConfiguration
+from launch.substitutions import EnvironmentVariable, LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
 
 PACKAGE = "humanoid_reach_ros"
 FASTDDS_PROFILES_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"
-# (executable, started only with simulated sensors)
+# (executable, started only with simulated sensors, the hosts that run it besides "all")
 NODES = [
-    ("joint_driver", True),
-    ("scene_sim", True),
-    ("voxel_mapper", False),
-    ("marker_localizer", False),
-    ("reach_planner", False),
-    ("reach_executor", False),
+    ("joint_driver", True, ("robot",)),
+    ("scene_sim", True, ("robot",)),
+    ("voxel_mapper", False, ("robot",)),
+    ("marker_localizer", False, ("robot",)),
+    ("reach_planner", False, ("compute",)),
+    ("reach_executor", False, ("robot",)),
 ]
+HOSTS = ("all", "robot", "compute")
 
 
 def generate_launch_description() -> LaunchDescription:
@@ -49,12 +54,19 @@ def generate_launch_description() -> LaunchDescription:
                               description="scene file (primitives, valve, marker)"),
         DeclareLaunchArgument("use_sim_sensors", default_value="true",
                               description="start the simulated joint driver and head sensors"),
+        DeclareLaunchArgument("host", default_value="all", choices=list(HOSTS),
+                              description="the nodes of one host: robot, compute (the planner) or all"),
         # Fast DDS: an 8 MB shared-memory segment for the point clouds (config/fastdds.xml);
         # a profile the user already set is kept
         SetEnvironmentVariable(FASTDDS_PROFILES_ENV, EnvironmentVariable(
             FASTDDS_PROFILES_ENV, default_value=os.path.join(config, "fastdds.xml"))),
     ]
-    for exe, sim_only in NODES:
+    host = LaunchConfiguration("host")
+    for exe, sim_only, hosts in NODES:
+        # started when host:= names one of its hosts (or all), and, for a simulated node, with use_sim_sensors
+        here = ["'", host, f"' in {('all', *hosts)!r}"]
+        condition = IfCondition(PythonExpression(
+            here + [" and '", sim, "'.lower() in ('true', '1')"] if sim_only else here))
         params = [os.path.join(config, f"{exe}.yaml")]
         if exe in ("scene_sim", "reach_planner", "reach_executor"):
             params.append({"scene_file": scene})
@@ -64,6 +76,6 @@ def generate_launch_description() -> LaunchDescription:
             name=exe,
             parameters=params,
             output="screen",
-            condition=IfCondition(sim) if sim_only else None,
+            condition=condition,
         ))
     return LaunchDescription(actions)

@@ -125,6 +125,7 @@ def test_hr_graph_names_a_node_that_exits(ros_env, tmp_path: Path) -> None:
     (["--scene", "/nonexistent/scene.yaml"], "no such file"),
     (["--robot", "nao"], "invalid choice"),
     (["--no-sim"], "unrecognized arguments: --no-sim"),   # no abbreviations
+    (["--host", "laptop"], "argument --host: invalid choice: 'laptop'"),
 ])
 def test_bad_options_are_refused(argv: list[str], message: str, capsys: pytest.CaptureFixture) -> None:
     with pytest.raises(SystemExit) as exc:

@@ -82,3 +82,25 @@ def test_fastdds_profile_gives_large_messages_a_shared_memory_segment() -> None:
     launch = (REPO_ROOT / "launch" / "reach.launch.py").read_text()
     assert f'"{FASTDDS_PROFILES_ENV}"' in launch and '"fastdds.xml"' in launch
 
+
+
+def test_the_launch_file_places_nodes_on_hosts_as_hr_graph_does() -> None:
+    """reach.launch.py's host:= and hr_graph --host start the same nodes (graph.HOST_NODES);
+    use_sim_sensors:=false leaves out the same ones (graph.SIM_NODES)."""
+    from humanoid_reach_ros.graph import GRAPH_NODES, HOST_NODES, SIM_NODES, host_nodes
+
+    tree = ast.parse((REPO_ROOT / "launch" / "reach.launch.py").read_text())
+    table = {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) in ("NODES", "HOSTS") for t in node.targets):
+            table[node.targets[0].id] = ast.literal_eval(node.value)
+    assert set(table["HOSTS"]) == set(HOST_NODES)
+    for host in HOST_NODES:
+        in_launch = tuple(exe for exe, _, hosts in table["NODES"] if host == "all" or host in hosts)
+        assert in_launch == host_nodes(host), host
+    assert {exe for exe, sim_only, _ in table["NODES"] if sim_only} == set(SIM_NODES)
+    # every node on exactly one host; no host runs the simulated robot without its driver's host
+    assert sorted(n for h, names in HOST_NODES.items() if h != "all" for n in names) == sorted(GRAPH_NODES)
+    assert host_nodes("robot", sim_sensors=False) == ("voxel_mapper", "marker_localizer", "reach_executor")
+    with pytest.raises(ValueError, match="host must be one of"):
+        host_nodes("laptop")
