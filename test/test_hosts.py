@@ -8,7 +8,8 @@ the LAN (``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``, set by ``hosts.sh exec``), in
 measured (the operator's automatic look first, through the robot's executor). Then the
 compute link is cut for 5 s while a plan is asked for: the operator gets a clear error
 within its timeout (no hang), and once the link is back the next request succeeds, no node
-restarted.
+restarted. Last, a stray ``/joint_command`` publisher on the operator's host moves nothing
+(joint_driver's ``command_source`` host), the same program on the robot's host does.
 
 Needs root (network namespaces; CI runs as root): without it, or where the namespaces cannot
 be made, the test fails and says why; it never passes silently.
@@ -19,6 +20,7 @@ import json
 import os
 import signal
 import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -28,6 +30,7 @@ import pytest
 from nodetools import REPO_ROOT, wait_for
 
 HOSTS_SH = REPO_ROOT / "tools" / "hosts.sh"
+STRAY = Path(__file__).with_name("stray_command.py")
 BIN = REPO_ROOT / "install" / "humanoid_reach_ros" / "lib" / "humanoid_reach_ros"
 READY_DEADLINE_S = 300.0
 CUT_S = 5.0
@@ -128,6 +131,20 @@ def test_the_operator_flow_across_three_hosts_and_a_cut_link(three_hosts, ros_en
                 break
         assert tries and tries[-1] == 0, (tries, err, logs())
         print(f"after the link came back: {len(tries)} request(s), success {time.monotonic() - t_up:.1f} s after")
+
+        # ---- who may command the robot: a /joint_command publisher on the operator's host moves nothing
+        # (joint_driver's command_source host); the same program on the robot's host moves the joint
+        def stray(host: str) -> dict:
+            r = subprocess.run(["bash", str(HOSTS_SH), "exec", host, sys.executable, str(STRAY), "--seconds", "3"],
+                               env=dict(ros_env), cwd=REPO_ROOT, capture_output=True, text=True, timeout=180)
+            assert r.returncode == 0 and r.stdout.strip(), (r.stdout, r.stderr)
+            return json.loads(r.stdout.strip().splitlines()[-1])
+        remote = stray("operator")
+        assert "error" not in remote and remote["moved_rad"] < 1e-3, remote
+        local = stray("robot")
+        assert local["matched_subscriptions"] >= 1 and local["moved_rad"] > 0.01, local
+        print(f"a stray /joint_command from the operator's host: {remote}; from the robot's own host: {local}")
+
         for host, (proc, _) in graphs.items():
             assert proc.poll() is None, f"hr_graph on {host} exited:\n{logs()}"
         assert "exited with code" not in logs()

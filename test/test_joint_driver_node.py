@@ -216,8 +216,9 @@ def test_stale_command_holds_position(start_node, ros_probe, model) -> None:
     i0 = model.joint_index["RARM_JOINT0"]
     start = model.half_sitting_joints[i0]
     goal = model.lower[i0] + 0.01  # ~0.8 s away at the velocity limit: the 0.1 s timeout hits first
-    ros_probe.spin_until(lambda: pub.get_subscription_count() > 0, 10.0, "subscription")
-    pub.publish(raw_command(["RARM_JOINT0"], [goal]))
+    # sent until the joint moves (the driver's side may match the publisher a moment after this side), then no more
+    send_until(ros_probe, pub, raw_command(["RARM_JOINT0"], [goal]),
+               lambda: bool(states.messages) and states.last.velocity[i0] != 0.0, 10.0, "the joint moving")
     driver.wait_for_log(r"joint_command stale", 5.0)
 
     def held_still():  # the newest 20 states all at rest (older queued ones may still show motion)

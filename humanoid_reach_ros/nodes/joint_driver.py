@@ -1,7 +1,9 @@
 """``joint_driver``: the simulated HRP-2 joint driver.
 
 Subscribes ``/joint_command`` (sensor_msgs/JointState, by joint name, any subset of
-the 30 joints) and every ``period_s`` (5 ms) steps ``JointSimulator`` and publishes
+the 30 joints; from publishers on this host only, ``command_source`` host, the default: a
+participant of its own with localhost discovery, ``io/host_local.py``) and every
+``period_s`` (5 ms) steps ``JointSimulator`` and publishes
 
 * ``/joint_states``  sensor_msgs/JointState, all 30 joints, position + velocity;
 * ``/base_pose``     geometry_msgs/PoseStamped, waist pose in ``world`` by kinematic
@@ -39,6 +41,7 @@ from humanoid_reach_ros.execution.realtime import (REALTIME_SWITCH_INTERVAL_S, m
                                                    make_thread_realtime)
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.io.gil_free import GilFreePublisher
+from humanoid_reach_ros.io.host_local import HostLocalSubscription
 from humanoid_reach_ros.nodes.common import LATCHED, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
@@ -46,6 +49,7 @@ from humanoid_reach_ros.sim.joint_sim import MAX_BUFFERED_COMMANDS, JointSimulat
 
 NODE_NAME = "joint_driver"
 POSTURES = ("half_sitting", "zero")
+COMMAND_SOURCES = ("host", "any")
 
 
 # Defaults match config/joint_driver.yaml (checked by test_joint_driver_node).
@@ -76,6 +80,9 @@ PARAMETERS: dict[str, ParamSpec] = {
                              "simulated hardware loop); 0 = normal scheduling"),
     "world_frame_id": ParamSpec("world", "frame of /base_pose (the stance frame on the floor)"),
     "base_frame_id": ParamSpec("base_link", "frame whose pose /base_pose carries (the waist)"),
+    "command_source": ParamSpec("host", "who may publish joint_command: host (publishers on this host only: a "
+                                "participant of its own with localhost discovery, docs/deployment.md) or any",
+                                constraints=f"one of {', '.join(COMMAND_SOURCES)}"),
 }
 
 
@@ -117,7 +124,20 @@ class JointDriver(Node):
         # (JointSimulator's burst) rather than cutting across the ones a 10-deep history lost
         # (bench/session: 0.96 mm between the soles)
         commands = QoSProfile(depth=MAX_BUFFERED_COMMANDS, reliability=ReliabilityPolicy.RELIABLE)
-        self.command_sub = self.create_subscription(JointState, "joint_command", self._on_command, commands)
+        # command_source host: only this host's publishers reach the subscription (across hosts, a stray
+        # publisher on the operator's network must not move the robot); its thread takes the callbacks
+        if p["command_source"] not in COMMAND_SOURCES:
+            raise ValueError(f"command_source must be one of {', '.join(COMMAND_SOURCES)}, got "
+                             f"{p['command_source']!r}")
+        self._host_local: HostLocalSubscription | None = None
+        if p["command_source"] == "host":
+            rt = p["rt_priority"]
+            self._host_local = HostLocalSubscription(
+                self, JointState, "joint_command", self._on_command, commands,
+                thread_setup=(lambda: make_feeder_thread_realtime(rt)) if rt > 0 else None)
+            self.command_sub = self._host_local.subscription
+        else:
+            self.command_sub = self.create_subscription(JointState, "joint_command", self._on_command, commands)
 
         # Pre-built outgoing message: only arrays and stamp change per tick.
         self._joint_state = msgs.joint_state(self.sim.joint_names, self.sim.q, self.sim.dq)
@@ -157,7 +177,8 @@ class JointDriver(Node):
             f"{self.sim.velocity_scale:g}, tracking tau {self.sim.time_constant_s * 1e3:.1f} ms, "
             f"command timeout {self.command_timeout_s:g} s; publishing joint_states, base_pose, "
             f"robot_description, /diagnostics (the loop's writes {self._joint_states_out.mode}); listening on "
-            f"joint_command"
+            f"{self.command_sub.topic_name} ("
+            + ("publishers on this host only" if self._host_local else "any publisher: command_source any") + ")"
         )
 
     # ------------------------------------------------------------ callbacks
@@ -186,6 +207,8 @@ class JointDriver(Node):
         self._stop.set()
         if self._loop.is_alive():
             self._loop.join(2.0)
+        if self._host_local is not None:
+            self._host_local.close()
         super().destroy_node()
 
     def _on_command(self, msg: JointState) -> None:
