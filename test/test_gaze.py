@@ -12,8 +12,9 @@ import pinocchio as pin
 import pytest
 import yaml
 
-from humanoid_reach_ros.control.gaze import DEFAULT_IMAGE, DEFAULT_MIN_RANGE_M, GazeCamera, GazeSolver
+from humanoid_reach_ros.control.gaze import DEFAULT_IMAGE, DEFAULT_MIN_RANGE_M, GazeCamera, GazeParams, GazeSolver
 from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.robot.spec import load_robot_spec, robot_config_path
 from nodetools import REPO_ROOT
 
 ROBOTS = ("hrp2", "talos")
@@ -132,6 +133,29 @@ def test_random_reachable_gazes_are_found_with_the_least_chest(solver) -> None:
         g = solver.solve(j0, point)
         assert g.off_axis_deg < 0.1, (x, point)
         assert g.chest_moved_rad <= np.linalg.norm(x[:2] - j0[solver.index[:2]]) + 0.02
+
+
+#: HRP-2 from half-sitting: chest yaw, pitch, head yaw, pitch [rad] of the 4-joint solver before
+#: the neck tier was generalised (issue 23, commit 6bd19ef; that solver and this one gave bitwise
+#: the same joints on 38 points per robot, balanced and observable too, when the change was made)
+HRP2_GAZES = (
+    (AHEAD, [0.0, 0.0, 3.459252522278825e-06, 0.1677004550094904]),
+    (HIP, [-0.3225332004900519, 0.6708609312353204, -0.38039167370756616, 0.7847264327150713]),
+    (LOW, [0.04788261287344109, 0.5782063748099404, -0.02581065129938465, 0.7851486824612757]),
+    (BEHIND, [-0.7853981633974483, 1.0471975511965976, -0.7853981633974483, 0.7853981633974483]),
+    (np.array([0.8, 0.5, 1.0]), [0.0, 0.0, 0.5715093074196056, 0.4621079668858991]),
+)
+
+
+def test_hrp2_gazes_are_those_of_the_four_joint_solver() -> None:
+    """With a neck the tiers are today's 4 joints and the algorithm is unchanged: HRP-2's gazes
+    at five points (head only, chest and head, the best effort behind) are the recorded ones."""
+    solver = GazeSolver(RobotModel("hrp2"))
+    assert solver.has_neck and solver.names == (*solver.robot.spec.chest_joints, *solver.robot.spec.neck_joints)
+    j0 = solver.robot.half_sitting_joints
+    for point, expected in HRP2_GAZES:
+        np.testing.assert_allclose(solver.solve(j0, point).joints[solver.index], expected, rtol=0.0, atol=1e-6,
+                                   err_msg=str(point))
 
 
 def test_out_of_range_is_not_visible(solver) -> None:
@@ -261,3 +285,107 @@ def test_look_goal_helpers() -> None:
     assert e.value.code == Look.Result.INVALID_GOAL
     with pytest.raises(RequestError, match=r"gaze point 1 has NaN/inf"):
         exec_msgs.gaze_points(Look.Goal(gaze_points=[Point(x=1.0), Point(x=math.inf)]))
+
+
+# ---------------------------------------------------------------- without a neck (issue 23)
+SIDE = np.array([0.0, 1.5, 1.4])         # to the left, level with the camera: the chest's yaw (45 deg) is not enough
+
+
+def point_on_axis(solver: GazeSolver, x, distance_m: float) -> np.ndarray:
+    """The point ``distance_m`` along the camera's optical axis with the gaze joints at ``x`` and
+    the rest at half-sitting: a point some gaze aims at exactly."""
+    robot = solver.robot
+    j = robot.half_sitting_joints.copy()
+    j[solver.index] = x
+    M = robot.frame_pose(robot.config(j, robot.base_on_feet(j)), robot.camera_frame)
+    return M.translation + distance_m * M.rotation[:, 2]
+
+
+@pytest.fixture(scope="module")
+def neckless(tmp_path_factory) -> GazeSolver:
+    """HRP-2 without its neck: a robot.yaml pointing at HRP-2's files whose head names the
+    camera frame only; the head joints then stay where they are and the chest aims the camera."""
+    src = robot_config_path("hrp2")
+    doc = yaml.safe_load(src.read_text())
+    for key in ("urdf", "collision_model", "dual_arm_workspace", "torso_regression"):
+        doc[key] = str(src.parent / doc[key])
+    doc["head"] = {"camera_frame": doc["head"]["camera_frame"]}
+    path = tmp_path_factory.mktemp("neckless") / "robot.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return GazeSolver(RobotModel(path))
+
+
+def test_without_a_neck_the_chest_aims_at_reachable_points(neckless) -> None:
+    """Points on the optical axis of random chest postures within the limits (the head at
+    half-sitting): every one is aimed as closely as the 4-joint solver's (< 0.1 deg), only the
+    chest moves, and no more than in the posture that made the point (+ 0.02 rad)."""
+    solver, robot, rng = neckless, neckless.robot, np.random.default_rng(7)
+    assert not solver.has_neck and solver.names == robot.spec.chest_joints
+    j0 = robot.half_sitting_joints
+    g = solver.solve(j0, AHEAD)
+    assert g.visible and g.off_axis_deg < AIMED_DEG and g.chest_moved_rad > 0.0
+    assert off_axis_deg(robot, g.joints, AHEAD) == pytest.approx(g.off_axis_deg, abs=1e-6)
+    assert only_gaze_joints_moved(solver, g.joints, j0)
+    worst = 0.0
+    for _ in range(25):
+        x = rng.uniform(solver.lower, solver.upper)
+        point = point_on_axis(solver, x, rng.uniform(0.4, 3.0))
+        g = solver.solve(j0, point)
+        worst = max(worst, g.off_axis_deg)
+        assert g.off_axis_deg < 0.1, (x, point)
+        assert off_axis_deg(robot, g.joints, point) == pytest.approx(g.off_axis_deg, abs=1e-6)
+        assert only_gaze_joints_moved(solver, g.joints, j0)
+        assert np.all(g.joints >= robot.lower) and np.all(g.joints <= robot.upper)
+        assert g.chest_moved_rad <= np.linalg.norm(x - j0[solver.index]) + 0.02, (x, point)
+    print(f"neckless {robot.name}: worst off-axis angle of 25 reachable points {worst:.2e} deg")
+
+
+def test_without_a_neck_the_grid_finds_what_the_current_chest_misses(neckless) -> None:
+    """Gauss-Newton cut to 2 steps: from half-sitting it ends 9 deg off a point the chest reaches
+    turned 0.6 and leaning 0.9 rad; the search over the chest grid starts next to it and aims."""
+    robot = neckless.robot
+    solver = GazeSolver(robot, params=GazeParams(max_iter=2))
+    j0 = robot.half_sitting_joints
+    point = point_on_axis(solver, [0.6, 0.9], 1.0)
+    first = solver._aim_from(robot.config(j0, robot.base_on_feet(j0)), point, j0[solver.index])
+    assert math.degrees(first[1]) > 1.0                   # the current chest's solve misses
+    g = solver.solve(j0, point)
+    assert g.visible and g.off_axis_rad <= solver.params.aimed_tol_rad
+    np.testing.assert_allclose(g.joints[solver.index], [0.6, 0.9], atol=0.01)
+    assert only_gaze_joints_moved(solver, g.joints, j0)
+
+
+def test_without_a_neck_unreachable_points_are_reported(neckless) -> None:
+    """Behind the back, and to the side beyond the chest's yaw (seen with a neck): not visible,
+    the best effort turns the chest to its yaw limit, and ``observable`` says no."""
+    solver, robot = neckless, neckless.robot
+    j0 = robot.half_sitting_joints
+    for point in (BEHIND, SIDE):
+        g = solver.solve(j0, point)
+        assert not g.visible and g.off_axis_rad > g.half_fov_rad and g.unseen_reason.startswith("not in view (")
+        assert only_gaze_joints_moved(solver, g.joints, j0)
+        assert not solver.observable(j0, point)
+    side = solver.solve(j0, SIDE)
+    assert side.joints[solver.index[0]] == pytest.approx(solver.upper[0], abs=1e-6)   # chest yaw at its limit
+    assert GazeSolver(RobotModel("hrp2")).observable(j0, SIDE)                        # the neck turns further
+    np.testing.assert_array_equal(solver.observable(j0, np.vstack([AHEAD, SIDE])), [True, False])
+
+
+def test_without_a_neck_the_balanced_gaze_keeps_the_cog_and_the_feet(neckless) -> None:
+    """A point the chest reaches leaning 0.5 rad and turned 0.2 rad: balanced as with a neck
+    (the COG's xy and the feet where they were), the head joints where they were."""
+    solver, robot = neckless, neckless.robot
+    j0 = robot.half_sitting_joints
+    q0 = robot.half_sitting()
+    point = point_on_axis(solver, [0.2, 0.5], 1.0)
+    g = solver.balanced(j0, point)
+    q = robot.config(g.joints, robot.base_on_feet(g.joints))
+    assert g.balanced and g.visible and g.off_axis_deg < AIMED_DEG
+    assert off_axis_deg(robot, g.joints, point) == pytest.approx(g.off_axis_deg, abs=1e-6)
+    assert np.linalg.norm(robot.com(q)[:2] - robot.com(q0)[:2]) < 1e-6
+    for frame, ref in zip(robot.sole_frames, robot.stance_soles):
+        assert np.linalg.norm(robot.frame_pose(q, frame).translation - ref.translation) < 1e-6
+    head = [robot.joint_index[n] for n in load_robot_spec("hrp2")[0].neck_joints]   # HRP-2's neck, held
+    np.testing.assert_array_equal(g.joints[head], j0[head])
+    arms = [i for limb in ("right_arm", "left_arm") for i in robot.limbs[limb].joint_index]
+    np.testing.assert_array_equal(g.joints[arms], j0[arms])

@@ -4,6 +4,7 @@ robot description (or a robot), outside the loader."""
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -76,6 +77,12 @@ def _write(tmp_path, edit) -> Path:
     (lambda d: d["limbs"]["right_arm"]["joints"].pop(), "six|6 joint"),
     (lambda d: d["limbs"]["left_arm"].update(root="base_link"), "same \\(chest\\) link"),
     (lambda d: d.update(chest={"yaw": "CHEST_JOINT0"}), "chest must be"),
+    (lambda d: d["chest"].update(tilt="CHEST_JOINT0"), "chest must be"),
+    (lambda d: d["head"].pop("pitch"), "head names a neck yaw joint but no pitch joint"),
+    (lambda d: d["head"].pop("yaw"), "head names a neck pitch joint but no yaw joint"),
+    (lambda d: d["head"].pop("camera_frame"), "head must be \\{camera_frame\\}"),
+    (lambda d: d["chest"].update(roll=d["chest"]["yaw"]), "named twice: \\['CHEST_JOINT0'\\]"),
+    (lambda d: d["chest"].update(roll="RARM_JOINT6"), "\\['RARM_JOINT6'\\] are also limb or gripper joints"),
     (lambda d: d.update(sole_rectangle_m=[0.1, -0.1, -0.07, 0.07]), "sole_rectangle_m"),
     (lambda d: d["half_sitting"].update(RLEG_JOINT2=float("nan")), "half_sitting"),
     (lambda d: d.update(dual_arm_workspace=3), "dual_arm_workspace must be a YAML file"),
@@ -92,6 +99,7 @@ def test_bad_descriptions_are_refused(tmp_path, edit, text):
 @pytest.mark.parametrize("edit, text", [
     (lambda d: d["head"].update(yaw="NECK_YAW"), "NECK_YAW"),
     (lambda d: d["limbs"]["right_arm"].update(tip="r_gripper_tip"), "r_gripper_tip"),
+    (lambda d: d["chest"].update(roll="WAIST_ROLL"), "WAIST_ROLL"),
 ])
 def test_names_the_urdf_lacks_are_refused(tmp_path, edit, text):
     with pytest.raises(ValueError, match=text):
@@ -124,3 +132,47 @@ def test_dual_arm_files_are_read_beside_robot_yaml(tmp_path):
         s = load_robot_spec(name)[0]
         assert s.torso_regression is None or s.torso_regression.startswith(str(s.path.parent) + "/"), name
         assert s.dual_arm_workspace.startswith(str(config_path("robots")) + "/"), name
+
+
+def _neckless(doc) -> None:
+    """HRP-2 without a neck: the head names the camera frame only (its joints stay in the URDF)."""
+    doc["head"] = {"camera_frame": doc["head"]["camera_frame"]}
+
+
+def test_a_robot_without_a_neck_loads_and_names_what_it_lacks(tmp_path):
+    """Issue 23 (a neckless robot, e.g. Unitree G1): ``head: {camera_frame}`` is a description;
+    the neck is empty, and what turns the head by its own angles says the robot has none."""
+    from humanoid_reach_ros.robot.head_aim import aim_head_deg
+
+    hrp2 = load_robot_spec("hrp2")[0]
+    assert hrp2.has_neck and hrp2.neck_joints == hrp2.head_joints == (hrp2.head_yaw, hrp2.head_pitch)
+    assert hrp2.torso_joints == hrp2.chest_joints and hrp2.chest_roll is None
+    robot = RobotModel(_write(tmp_path, _neckless))
+    spec = robot.spec
+    assert not spec.has_neck and spec.neck_joints == () and spec.head_yaw is None and spec.head_pitch is None
+    assert spec.camera_frame == hrp2.camera_frame and spec.chest_joints == hrp2.chest_joints
+    assert spec.names() == hrp2.names() - set(hrp2.neck_joints)
+    for call in (lambda: spec.head_joints, lambda: spec.require_neck("a look at head angles"),
+                 lambda: aim_head_deg(robot, [1.0, 0.0, 1.0])):
+        with pytest.raises(ValueError, match=re.escape(f"robot 'hrp2' has no neck: its description {spec.path} "
+                                                       "names no head yaw and pitch joints")):
+            call()
+    with pytest.raises(ValueError, match="a look at head angles needs them"):
+        spec.require_neck("a look at head angles")
+
+
+def test_a_chest_roll_is_read_and_checked_against_the_urdf(tmp_path):
+    """An optional ``chest.roll``: in ``torso_joints`` and the names, not in ``chest_joints``
+    (yaw and pitch, what the reaching algorithms and the gaze move); checked against the URDF
+    like every name (test_names_the_urdf_lacks_are_refused: a roll the URDF lacks). The joint
+    freed by removing HRP-2's neck stands in for a roll (its axis is not checked)."""
+    hrp2 = load_robot_spec("hrp2")[0]
+
+    def edit(doc):
+        _neckless(doc)
+        doc["chest"]["roll"] = hrp2.head_yaw
+
+    spec = RobotModel(_write(tmp_path, edit)).spec
+    assert spec.chest_roll == hrp2.head_yaw
+    assert spec.torso_joints == (*hrp2.chest_joints, hrp2.head_yaw) and spec.chest_joints == hrp2.chest_joints
+    assert hrp2.head_yaw in spec.names()

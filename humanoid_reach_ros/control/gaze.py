@@ -2,21 +2,30 @@
 
 The executor's ``/look`` at ``gaze_points`` (``execution/requests.py``) and the planner's
 ``UNOBSERVABLE_SPACE`` answer ask the same question: which chest yaw/pitch and head
-yaw/pitch (``robot.spec.chest_joints``, ``robot.spec.head_joints``) turn the camera's optical
+yaw/pitch (``robot.spec.chest_joints``, ``robot.spec.neck_joints``) turn the camera's optical
 axis onto a world point, and does the camera then see it? Everything else stays: the arms,
 and the legs, so the waist (:meth:`RobotModel.base_on_feet`, feet fixed) -- except in the
 executor's balanced gaze, whose legs keep the COG (*Balance* below).
+
+**Tiers.** The gaze joints are two tiers in this order: the chest (yaw, pitch) and the neck
+(yaw, pitch), whose joints the robot description gives by role. A robot without a neck
+(``robot.spec.has_neck`` False: its description's head names the camera frame only) has the
+chest tier alone, and its head stays where it is (*Without a neck* below). Simplification: a
+chest roll (``chest.roll`` of the description, ``robot.spec.torso_joints``) is not a gaze
+joint: it keeps its value in the input joints, like the arms. Yaw and pitch alone turn the
+optical axis in both its directions; a roll would widen the directions within reach by
+leaning the body sideways (and moving the COG), which this solver does not search.
 
 **Aiming.** The optical frame (``robot.spec.camera_frame``) looks along its +z (REP 103 /
 OpenCV: z forward, x right, y down; ``geometry/camera.py``, ``sim/camera.py`` and the
 marker localizer use the frame so). With ``a`` the optical axis, ``c`` the camera's position
 and ``d = (p - c) / |p - c|`` the unit ray to the point, the residual is ``r = a - d``
 (zero exactly when aimed; ``|r| = 2 sin(alpha / 2)``, ``alpha`` the off-axis angle), and its
-Jacobian in the 4 joints is
+Jacobian in the gaze joints (4 with a neck, 2 without) is
 
     J_r = -[a]x J_w + (I - d d^T) J_v / |p - c|
 
-(``J_w``, ``J_v``: the camera frame's angular and linear Jacobian columns of the 4 joints,
+(``J_w``, ``J_v``: the camera frame's angular and linear Jacobian columns of the gaze joints,
 world axes; the second term: the camera moves, so the ray to the point turns). A damped
 Gauss-Newton step ``dx = -W J^T (J W J^T + lambda I)^-1 r``, clipped to the joint limits (a
 joint at a limit that the step pushes further out leaves ``W``), repeats until ``alpha`` is
@@ -38,6 +47,19 @@ little as it can:
 4. if no chest posture lets the head aim (a point behind the robot), the best effort: the
    nearest miss of the grid, polished by Gauss-Newton on all 4 joints.
 
+**Without a neck** the chest aims the camera: two joints for the axis's two directions, so
+the aimed postures are isolated points, not a set to search for the nearest. The same steps
+with the chest's Gauss-Newton in the head's place: (1) from the current chest; (2) if that
+does not aim, from each posture of the chest grid, nearest the current chest first, until
+one aims (that gaze is taken: simplification, another start might converge on an aimed
+posture nearer the current one); (3) none aims: the best effort, the nearest miss polished
+as in 4. HRP-2 without its neck (test_gaze.py), 150 random reachable gazes from half-sitting
+and 300 from random chest postures: step 1 aimed every one (< 0.001 deg) with the chest moved
+no more than in the posture that made the point; the grid served only the points out of
+reach (behind, beside, low: 26-150 ms for its 63 solves). It is there for what step 1 cannot: the
+residual ``a - d`` is stationary with the axis turned away from the point, which a chest
+yawing further than HRP-2's 45 deg can start from.
+
 HRP-2 at half-sitting, point [0.25, -0.29, 0.66] m beside the right hip: the head saturates
 at 45 deg down and the chest turns by 0.74 rad (yaw -19, pitch 38 deg); a brute-force grid of
 25 x 25 chest postures finds 0.743 rad.
@@ -57,7 +79,7 @@ executor follows it (hip point: 0.13 deg off at the end on HRP-2, test_gaze.py).
 range: the angle between the optical axis and the ray is at most the half-angle of the cone
 inscribed in the image (``GazeCamera.half_fov_rad``: ``atan(min(W / (2 fx), H / (2 fy)))``,
 23.4 deg for the 640 x 480, 60 deg camera of ``config/scene_sim.yaml``; the cone does not depend
-on the camera's roll about its axis, which the 4 joints do not control), and its distance
+on the camera's roll about its axis, which the gaze joints do not control), and its distance
 between the depth sensor's minimum range and the voxel mapper's ``max_range_m`` (rays are
 truncated there: space beyond is never observed). :meth:`GazeSolver.observable` asks whether
 some reachable gaze sees each point; :meth:`GazeSolver.best_gaze` aims at a set's centroid.
@@ -88,8 +110,8 @@ from humanoid_reach_ros.perception.voxel_map import FusionParams
 from humanoid_reach_ros.robot.model import N_BASE_Q, N_BASE_V, RobotModel
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-_HEAD_ONLY = np.array([0.0, 0.0, 1.0, 1.0])   # free joints of a solve: chest yaw, chest pitch, head yaw, head pitch
-_ALL = np.ones(4)
+#: the chest tier: yaw, pitch, the first gaze joints (the neck's, where there is one, follow)
+_N_CHEST = 2
 
 #: the head camera of config/scene_sim.yaml (width, height [px], horizontal field of view [rad])
 DEFAULT_IMAGE = (640, 480, math.radians(60.0))
@@ -191,7 +213,8 @@ class GazeSet:
 
 
 class GazeSolver:
-    """Chest and head joints that aim the head camera at a point (module doc).
+    """Chest and head joints that aim the head camera at a point (module doc); the chest
+    alone for a robot without a neck (``robot.spec.has_neck`` False).
 
     Has its own pinocchio data: one solver per thread, or calls serialised."""
 
@@ -203,14 +226,21 @@ class GazeSolver:
         self.model = robot.model
         self.data = self.model.createData()
         spec = robot.spec
-        #: chest yaw, chest pitch, head yaw, head pitch: indices in the joint vector
-        self.names: tuple[str, ...] = (*spec.chest_joints, *spec.head_joints)
+        #: whether the head turns on a neck; without, the chest tier aims the camera alone
+        self.has_neck = spec.has_neck
+        #: the gaze joints: chest yaw, chest pitch, then head yaw, head pitch where there is a neck
+        self.names: tuple[str, ...] = (*spec.chest_joints, *spec.neck_joints)
+        #: their indices in the joint vector
         self.index = np.array([robot.joint_index[n] for n in self.names], dtype=np.intp)
         self._cols = N_BASE_V + self.index      # every joint of the description has one DOF
         self.lower, self.upper = robot.lower[self.index], robot.upper[self.index]
         self._cam_id = robot.frame_id(robot.camera_frame)
         self._sole_id = robot.frame_id(robot.sole_frames[0])
-        self._w = np.array([params.chest_weight, params.chest_weight, 1.0, 1.0]) ** 2
+        n_neck = len(spec.neck_joints)
+        self._w = np.concatenate([np.full(_N_CHEST, params.chest_weight), np.ones(n_neck)]) ** 2
+        #: free joints of a solve (1) and held ones (0): the neck alone, every gaze joint
+        self._neck_only = np.concatenate([np.zeros(_N_CHEST), np.ones(n_neck)])
+        self._all = np.ones(len(self.names))
         self._legs = None       # the lower-body IK of balanced(), built on first use
 
     # ------------------------------------------------------------ validation
@@ -241,8 +271,8 @@ class GazeSolver:
         return self.robot.stance_soles[0] * self.data.oMf[self._sole_id].inverse()
 
     def _camera(self, q: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """Camera position, optical axis (+z) and, with ``jacobian``, the frame's 6 x 4 world-axes
-        Jacobian of the 4 joints."""
+        """Camera position, optical axis (+z) and, with ``jacobian``, the frame's world-axes
+        Jacobian (6 x gaze joints) of the gaze joints."""
         if jacobian:
             J = pin.computeFrameJacobian(self.model, self.data, q, self._cam_id, LWA)[:, self._cols]
             pin.updateFramePlacement(self.model, self.data, self._cam_id)
@@ -254,7 +284,7 @@ class GazeSolver:
 
     # ------------------------------------------------------------ aiming
     def _aim(self, q: np.ndarray, point: np.ndarray, x: np.ndarray, free: np.ndarray) -> tuple[np.ndarray, float]:
-        """Gauss-Newton from ``x`` (the 4 joints) on the ``free`` ones (module doc); returns the
+        """Gauss-Newton from ``x`` (the gaze joints) on the ``free`` ones (module doc); returns the
         joints and the off-axis angle."""
         p = self.params
         idx = self.index
@@ -294,21 +324,29 @@ class GazeSolver:
         return best_x, best_alpha
 
     def _head_guess(self, q: np.ndarray, point: np.ndarray, chest: np.ndarray) -> np.ndarray:
-        """The 4 joints with ``chest`` and the head at the point's yaw (left > 0) and pitch (down
-        > 0) seen by the camera with the head joints at zero, clipped into the head's limits
-        (exact for a camera at the head joints' intersection; the start of the head's solve)."""
-        x = np.concatenate([chest, np.zeros(2)])
+        """The gaze joints with ``chest`` and the head at the point's yaw (left > 0) and pitch
+        (down > 0) seen by the camera with the head joints at zero, clipped into the head's limits
+        (exact for a camera at the head joints' intersection; the start of the head's solve).
+        Only with a neck."""
+        x = np.concatenate([chest, np.zeros(len(self.names) - _N_CHEST)])
         q[N_BASE_Q + self.index] = x
         pin.framesForwardKinematics(self.model, self.data, q)
         M = self.data.oMf[self._cam_id]
         d = M.rotation.T @ (point - M.translation)          # optical frame: z forward, x right, y down
-        x[2:] = np.clip([math.atan2(-d[0], d[2]), math.atan2(d[1], math.hypot(d[0], d[2]))],
-                        self.lower[2:], self.upper[2:])
+        x[_N_CHEST:] = np.clip([math.atan2(-d[0], d[2]), math.atan2(d[1], math.hypot(d[0], d[2]))],
+                               self.lower[_N_CHEST:], self.upper[_N_CHEST:])
         return x
 
     def _head_aim(self, q: np.ndarray, point: np.ndarray, chest: np.ndarray) -> tuple[np.ndarray, float]:
-        """The head alone aims, the chest at ``chest``: (4 joints, off-axis angle)."""
-        return self._aim(q, point, self._head_guess(q, point, chest), _HEAD_ONLY)
+        """The head alone aims, the chest at ``chest``: (gaze joints, off-axis angle). Only with a neck."""
+        return self._aim(q, point, self._head_guess(q, point, chest), self._neck_only)
+
+    def _aim_from(self, q: np.ndarray, point: np.ndarray, chest: np.ndarray) -> tuple[np.ndarray, float]:
+        """The solve of one chest posture of the search: with a neck, the head alone aims with the
+        chest at ``chest`` (:meth:`_head_aim`); without, the chest aims, starting at ``chest``."""
+        if self.has_neck:
+            return self._head_aim(q, point, chest)
+        return self._aim(q, point, np.array(chest, dtype=float), self._all)
 
     def _chest_grid(self) -> np.ndarray:
         """Chest postures (K, 2) over the chest's limits (``chest_grid`` points a joint)."""
@@ -325,14 +363,14 @@ class GazeSolver:
         p = self.params
         tol = p.aimed_tol_rad
         best = found
-        best_dist = float(np.linalg.norm(found[0][:2] - chest0))
+        best_dist = float(np.linalg.norm(found[0][:_N_CHEST] - chest0))
 
         def radial(phi: float, t_hi: float) -> tuple[float, tuple[np.ndarray, float] | None]:
             nonlocal best, best_dist
             u = np.array([math.cos(phi), math.sin(phi)])
             with np.errstate(divide="ignore", invalid="ignore"):   # the ray's exit from the chest's box
-                exits = np.where(u > 0, (self.upper[:2] - chest0) / u, np.where(u < 0, (self.lower[:2] - chest0) / u,
-                                                                                 np.inf))
+                exits = np.where(u > 0, (self.upper[:_N_CHEST] - chest0) / u,
+                                 np.where(u < 0, (self.lower[:_N_CHEST] - chest0) / u, np.inf))
             t_hi = min(t_hi, float(np.min(exits)))
             hi = self._head_aim(q, point, chest0 + t_hi * u)
             if hi[1] > tol:
@@ -345,12 +383,12 @@ class GazeSolver:
                     t_hi, hi = t, cand
                 else:
                     t_lo = t
-            dist = float(np.linalg.norm(hi[0][:2] - chest0))
+            dist = float(np.linalg.norm(hi[0][:_N_CHEST] - chest0))
             if dist < best_dist:
                 best, best_dist = hi, dist
             return t_hi, hi
 
-        d0 = found[0][:2] - chest0
+        d0 = found[0][:_N_CHEST] - chest0
         phi0 = math.atan2(d0[1], d0[0])
         reach = 1.5 * best_dist          # farther than the found gaze: never nearer
         radial(phi0, best_dist)
@@ -371,22 +409,23 @@ class GazeSolver:
 
     def _search(self, q: np.ndarray, point: np.ndarray, x0: np.ndarray,
                 enough: Callable[[np.ndarray, float], bool]) -> tuple[list[tuple[np.ndarray, float]], bool]:
-        """The head's solve at the current chest, then at every chest posture of the grid
-        (nearest ``x0``'s chest first) until ``enough(x, alpha)``: (the solves, stopped early)."""
-        chest0 = x0[:2]
-        out = [self._head_aim(q, point, chest0)]
+        """The solve (:meth:`_aim_from`) at the current chest, then at every chest posture of the
+        grid (nearest ``x0``'s chest first) until ``enough(x, alpha)``: (the solves, stopped early)."""
+        chest0 = x0[:_N_CHEST]
+        out = [self._aim_from(q, point, chest0)]
         if enough(*out[0]):
             return out, True
         grid = self._chest_grid()
         for c in grid[np.argsort(np.linalg.norm(grid - chest0, axis=1), kind="stable")]:
-            out.append(self._head_aim(q, point, c))
+            out.append(self._aim_from(q, point, c))
             if enough(*out[-1]):
                 return out, True
         return out, False
 
     def solve(self, joints, point) -> Gaze:
         """The gaze at ``point`` (3,) [m, world] from ``joints`` (n,): head first, the chest
-        only where the head cannot aim, and then as little as it can (module doc). A point no
+        only where the head cannot aim, and then as little as it can; without a neck, the chest
+        from the current posture, else from the grid's (module doc). A point no
         gaze can aim at gets the best effort (the smallest off-axis angle found), ``visible``
         telling whether it is seen. ``ValueError`` on NaN/inf or wrong shapes."""
         j = self._joints(joints)
@@ -397,21 +436,21 @@ class GazeSolver:
         base = self._base(j)
         q = self.robot.config(j, base)
         x0 = np.clip(j[self.index], self.lower, self.upper)    # measured joints may be a hair outside
-        chest0 = x0[:2]
+        chest0 = x0[:_N_CHEST]
         tol = self.params.aimed_tol_rad
         # the grid is searched nearest the current chest first: its first aimed posture is the nearest
         solves, aimed = self._search(q, P, x0, lambda x, a: a <= tol)
-        if aimed and len(solves) > 1:
+        if aimed and len(solves) > 1 and self.has_neck:
             x = self._least_chest(q, P, chest0, solves[-1])[0]
-        elif aimed:
-            x = solves[0][0]
-        else:   # best effort: the nearest miss, polished with all 4 joints
+        elif aimed:    # without a neck: the chest's aimed posture (isolated: no nearer one along a ray)
+            x = solves[-1][0]
+        else:   # best effort: the nearest miss, polished with every gaze joint
             x, alpha = min(solves, key=lambda s: s[1])
-            x2, alpha2 = self._aim(q, P, x, _ALL)
+            x2, alpha2 = self._aim(q, P, x, self._all)
             x = x2 if alpha2 < alpha else x
         out = j.copy()
         out[self.index] = x
-        return self._gaze(out, base, P, float(np.linalg.norm(x[:2] - j[self.index[:2]])))
+        return self._gaze(out, base, P, float(np.linalg.norm(x[:_N_CHEST] - j[self.index[:_N_CHEST]])))
 
     def _gaze(self, joints: np.ndarray, base: pin.SE3, point: np.ndarray, chest_moved: float,
               balanced: bool = False) -> Gaze:
@@ -442,7 +481,7 @@ class GazeSolver:
         pin.framesForwardKinematics(self.model, self.data, q_in)
         right, left = (self.data.oMf[self.robot.frame_id(f)].copy() for f in self.robot.sole_frames)
         com_xy = pin.centerOfMass(self.model, self.data, q_in)[:2].copy()
-        chest0 = j[self.index[:2]]
+        chest0 = j[self.index[:_N_CHEST]]
         gaze = self.solve(j, P)
         x, ok = gaze.joints, False
         for _ in range(self.params.balance_iterations):
@@ -460,7 +499,7 @@ class GazeSolver:
             x = self.solve(x, P).joints     # aim again from the balanced waist
         if not ok:
             return gaze
-        return self._gaze(x, self._base(x), P, float(np.linalg.norm(x[self.index[:2]] - chest0)), True)
+        return self._gaze(x, self._base(x), P, float(np.linalg.norm(x[self.index[:_N_CHEST]] - chest0)), True)
 
     @staticmethod
     def _angles(c: np.ndarray, a: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -493,8 +532,9 @@ class GazeSolver:
         """Whether some gaze reachable from ``joints`` (chest and head within their limits, the
         rest held) sees each point: ``points`` (3,) -> bool, (N, 3) -> bool (N,). The centroid's
         gaze answers for the points it sees; each other point is searched as :meth:`solve` does
-        (the head at the current chest, then over the chest grid) until a gaze sees it, without
-        the least-chest refinement (any gaze that sees it will do)."""
+        (the head at the current chest, then over the chest grid; without a neck, the chest from
+        each) until a gaze sees it, without the least-chest refinement (any gaze that sees it
+        will do)."""
         single = np.ndim(points) == 1
         j, P = self._joints(joints), self._points(points)
         seen = self.best_gaze(j, P).in_view.copy()
@@ -515,7 +555,7 @@ class GazeSolver:
         if found:
             return True
         x, alpha = min(solves, key=lambda s: s[1])
-        return sees(*self._aim(q, point, x, _ALL))
+        return sees(*self._aim(q, point, x, self._all))
 
 
 __all__ = ["DEFAULT_IMAGE", "DEFAULT_MIN_RANGE_M", "Gaze", "GazeCamera", "GazeParams", "GazeSet", "GazeSolver"]

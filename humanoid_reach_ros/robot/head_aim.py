@@ -17,8 +17,9 @@ def aim_head_deg(robot: RobotModel, point, joints: np.ndarray | None = None,
                  step_deg: float = 1.0) -> tuple[float, float]:
     """Head yaw and pitch [deg] (within the head's limits, on a ``step_deg`` grid) that point the
     camera's optical axis closest to ``point`` [m, world] with the other joints at ``joints``
-    (default: half-sitting) and the base on the feet's stance."""
-    idx = [robot.joint_index[n] for n in robot.spec.head_joints]
+    (default: half-sitting) and the base on the feet's stance. ValueError naming the robot
+    when it has no neck (its camera is aimed by the chest: ``control/gaze.py``)."""
+    idx = [robot.joint_index[n] for n in robot.spec.require_neck("aiming the head by its yaw and pitch")]
     lo, hi = np.degrees(robot.lower[idx]), np.degrees(robot.upper[idx])
     joints = (robot.half_sitting_joints if joints is None else np.asarray(joints, float)).copy()
     point = np.asarray(point, float)

@@ -3,7 +3,9 @@
 A :class:`RobotSpec` names everything the package needs to know about a robot beyond
 its URDF: the four limbs (root link, tip frame, six joints each -- seven allowed for an
 arm: the hands are the arm limbs' tips, the soles the leg limbs' tips), the floating-base
-link, the chest and head joints by role, the head camera frame, the grippers, the
+link, the chest joints by role (yaw and pitch; a roll where the robot has one), the neck
+joints by role (yaw and pitch; none for a robot without a neck, whose camera the chest
+aims), the head camera frame, the grippers, the
 half-sitting posture, the sole rectangle (the support polygon is the hull of both soles),
 the collision model file, the dual-arm torso regression model and the dual-arm workspace
 file it was trained on (box, hand orientation rule, initial CoM drop: fitted to one robot's
@@ -44,6 +46,10 @@ DEFAULT_DUAL_ARM_WORKSPACE = "robots/hrp2/dual_arm_workspace.yaml"   # config/-r
 _KEYS = {"robot_name", "urdf", "collision_model", "base_link", "limbs", "chest", "head", "gripper_joints",
          "sole_rectangle_m", "torso_regression", "dual_arm_workspace", "half_sitting", "frames"}
 _REQUIRED = _KEYS - {"gripper_joints", "torso_regression", "dual_arm_workspace", "frames"}
+#: roles of the ``chest`` entry: required, then optional
+_CHEST_ROLES, _CHEST_OPTIONAL = ("yaw", "pitch"), ("roll",)
+#: roles of the ``head`` entry: the camera frame, required; the neck's joints, both or neither
+_NECK_ROLES = ("yaw", "pitch")
 
 
 @dataclass(frozen=True)
@@ -77,8 +83,10 @@ class RobotSpec:
     limbs: dict
     chest_yaw: str
     chest_pitch: str
-    head_yaw: str
-    head_pitch: str
+    #: the neck's yaw and pitch joints; both None for a robot without a neck (its description's
+    #: ``head`` names the camera frame only): :attr:`has_neck`, :attr:`neck_joints`
+    head_yaw: str | None
+    head_pitch: str | None
     camera_frame: str
     gripper_joints: tuple[str, ...]
     sole_rectangle: tuple[float, float, float, float]
@@ -94,6 +102,8 @@ class RobotSpec:
     #: directories holding the URDF's package (pinocchio's ``package_dirs`` for its meshes);
     #: empty for a URDF file beside robot.yaml
     package_dirs: tuple[Path, ...] = ()
+    #: the chest's roll joint where the description names one (``chest.roll``), else None
+    chest_roll: str | None = None
 
     @property
     def hand_frames(self) -> dict[str, str]:
@@ -112,16 +122,44 @@ class RobotSpec:
 
     @property
     def chest_joints(self) -> tuple[str, str]:
+        """Chest yaw, then pitch: the torso the reaching algorithms and the gaze move (a roll,
+        where the chest has one, is in :attr:`torso_joints` only)."""
         return self.chest_yaw, self.chest_pitch
 
     @property
+    def torso_joints(self) -> tuple[str, ...]:
+        """Every chest joint by role: yaw, pitch, then the roll where the description has one."""
+        return (self.chest_yaw, self.chest_pitch) + (() if self.chest_roll is None else (self.chest_roll,))
+
+    @property
+    def has_neck(self) -> bool:
+        """Whether the head turns on a neck (yaw and pitch joints) or sits fixed on the chest."""
+        return self.head_yaw is not None
+
+    @property
+    def neck_joints(self) -> tuple[str, ...]:
+        """Neck yaw, then pitch (pitch > 0 looks down); empty for a robot without a neck."""
+        return (self.head_yaw, self.head_pitch) if self.has_neck else ()
+
+    @property
     def head_joints(self) -> tuple[str, str]:
-        """Head yaw, then pitch (pitch > 0 looks down)."""
+        """Head yaw, then pitch (pitch > 0 looks down); ValueError for a robot without a neck
+        (:meth:`require_neck`): for callers that turn the head by its own angles. Callers that
+        merely treat the head joints apart use :attr:`neck_joints`, which may be empty."""
+        return self.require_neck("turning the head by its yaw and pitch")
+
+    def require_neck(self, what: str) -> tuple[str, str]:
+        """The neck's (yaw, pitch) joints, or ValueError naming the robot, its description and
+        ``what`` (e.g. "a look at head angles") when the robot has no neck."""
+        if not self.has_neck:
+            raise ValueError(f"robot {self.name!r} has no neck: its description {self.path} names no head yaw and "
+                             f"pitch joints (head: camera_frame only), and {what} needs them; aim the camera at a "
+                             "point instead (control/gaze.py: the chest aims it)")
         return self.head_yaw, self.head_pitch
 
     def names(self) -> set[str]:
         """Every joint and frame name the description gives (robot-specific by nature)."""
-        out = {self.camera_frame, *self.chest_joints, *self.head_joints, *self.gripper_joints, *self.frames}
+        out = {self.camera_frame, *self.torso_joints, *self.neck_joints, *self.gripper_joints, *self.frames}
         for limb in self.limbs.values():
             out |= {limb.root, limb.tip, *limb.joints}
         return out - {self.base_link}
@@ -215,12 +253,36 @@ def _dual_arm_workspace(doc, robot_dir: Path, where: str) -> str:
     return str(p)
 
 
+def _chest_and_head(doc, where: str) -> tuple[dict, dict]:
+    """The ``chest`` and ``head`` entries, checked: the chest's yaw and pitch joints (and
+    optionally its roll); the head's camera frame and either no neck or a neck's yaw and pitch
+    joints, both (half a neck is refused, naming the half that is missing)."""
+    chest, head = doc["chest"], doc["head"]
+    ok = isinstance(chest, dict) and set(_CHEST_ROLES) <= set(chest) <= {*_CHEST_ROLES, *_CHEST_OPTIONAL}
+    if not ok or not all(isinstance(v, str) for v in chest.values()):
+        raise ValueError(f"{where}: chest must be {{{', '.join(_CHEST_ROLES)}}} or {{{', '.join(_CHEST_ROLES)}, "
+                         f"{', '.join(_CHEST_OPTIONAL)}}} (joint names), got {chest!r}")
+    ok = isinstance(head, dict) and "camera_frame" in head and set(head) <= {*_NECK_ROLES, "camera_frame"}
+    if not ok or not all(isinstance(v, str) for v in head.values()):
+        raise ValueError(f"{where}: head must be {{camera_frame}} (a robot without a neck) or "
+                         f"{{{', '.join(_NECK_ROLES)}, camera_frame}} (a neck's joints; the frame), got {head!r}")
+    neck = [k for k in _NECK_ROLES if k in head]
+    if neck and len(neck) != len(_NECK_ROLES):
+        missing = [k for k in _NECK_ROLES if k not in head]
+        raise ValueError(f"{where}: head names a neck {' and '.join(neck)} joint but no {' and '.join(missing)} "
+                         f"joint: a neck needs both ({', '.join(_NECK_ROLES)}); a robot without a neck names only "
+                         "the camera_frame")
+    return chest, head
+
+
 def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]:
     """Read and validate a robot description; returns the spec and the raw document.
 
     ValueError naming the key for: unknown or missing keys, a limb without root, tip or
     six joints (six or seven for an arm), a URDF ``package://`` resource that is not
-    installed, a malformed added frame, a chest/head without both roles, a sole rectangle that is not four finite
+    installed, a malformed added frame, a chest without yaw and pitch (a roll is optional), a
+    head without a camera frame or with half a neck (yaw and pitch: both or neither), a chest
+    or neck joint named twice or that is also a limb or gripper joint, a sole rectangle that is not four finite
     numbers with min < max, a half-sitting entry that is not a finite angle, a
     ``dual_arm_workspace`` that is not an existing workspace YAML. Names are
     checked against the URDF by :class:`~humanoid_reach_ros.robot.model.RobotModel`."""
@@ -248,12 +310,7 @@ def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]
         limbs[name] = LimbDef(d["root"], d["tip"], tuple(d["joints"]))
     if limbs["right_arm"].root != limbs["left_arm"].root:
         raise ValueError(f"{where}: both arms must hang from the same (chest) link")
-    roles = {}
-    for part, keys in (("chest", ("yaw", "pitch")), ("head", ("yaw", "pitch", "camera_frame"))):
-        d = doc[part]
-        if not isinstance(d, dict) or set(d) != set(keys) or not all(isinstance(d[k], str) for k in keys):
-            raise ValueError(f"{where}: {part} must be {{{', '.join(keys)}}} (names)")
-        roles[part] = d
+    chest, head = _chest_and_head(doc, where)
     rect = doc["sole_rectangle_m"]
     finite = isinstance(rect, list) and all(isinstance(x, (int, float)) and math.isfinite(x) for x in rect)
     if not (finite and len(rect) == 4 and rect[0] < rect[1] and rect[2] < rect[3]):
@@ -264,6 +321,13 @@ def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]
     grippers = doc.get("gripper_joints", [])
     if not isinstance(grippers, list) or not all(isinstance(g, str) for g in grippers):
         raise ValueError(f"{where}: gripper_joints must be a list of joint names")
+    roles = [*chest.values(), *(head[k] for k in _NECK_ROLES if k in head)]
+    twice = sorted({n for n in roles if roles.count(n) > 1})
+    if twice:
+        raise ValueError(f"{where}: chest and head joints must be distinct joints, named twice: {twice}")
+    taken = {j for limb in limbs.values() for j in limb.joints} | set(grippers)
+    if shared := sorted(set(roles) & taken):
+        raise ValueError(f"{where}: chest or head joint(s) {shared} are also limb or gripper joints")
     reg = doc.get("torso_regression")
     if reg is not None and not isinstance(reg, str):
         raise ValueError(f"{where}: torso_regression must be a model path (beside robot.yaml, no extension)")
@@ -282,8 +346,8 @@ def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]
     spec = RobotSpec(
         name=str(doc["robot_name"]), path=path, urdf_path=urdf_path, package_dirs=package_dirs, frames=frames,
         collision_path=(path.parent / doc["collision_model"]).resolve(), base_link=str(doc["base_link"]),
-        limbs=limbs, chest_yaw=roles["chest"]["yaw"], chest_pitch=roles["chest"]["pitch"],
-        head_yaw=roles["head"]["yaw"], head_pitch=roles["head"]["pitch"], camera_frame=roles["head"]["camera_frame"],
+        limbs=limbs, chest_yaw=chest["yaw"], chest_pitch=chest["pitch"], chest_roll=chest.get("roll"),
+        head_yaw=head.get("yaw"), head_pitch=head.get("pitch"), camera_frame=head["camera_frame"],
         gripper_joints=tuple(grippers), sole_rectangle=tuple(float(x) for x in rect),
         half_sitting_deg={str(k): float(v) for k, v in hs.items()}, torso_regression=reg,
         dual_arm_workspace=workspace)
@@ -293,7 +357,7 @@ def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]
 def check_against_model(spec: RobotSpec, joint_names, has_frame) -> None:
     """ValueError naming every joint or frame of ``spec`` the URDF does not have."""
     joints = set(joint_names)
-    bad = [j for j in (*spec.chest_joints, *spec.head_joints, *spec.gripper_joints, *spec.half_sitting_deg)
+    bad = [j for j in (*spec.torso_joints, *spec.neck_joints, *spec.gripper_joints, *spec.half_sitting_deg)
            if j not in joints]
     for name, limb in spec.limbs.items():
         bad += [f"{name}.{j}" for j in limb.joints if j not in joints]
