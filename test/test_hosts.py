@@ -6,7 +6,7 @@ bridge (the operator's link capped at 20 Mbit/s); ``hr_graph --host robot`` and 
 the LAN (``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``, set by ``hosts.sh exec``), in the test's own
 ``ROS_DOMAIN_ID``. From the operator's host: a plan to the valve on the map the robot
 measured (the operator's automatic look first, through the robot's executor). Then the
-compute link is cut for 5 s while a plan is asked for: the operator gets a clear error
+compute link is cut while a plan is asked for: the operator gets a clear error
 within its timeout (no hang), and once the link is back the next request succeeds, no node
 restarted. Last, a stray ``/joint_command`` publisher on the operator's host moves nothing
 (joint_driver's ``command_source`` host), the same program on the robot's host does.
@@ -21,7 +21,6 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -33,7 +32,6 @@ HOSTS_SH = REPO_ROOT / "tools" / "hosts.sh"
 STRAY = Path(__file__).with_name("stray_command.py")
 BIN = REPO_ROOT / "install" / "humanoid_reach_ros" / "lib" / "humanoid_reach_ros"
 READY_DEADLINE_S = 300.0
-CUT_S = 5.0
 RECOVERY_DEADLINE_S = 60.0      # generous: the target (5 s) is measured by bench/hosts.py
 
 pytestmark = pytest.mark.node
@@ -110,15 +108,15 @@ def test_the_operator_flow_across_three_hosts_and_a_cut_link(three_hosts, ros_en
         print(f"\na plan from the operator's host after {len(looks)} automatic look(s): {operator_mb:.2f} MB over its "
               f"link")
 
-        # ---- the compute link cut for 5 s while a plan is asked for
-        cut = threading.Thread(target=hosts, args=("cut", "compute", f"{CUT_S:g}"), kwargs={"timeout": 60.0})
-        cut.start()
-        wait_for(lambda: Path("/sys/class/net/hr_compute_br/operstate").read_text().strip() == "down", 30.0,
-                 "the compute link down")
-        code, summary, err, took = operator(ros_env, "--target", "0.71", "0.03", "0.90", "--timeout", "4")
-        cut.join()
+        # ---- the compute link cut while a plan is asked for: down before the operator starts, up once it
+        # has answered (a fixed-length cut could end before a slow CLI on a loaded machine sends anything)
+        hosts("link", "compute", "down")
+        try:
+            code, summary, err, took = operator(ros_env, "--target", "0.71", "0.03", "0.90", "--timeout", "4")
+        finally:
+            hosts("link", "compute", "up")
         t_up = time.monotonic()
-        assert code != 0 and took < 4.0 + 2.0 + 15.0, (code, took, summary, err)   # --timeout + budget + start-up
+        assert code != 0 and took < 4.0 + 2.0 + 30.0, (code, took, summary, err)   # --timeout + budget + start-up
         assert "reach_operator:" in err or summary.get("plan"), (code, err)      # said why, in words
         print(f"during the cut: exit {code} after {took:.1f} s: {err.strip().splitlines()[-1] if err.strip() else ''}")
 

@@ -14,6 +14,7 @@
 #   tools/hosts.sh down
 #   tools/hosts.sh status
 #   tools/hosts.sh cut HOST SECONDS      # the host's link down for SECONDS, then up again
+#   tools/hosts.sh link HOST down|up     # the host's link down (or up) until told otherwise
 #   tools/hosts.sh exec HOST CMD ...     # CMD on HOST, discovery across the LAN (SUBNET)
 #
 # RATE as tc takes it (default 1gbit; the operator's link 20mbit, a good wireless link).
@@ -111,6 +112,14 @@ cut() {
     echo "hosts.sh: $(ns "$h") back"
 }
 
+link() {
+    local h=${1:?link HOST up|down} state=${2:?link HOST up|down}
+    known_host "$h"; need_root
+    [[ $state == up || $state == down ]] || die "link: up or down, got '$state'"
+    ip link set "$(port "$h")" "$state"
+    echo "hosts.sh: $(ns "$h") link $state"
+}
+
 run_on() {
     local h=${1:?exec HOST CMD ...}; shift
     known_host "$h"; need_root
@@ -123,6 +132,7 @@ case ${1:-} in
     down) down ;;
     status) status ;;
     cut) shift; cut "$@" ;;
+    link) shift; link "$@" ;;
     exec) shift; run_on "$@" ;;
-    *) die "usage: tools/hosts.sh up [--rate R] [--operator-rate R] [--delay MS] [--loss PCT] | down | status | cut HOST SECONDS | exec HOST CMD ..." ;;
+    *) die "usage: tools/hosts.sh up [--rate R] [--operator-rate R] [--delay MS] [--loss PCT] | down | status | cut HOST SECONDS | link HOST down|up | exec HOST CMD ..." ;;
 esac
