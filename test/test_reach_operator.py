@@ -372,3 +372,60 @@ def test_an_automatic_look_waits_for_a_slowly_discovered_look_server(monkeypatch
     resp, code = op.plan_with_looks(off, op.parse_args(["--target", "0.45", "-0.35", "0.50", "--no-auto-look"]),
                                     PlanReach.Request(), io.StringIO(), off.err, {})
     assert resp.error_code == PlanReach.Response.UNOBSERVED_SPACE and not off.looks and time.monotonic() - t0 < 5.0
+
+
+def test_a_lost_goal_response_is_recovered_from_the_goal_status(ros_env) -> None:
+    """A goal response lost on the way (the server's response writer had not matched this fresh
+    client yet: "failed to send response (timeout): client will not receive response"; bench/session
+    once ran a whole scan while the CLI waited for it and timed out): the goal's status says it
+    was accepted, and the operator waits for its result instead of timing out."""
+    import threading
+
+    import rclpy
+    from humanoid_reach_interfaces.action import Look
+    from rclpy.action import ActionServer
+    from rclpy.executors import SingleThreadedExecutor
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node("lossy_look_server", context=ctx)
+    dropped: list = []
+
+    def execute(goal_handle):
+        goal_handle.succeed()
+        return Look.Result(error_code=Look.Result.SUCCESS, message="looked")
+    server = ActionServer(node, Look, "/look", execute_callback=execute)
+
+    class DropGoalResponses:   # the server's handle, but its goal responses are lost
+        def __init__(self, handle) -> None:
+            self._h = handle
+
+        def __getattr__(self, name):
+            return getattr(self._h, name)
+
+        def __enter__(self):
+            return self._h.__enter__()
+
+        def __exit__(self, *exc):
+            return self._h.__exit__(*exc)
+
+        def send_goal_response(self, header, response) -> None:
+            dropped.append(response.accepted)
+    server._handle = DropGoalResponses(server._handle)
+    executor = SingleThreadedExecutor(context=ctx)
+    executor.add_node(node)
+    spinning = threading.Thread(target=executor.spin, daemon=True)
+    spinning.start()
+    err = io.StringIO()
+    operator = op.Operator(timeout_s=30.0, err=err)
+    try:
+        outcome, result = operator.look([0.1], [0.2], 0.0, lambda fb: None)
+    finally:
+        operator.close()
+        executor.shutdown()
+        server.destroy()
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+    assert dropped == [True], dropped
+    assert outcome == "done" and result.message == "looked", (outcome, result, err.getvalue())
+    assert "the goal's acceptance never arrived" in err.getvalue()

@@ -53,6 +53,10 @@ EXIT = {"success": 0, "internal": 1, "usage": 2, "unavailable": 3, "invalid": 4,
 SCAN_POSES_ASSUMED = 20   # for the result deadline of a scan: poses of the executor's scan_poses_deg at most
 WAIT_NOTE_FIRST_S = 2.0   # waiting for a server: the first line after this long [s] (discovery can take 1 s) ...
 WAIT_NOTE_EVERY_S = 5.0   # ... then one every this long, with the seconds left
+# action_msgs/GoalStatus: any status of our goal id means the server accepted it; these three end it
+GOAL_KNOWN = frozenset(range(1, 7))        # ACCEPTED, EXECUTING, CANCELING, SUCCEEDED, CANCELED, ABORTED
+GOAL_DONE = frozenset((4, 5, 6))           # SUCCEEDED, CANCELED, ABORTED
+LOST_RESPONSE_GRACE_S = 1.0   # the status said so this long and the response did not come: taken as lost
 ARMS = ARM_REQUESTS                     # --arm name -> PlanReach.Request.ARM_*
 ARM_LABELS = {code: name for name, code in ARM_REQUESTS.items()}
 
@@ -372,6 +376,30 @@ class Operator:
         self.exec_client = ActionClient(self.node, ExecuteReach, "/execute_reach")
         self.look_client = ActionClient(self.node, Look, "/look")
         self.ExecuteReach, self.Look = ExecuteReach, Look
+        # the goals' status as the servers publish it (by goal id): it tells a goal accepted, or finished,
+        # when the service response that should have said so was lost (:meth:`_await`)
+        from action_msgs.msg import GoalStatusArray
+        from rclpy.qos import qos_profile_action_status_default
+        self.goal_status: dict[bytes, tuple[int, float]] = {}    # goal id -> (status, when first seen)
+        for name in ("/execute_reach", "/look"):
+            self.node.create_subscription(GoalStatusArray, f"{name}/_action/status", self._on_status,
+                                          qos_profile_action_status_default)
+
+    def _on_status(self, msg: Any) -> None:
+        now = time.monotonic()
+        for st in msg.status_list:
+            key = bytes(st.goal_info.goal_id.uuid)
+            old = self.goal_status.get(key)
+            self.goal_status[key] = (int(st.status), old[1] if old and old[0] == st.status else now)
+
+    def send_goal(self, client: Any, goal: Any, feedback_callback: Callable[[Any], None]) -> tuple[Any, Any, Any]:
+        """``client.send_goal_async`` with a goal id of our own, so that the goal's status can stand in
+        for a lost response; (client, goal id, future of the goal response)."""
+        import uuid
+
+        from unique_identifier_msgs.msg import UUID
+        goal_id = UUID(uuid=list(uuid.uuid4().bytes))
+        return client, goal_id, client.send_goal_async(goal, feedback_callback=feedback_callback, goal_uuid=goal_id)
 
     def close(self) -> None:
         self.look_client.destroy()
@@ -438,8 +466,7 @@ class Operator:
                                       disable_collision_avoidance=args.no_collision_avoidance,
                                       disable_com_compensation=args.no_com_compensation,
                                       smooth_reshaping=args.smooth_reshaping)
-        send = self.exec_client.send_goal_async(goal, feedback_callback=lambda m: on_feedback(
-            Progress.from_feedback(m.feedback)))
+        send = self.send_goal(self.exec_client, goal, lambda m: on_feedback(Progress.from_feedback(m.feedback)))
         pts = trajectory.points
         duration = pts[-1].time_from_start.sec + pts[-1].time_from_start.nanosec * 1e-9 if pts else 0.0
         return self._await(send, duration + self.timeout_s)
@@ -463,7 +490,7 @@ class Operator:
         poses = len(yaw_rad) or (len(gaze_points) if gaze_points is not None else SCAN_POSES_ASSUMED)
         deadline = time.monotonic() + LOOK_START_GRACE_S
         while True:
-            send = self.look_client.send_goal_async(goal, feedback_callback=lambda m: on_feedback(m.feedback))
+            send = self.send_goal(self.look_client, goal, lambda m: on_feedback(m.feedback))
             outcome, result = self._await(send, self.timeout_s + poses * ((dwell_s or 1.0) + 5.0))
             # right after the graph came up the executor may not have taken a /joint_states yet (bench/session,
             # a --scan at once after start-up: NO_JOINT_STATES): ask again, for a few seconds only
@@ -471,20 +498,50 @@ class Operator:
                 return outcome, result
             self.spin_until(lambda: False, 0.5)   # a pause that Ctrl-C ends (Canceled)
 
-    def _await(self, send: Any, result_timeout_s: float) -> tuple[str, Any]:
+    def _await(self, sent: tuple[Any, Any, Any], result_timeout_s: float) -> tuple[str, Any]:
+        """The goal's response, then its result. A service response can be lost when the server's
+        response writer has not yet matched this fresh client's reader (the server logs
+        "failed to send response (timeout): client will not receive response"; bench/session saw
+        it once for /look's goal response: the scan ran to the end and the CLI timed out). So
+        the goal's status (a topic, transient local) stands in: accepted for
+        ``LOST_RESPONSE_GRACE_S`` without a response means accepted; finished for as long
+        without a result means the result request is sent again (the server keeps results)."""
+        client, goal_id, send = sent
+        key = bytes(goal_id.uuid)
+
+        def status_for(at_least: frozenset[int]) -> bool:
+            st = self.goal_status.get(key)
+            return st is not None and st[0] in at_least and time.monotonic() - st[1] > LOST_RESPONSE_GRACE_S
+        handle = None
         try:
-            if not self.spin_until(send.done, self.timeout_s):
+            if not self.spin_until(lambda: send.done() or status_for(GOAL_KNOWN), self.timeout_s):
                 return "timeout", None
-            handle = send.result()
-            if not handle.accepted:
-                return "rejected", None
+            if send.done():
+                handle = send.result()
+                if not handle.accepted:
+                    return "rejected", None
+            else:
+                from rclpy.action.client import ClientGoalHandle
+                self.err.write("reach_operator: the goal's acceptance never arrived (a response lost while the "
+                               "server discovered this client); its status says accepted: waiting for its result\n")
+                handle = ClientGoalHandle(client, goal_id, client._action_type.Impl.SendGoalService.Response(
+                    accepted=True))
             result_future = handle.get_result_async()
-            if not self.spin_until(result_future.done, result_timeout_s):
+            deadline = time.monotonic() + result_timeout_s
+            if not self.spin_until(lambda: result_future.done() or status_for(GOAL_DONE),
+                                   deadline - time.monotonic()):
                 return "timeout", None
+            while not result_future.done():   # finished, and no result for LOST_RESPONSE_GRACE_S: ask again
+                self.err.write("reach_operator: the goal finished but its result did not arrive: asking again\n")
+                result_future = handle.get_result_async()
+                if not self.spin_until(result_future.done,
+                                       min(self.timeout_s, max(0.0, deadline - time.monotonic()))):
+                    return "timeout", None
             return "done", result_future.result().result
         except Canceled:
-            handle = send.result() if send.done() else None
-            if handle is None or not handle.accepted:
+            if handle is None and send.done() and send.result().accepted:
+                handle = send.result()
+            if handle is None:
                 return "canceled", None
             self.err.write("\nreach_operator: Ctrl-C: canceling the goal ...\n")
             cancel = handle.cancel_goal_async()
