@@ -389,3 +389,30 @@ def test_without_a_neck_the_balanced_gaze_keeps_the_cog_and_the_feet(neckless) -
     np.testing.assert_array_equal(g.joints[head], j0[head])
     arms = [i for limb in ("right_arm", "left_arm") for i in robot.limbs[limb].joint_index]
     np.testing.assert_array_equal(g.joints[arms], j0[arms])
+
+
+def test_a_neckless_robots_look_requests(neckless) -> None:
+    """The executor's look requests on a robot without a neck: head angles (a goal's, or the
+    scan pattern) are refused as INVALID_GOAL naming the robot and what to do instead; a gaze at
+    a point is planned (the chest aims the camera), its feedback angles the chest's."""
+    from humanoid_reach_ros.codes import ExecuteCode as C
+    from humanoid_reach_ros.codes import RequestError
+    from humanoid_reach_ros.execution.requests import ExecutionRequests
+    from humanoid_reach_ros.nodes import reach_executor_params
+
+    robot = neckless.robot
+    p = {k: spec.default for k, spec in reach_executor_params.PARAMETERS.items()}
+    p["scene_file"] = ""
+    req = ExecutionRequests(robot, p)
+    for yaw, pitch in (([0.1], [0.2]), ([], [])):
+        with pytest.raises(RequestError, match="robot 'hrp2' has no neck.*aim the camera at a point") as exc:
+            req.head_poses(yaw, pitch)
+        assert exc.value.code == C.INVALID_GOAL
+    j0 = robot.half_sitting_joints
+    cam = robot.frame_pose(robot.config(j0, robot.base_on_feet(j0)), robot.camera_frame)
+    point = cam.translation + 1.2 * (cam.rotation @ np.array([0.3, 0.2, 1.0]) / np.linalg.norm([0.3, 0.2, 1.0]))
+    motion, g = req.gaze(1, "look #1 point 0", point, j0, "")
+    assert g.visible and g.off_axis_deg < 1.0, g
+    chest = [robot.joint_index[n] for n in robot.spec.chest_joints]
+    assert req.head_targets(g.joints) == tuple(float(v) for v in g.joints[chest])
+    assert not np.allclose(g.joints[chest], j0[chest])   # the chest turned to aim

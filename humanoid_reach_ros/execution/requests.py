@@ -274,6 +274,10 @@ class ExecutionRequests:
         a parameter for any robot: its poses are clamped into this robot's head limits, where a
         goal's poses outside them are refused)."""
         bad = C.INVALID_GOAL
+        try:   # head angles need a neck; a robot without one aims its camera at points (gaze_points)
+            self.robot.spec.require_neck("a look at head angles (yaw_rad/pitch_rad, or the scan's scan_poses_deg)")
+        except ValueError as exc:
+            raise RequestError(bad, str(exc)) from None
         if len(yaw) != len(pitch):
             raise RequestError(bad, f"{len(yaw)} yaw angles but {len(pitch)} pitch angles: give one pitch per yaw")
         scan = len(yaw) == 0
@@ -300,8 +304,10 @@ class ExecutionRequests:
 
     @property
     def head_joints(self) -> list[str]:
-        """Head yaw and pitch joints of the robot description."""
-        return list(self.robot.spec.head_joints)
+        """Head yaw and pitch joints of the robot description; without a neck, the chest's yaw
+        and pitch (the joints that aim the camera: ``control/gaze.py``)."""
+        spec = self.robot.spec
+        return list(spec.neck_joints if spec.has_neck else spec.chest_joints)
 
     def look(self, mid: int, label: str, pose: np.ndarray, joints: np.ndarray | None, reason: str):
         """A whole-body motion that turns the head to ``pose`` (yaw, pitch [rad]) from the measured
@@ -365,7 +371,8 @@ class ExecutionRequests:
                       params=self._executor_params(), q_measured=q0, note=note), g
 
     def head_targets(self, joints: np.ndarray) -> tuple[float, float]:
-        """Head yaw and pitch [rad] of a joint vector (the ``Look`` feedback's fields)."""
+        """Head yaw and pitch [rad] of a joint vector (the ``Look`` feedback's fields); without a
+        neck, the chest's (:attr:`head_joints`)."""
         yaw, pitch = (float(joints[self.robot.joint_index[n]]) for n in self.head_joints)
         return yaw, pitch
 

@@ -689,7 +689,7 @@ class ReachPlanner:
         P = self._last_positions
         if P is None:
             return False
-        head = [self.robot.joint_index[n] for n in self.robot.spec.head_joints]
+        head = [self.robot.joint_index[n] for n in self.robot.spec.neck_joints]   # none without a neck
         keep = np.ones(self.robot.n_joints, bool)
         keep[head] = False
         off = float(np.max(np.abs(P[-1] - joints)[keep]))
@@ -714,7 +714,7 @@ class ReachPlanner:
         if not self._near_last_end(joints):
             return None
         P = self._last_positions
-        head = [self.robot.joint_index[n] for n in self.robot.spec.head_joints]
+        head = [self.robot.joint_index[n] for n in self.robot.spec.neck_joints]   # none without a neck
         R = P[::-1].copy()
         delta = joints - P[-1]
         delta[head] = 0.0
