@@ -45,6 +45,7 @@ STOP_DEADLINE_S = 3.0   # a node exits (code 0) within this long of SIGINT
 # built-in 0.5 MB and were lost as best-effort UDP fragments (config/fastdds.xml says more)
 FASTDDS_PROFILES = PACKAGE_ROOT / "config" / "fastdds.xml"
 FASTDDS_PROFILES_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"
+ENCLAVE_ENV = "ROS_SECURITY_ENCLAVE_OVERRIDE"   # rcl: the SROS2 enclave of every node of a process
 
 T = TypeVar("T")
 
@@ -99,7 +100,8 @@ def allocate_domain() -> DomainLease:
 
 
 def graph_env(domain_id: int, base: Mapping[str, str] | None = None) -> dict[str, str]:
-    """Environment for processes of an isolated graph (localhost discovery, own domain)."""
+    """Environment for processes of an isolated graph (localhost discovery, own domain); every
+    other variable of ``base`` (the ``ROS_SECURITY_*`` ones included) passes through untouched."""
     env = dict(os.environ if base is None else base)
     env.update({
         "ROS_DOMAIN_ID": str(domain_id),

@@ -30,10 +30,10 @@ import signal
 import sys
 import time
 from pathlib import Path
-from typing import TextIO
+from typing import Mapping, TextIO
 
-from humanoid_reach_ros.graph import HOST_NODES, STOP_DEADLINE_S, Graph, NodeProcess, graph_env, host_nodes, \
-    launch_params
+from humanoid_reach_ros.graph import (ENCLAVE_ENV, HOST_NODES, STOP_DEADLINE_S, Graph, NodeProcess, graph_env,
+                                      host_nodes, launch_params)
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.robot.spec import robots
 
@@ -64,8 +64,13 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    help="start only this host's nodes (reach.launch.py's host:=): robot (sensors, driver, mapper, "
                         "localizer, executor), compute (the planner) or all (default); across hosts set "
                         "ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET or ROS_STATIC_PEERS (docs/deployment.md)")
+    p.add_argument("--enclave", default="", help="SROS2 enclave of every node (reach.launch.py's enclave:=; "
+                   "ROS_SECURITY_ENCLAVE_OVERRIDE), e.g. /humanoid/robot; the shell's ROS_SECURITY_* variables pass "
+                   "through untouched (docs/deployment.md)")
     p.add_argument("--log-dir", default="out/graph", help="directory of the node logs (default out/graph)")
     a = p.parse_args(argv)
+    if a.enclave and not a.enclave.startswith("/"):
+        p.error(f"--enclave {a.enclave}: an enclave is an absolute name, e.g. /humanoid/robot")
     if a.scene is not None:
         path = config_path(a.scene) if not Path(a.scene).is_file() else Path(a.scene).resolve()
         if not path.is_file():
@@ -108,16 +113,26 @@ def report_dead(p: NodeProcess, out: TextIO) -> None:
     out.flush()
 
 
+def nodes_env(args: argparse.Namespace, shell: Mapping[str, str]) -> dict[str, str]:
+    """The nodes' environment: the shell's (its ``ROS_SECURITY_*`` untouched), its domain, its
+    discovery settings where it has them (else localhost), ``--enclave`` as rcl's
+    ``ROS_SECURITY_ENCLAVE_OVERRIDE``."""
+    env = graph_env(int(shell.get("ROS_DOMAIN_ID") or 0), base=shell)
+    for key in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS"):   # the shell's own discovery settings win
+        if shell.get(key):
+            env[key] = shell[key]
+    if args.enclave:
+        env[ENCLAVE_ENV] = args.enclave
+    return env
+
+
 def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
     stop: list[int] = []
     old = {s: signal.signal(s, lambda signum, _f: stop.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)}
     log_dir = Path(args.log_dir).resolve()
     log_dir.mkdir(parents=True, exist_ok=True)
     domain = int(os.environ.get("ROS_DOMAIN_ID") or 0)
-    env = graph_env(domain)
-    for key in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS"):   # the shell's own discovery settings win
-        if os.environ.get(key):
-            env[key] = os.environ[key]
+    env = nodes_env(args, os.environ)
     names = list(host_nodes(args.host, sim_sensors=not args.no_sim_sensors))
     graph = Graph(log_dir, env, new_session=True)   # Ctrl-C reaches hr_graph, which stops the nodes in order
     watch = None

@@ -8,6 +8,10 @@ Arguments:
     scene              scene file of scene_sim (and of the planner's/executor's map until /voxel_map
                        arrives); default: the plant of the Kanehiro paper (config/scenes/plant.yaml)
     use_sim_sensors    start joint_driver and scene_sim (true) or use the real robot's drivers (false)
+    enclave            SROS2 enclave of every node (e.g. /humanoid/robot), given to rcl as
+                       ROS_SECURITY_ENCLAVE_OVERRIDE; empty (default): none. The ROS_SECURITY_*
+                       variables of the shell (ENABLE, STRATEGY, KEYSTORE) pass through untouched
+                       (docs/deployment.md)
     host               all (default), robot (driver, sensors, mapper, localizer, executor) or compute
                        (the planner): the graph across hosts (docs/deployment.md), e.g.
                        ros2 launch humanoid_reach_ros reach.launch.py host:=robot   # on the robot
@@ -33,6 +37,7 @@ from launch_ros.actions import Node
 
 PACKAGE = "humanoid_reach_ros"
 FASTDDS_PROFILES_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"
+ENCLAVE_ENV = "ROS_SECURITY_ENCLAVE_OVERRIDE"   # rcl: the enclave of every node of the process
 # (executable, started only with simulated sensors, the hosts that run it besides "all")
 NODES = [
     ("joint_driver", True, ("robot",)),
@@ -56,6 +61,10 @@ def generate_launch_description() -> LaunchDescription:
                               description="start the simulated joint driver and head sensors"),
         DeclareLaunchArgument("host", default_value="all", choices=list(HOSTS),
                               description="the nodes of one host: robot, compute (the planner) or all"),
+        DeclareLaunchArgument("enclave", default_value="",
+                              description="SROS2 enclave of every node (ROS_SECURITY_ENCLAVE_OVERRIDE); empty: none"),
+        SetEnvironmentVariable(ENCLAVE_ENV, LaunchConfiguration("enclave"), condition=IfCondition(
+            PythonExpression(["'", LaunchConfiguration("enclave"), "' != ''"]))),
         # Fast DDS: an 8 MB shared-memory segment for the point clouds (config/fastdds.xml);
         # a profile the user already set is kept
         SetEnvironmentVariable(FASTDDS_PROFILES_ENV, EnvironmentVariable(

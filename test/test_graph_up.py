@@ -126,8 +126,21 @@ def test_hr_graph_names_a_node_that_exits(ros_env, tmp_path: Path) -> None:
     (["--robot", "nao"], "invalid choice"),
     (["--no-sim"], "unrecognized arguments: --no-sim"),   # no abbreviations
     (["--host", "laptop"], "argument --host: invalid choice: 'laptop'"),
+    (["--enclave", "robot"], "--enclave robot: an enclave is an absolute name"),
 ])
 def test_bad_options_are_refused(argv: list[str], message: str, capsys: pytest.CaptureFixture) -> None:
     with pytest.raises(SystemExit) as exc:
         graph_up.parse_args(argv)
     assert exc.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_the_nodes_environment_keeps_security_and_discovery_and_sets_the_enclave() -> None:
+    """hr_graph's nodes get the shell's ROS_SECURITY_* untouched, its domain and discovery
+    settings, and --enclave as rcl's ROS_SECURITY_ENCLAVE_OVERRIDE (reach.launch.py's enclave:=)."""
+    shell = {"ROS_DOMAIN_ID": "42", "ROS_SECURITY_ENABLE": "true", "ROS_SECURITY_STRATEGY": "Enforce",
+             "ROS_SECURITY_KEYSTORE": "/etc/keystore", "ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET", "PATH": "/bin"}
+    env = graph_up.nodes_env(graph_up.parse_args(["--enclave", "/humanoid/robot"]), shell)
+    assert {k: env[k] for k in shell} == shell
+    assert env["ROS_SECURITY_ENCLAVE_OVERRIDE"] == "/humanoid/robot"
+    plain = graph_up.nodes_env(graph_up.parse_args([]), {"ROS_DOMAIN_ID": "7"})
+    assert plain["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST" and "ROS_SECURITY_ENCLAVE_OVERRIDE" not in plain

@@ -104,3 +104,19 @@ def test_the_launch_file_places_nodes_on_hosts_as_hr_graph_does() -> None:
     assert host_nodes("robot", sim_sensors=False) == ("voxel_mapper", "marker_localizer", "reach_executor")
     with pytest.raises(ValueError, match="host must be one of"):
         host_nodes("laptop")
+
+
+def test_the_launch_file_takes_an_enclave_as_hr_graph_does() -> None:
+    """reach.launch.py's enclave:= sets the variable hr_graph --enclave sets (graph.ENCLAVE_ENV),
+    only when given; the ROS_SECURITY_* variables are never set by it (they pass through)."""
+    from humanoid_reach_ros.graph import ENCLAVE_ENV
+
+    text = (REPO_ROOT / "launch" / "reach.launch.py").read_text()
+    tree = ast.parse(text)
+    consts = {node.targets[0].id: ast.literal_eval(node.value) for node in ast.walk(tree)
+              if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name)
+              and isinstance(node.value, ast.Constant)}
+    assert consts["ENCLAVE_ENV"] == ENCLAVE_ENV == "ROS_SECURITY_ENCLAVE_OVERRIDE"
+    assert 'DeclareLaunchArgument("enclave", default_value=""' in text
+    assert "SetEnvironmentVariable(ENCLAVE_ENV" in text and "' != ''\"" in text
+    assert "ROS_SECURITY_ENABLE" not in text.split('"""', 2)[2]   # not set anywhere below the docstring
