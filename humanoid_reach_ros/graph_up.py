@@ -131,8 +131,8 @@ def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
     old = {s: signal.signal(s, lambda signum, _f: stop.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)}
     log_dir = Path(args.log_dir).resolve()
     log_dir.mkdir(parents=True, exist_ok=True)
-    domain = int(os.environ.get("ROS_DOMAIN_ID") or 0)
     env = nodes_env(args, os.environ)
+    domain = env["ROS_DOMAIN_ID"]
     names = list(host_nodes(args.host, sim_sensors=not args.no_sim_sensors))
     graph = Graph(log_dir, env, new_session=True)   # Ctrl-C reaches hr_graph, which stops the nodes in order
     watch = None

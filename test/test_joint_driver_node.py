@@ -253,12 +253,13 @@ def test_params_file_and_sigterm(start_node, ros_probe, tmp_path) -> None:
 
 
 @pytest.mark.node
-def test_bad_parameter_exits_with_a_clear_error(start_node) -> None:
-    driver = start_node("joint_driver", params={"initial_posture": "sideways"})
+@pytest.mark.parametrize("name, value", [("initial_posture", "sideways"), ("command_source", "anyone")])
+def test_bad_parameter_exits_with_a_clear_error(start_node, name: str, value: str) -> None:
+    driver = start_node("joint_driver", params={name: value})
     driver.ok_exit_codes = (2,)
     code = driver.proc.wait(20.0)
     assert code == 2, driver.log_tail()
-    assert driver.log_lines(r"cannot start: ValueError: initial_posture must be one of")
+    assert driver.log_lines(rf"cannot start: ValueError: {name} must be one of .*got '{value}'")
     assert "Traceback" not in driver.log()
 
 
