@@ -35,7 +35,6 @@ from humanoid_reach_ros.codes import ARM_REQUESTS
 from humanoid_reach_ros.graph import (  # noqa: F401  (Graph, GRAPH_NODES: also for benches and tools)
     GRAPH_NODES, STOP_DEADLINE_S, Graph, allocate_domain, graph_env, wait_for)
 from humanoid_reach_ros.nodes.reach_executor_params import PARAMETERS
-from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT, robots
 
 # the topics the MCAP recording keeps (camera images are left out: 10 Hz of 640x480 RGB is 9 MB/s)
@@ -175,11 +174,15 @@ def aim_head_deg(robot_name: str, point, step_deg: float = 1.0) -> tuple[float, 
     return aim(RobotModel(robot_name), point, step_deg=step_deg)
 
 
-def wait_marker(op: DemoClient, look_at: tuple[float, float], timeout: float = 30.0):
-    """Looks at the valve and waits for five consistent /target_pose messages."""
+def wait_marker(op: DemoClient, look_at: tuple[float, float] | None, timeout: float = 30.0, gaze=None):
+    """Looks at the valve (head angles ``look_at`` [deg], or a whole-body gaze at the point
+    ``gaze`` [m, world]) and waits for five consistent /target_pose messages."""
     from humanoid_reach_ros.io import msgs
 
-    op.look([look_at[0]], [look_at[1]], 0.1)
+    if gaze is not None:
+        op.look([], [], 0.1, gaze_points=np.asarray(gaze, float).reshape(1, 3))
+    else:
+        op.look([look_at[0]], [look_at[1]], 0.1)
     n0 = len(op.targets)
 
     def steady() -> bool:
@@ -379,14 +382,21 @@ def run(args: argparse.Namespace) -> dict:
         voxels = scan_plant(op, args.settle)
         target = None
         if args.target is None:
-            look = args.look
+            look, gaze = args.look, None
             if look is None:
+                from humanoid_reach_ros.robot.spec import load_robot_spec
                 from humanoid_reach_ros.sim.scene import load_scene
 
-                look = aim_head_deg(args.robot, load_scene(scene).target.pose[:3, 3])
-                print(f"[demo] looking for the marker at yaw {look[0]:.0f}, pitch {look[1]:.0f} deg (the head "
-                      "aimed at the scene's valve)")
-            target = wait_marker(op, look)
+                valve = load_scene(scene).target.pose[:3, 3]
+                if load_robot_spec(args.robot)[0].has_neck:
+                    look = aim_head_deg(args.robot, valve)
+                    print(f"[demo] looking for the marker at yaw {look[0]:.0f}, pitch {look[1]:.0f} deg (the head "
+                          "aimed at the scene's valve)")
+                else:   # the camera turns with the body only: a balanced whole-body gaze at the valve
+                    gaze = valve
+                    print(f"[demo] looking for the marker: a whole-body gaze at the scene's valve "
+                          f"{np.round(valve, 3).tolist()} (the robot has no neck)")
+            target = wait_marker(op, look, gaze=gaze)
             from humanoid_reach_ros.io import msgs
 
             p = msgs.se3_from_pose(target.pose).translation
@@ -477,7 +487,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="manual target position in the world frame [m] instead of the marker on the valve")
     ap.add_argument("--rpy", type=float, nargs=3, metavar=("R", "P", "Y"), default=None,
                     help="manual target orientation [deg] (with --target; default: the valve's)")
-    ap.add_argument("--scene", default=str(config_path("scenes/plant.yaml")), help="scene file for scene_sim")
+    ap.add_argument("--scene", default=None, help="scene file for scene_sim (default: the robot's demo_scene, "
+                    "the plant unless its robot.yaml names one made for its size)")
     ap.add_argument("--planner", default="", help="rrt_connect | prm | modified_prm (default: the node's)")
     ap.add_argument("--budget", type=float, default=5.0, help="planning time budget [s]")
     ap.add_argument("--seed", type=int, default=-1, help="planner seed (negative: the node's)")
@@ -493,6 +504,12 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--target must be finite")
     if args.rpy is not None and (args.target is None or not all(math.isfinite(v) for v in args.rpy)):
         ap.error("--rpy needs --target and finite angles")
+    if args.scene is None:
+        from humanoid_reach_ros.robot.spec import load_robot_spec
+        try:
+            args.scene = load_robot_spec(args.robot)[0].demo_scene
+        except ValueError as exc:
+            ap.error(f"--robot {args.robot}: {exc}")
     if not Path(args.scene).is_file():
         ap.error(f"--scene {args.scene}: no such file")
     if not 0.1 <= args.budget <= 60.0:

@@ -57,7 +57,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                                             "until Ctrl-C.")
     p.add_argument("--robot", choices=robots(), help="robot_config of every node (default: the YAML files')")
     p.add_argument("--scene", help="scene file of scene_sim, reach_planner and reach_executor (reach.launch.py's "
-                   "scene:=; default: the YAML files', config/scenes/plant.yaml)")
+                   "scene:=; default: the YAML files', config/scenes/plant.yaml, or the robot's demo_scene)")
     p.add_argument("--no-sim-sensors", action="store_true", help="leave out joint_driver and scene_sim "
                    "(reach.launch.py's use_sim_sensors:=false: the real robot's drivers publish)")
     p.add_argument("--host", choices=sorted(HOST_NODES), default="all",
@@ -76,6 +76,14 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         if not path.is_file():
             p.error(f"--scene {a.scene}: no such file")
         a.scene = str(path)
+    elif a.robot is not None:   # a robot too small for the plant names the scene made for its size (demo_scene)
+        from humanoid_reach_ros.robot.spec import DEFAULT_DEMO_SCENE, load_robot_spec
+        try:
+            scene = load_robot_spec(a.robot)[0].demo_scene
+        except ValueError as exc:
+            p.error(f"--robot {a.robot}: {exc}")
+        if Path(scene) != config_path(DEFAULT_DEMO_SCENE):
+            a.scene = scene
     return a
 
 

@@ -393,8 +393,10 @@ def test_without_a_neck_the_balanced_gaze_keeps_the_cog_and_the_feet(neckless) -
 
 def test_a_neckless_robots_look_requests(neckless) -> None:
     """The executor's look requests on a robot without a neck: head angles (a goal's, or the
-    scan pattern) are refused as INVALID_GOAL naming the robot and what to do instead; a gaze at
-    a point is planned (the chest aims the camera), its feedback angles the chest's."""
+    scan pattern) are no head poses (INVALID_GOAL naming the robot and what to do instead) but
+    directions: ``look_targets`` turns them into gaze points ``look_distance_m`` from the camera
+    (the scan pattern too, and a look at yaw/pitch); a gaze at a point is planned (the chest aims
+    the camera), its feedback angles the chest's."""
     from humanoid_reach_ros.codes import ExecuteCode as C
     from humanoid_reach_ros.codes import RequestError
     from humanoid_reach_ros.execution.requests import ExecutionRequests
@@ -410,6 +412,25 @@ def test_a_neckless_robots_look_requests(neckless) -> None:
         assert exc.value.code == C.INVALID_GOAL
     j0 = robot.half_sitting_joints
     cam = robot.frame_pose(robot.config(j0, robot.base_on_feet(j0)), robot.camera_frame)
+    # directions: yaw 0.1 rad to the left, pitch 0.2 rad down, look_distance_m from the camera
+    poses, points = req.look_targets([0.1], [0.2])
+    assert poses is None and points.shape == (1, 3)
+    d = (points[0] - cam.translation) / p["look_distance_m"]
+    np.testing.assert_allclose(d, [np.cos(0.2) * np.cos(0.1), np.cos(0.2) * np.sin(0.1), -np.sin(0.2)], atol=1e-12)
+    poses, scan = req.look_targets([], [])   # the scan pattern's directions, one point per pose
+    assert poses is None and len(scan) == len(p["scan_poses_deg"]) // 2
+    np.testing.assert_allclose(np.linalg.norm(scan - cam.translation, axis=1), p["look_distance_m"])
+    for yaw, pitch, match in (([0.1], [], "1 yaw angles but 0 pitch"), ([0.1], [float("nan")], "NaN/inf"),
+                              ([0.0], [1.7], "beyond \\+-90 deg")):
+        with pytest.raises(RequestError, match=match) as exc:
+            req.look_targets(yaw, pitch)
+        assert exc.value.code == C.INVALID_GOAL
+    for k in range(len(scan)):   # every scan direction is looked at by a balanced gaze
+        motion, g = req.gaze(2 + k, f"look #2 point {k}", scan[k], j0, "")
+        assert g.balanced, (k, g)
+    hrp2 = ExecutionRequests(RobotModel("hrp2"), p)   # with a neck: head poses, as before
+    poses, points = hrp2.look_targets([0.1], [0.2])
+    assert points is None and poses.tolist() == [[0.1, 0.2]]
     point = cam.translation + 1.2 * (cam.rotation @ np.array([0.3, 0.2, 1.0]) / np.linalg.norm([0.3, 0.2, 1.0]))
     motion, g = req.gaze(1, "look #1 point 0", point, j0, "")
     assert g.visible and g.off_axis_deg < 1.0, g

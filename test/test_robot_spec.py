@@ -121,6 +121,23 @@ def test_dual_arm_workspace_defaults_to_the_first_robots_and_is_per_robot(tmp_pa
         assert load_robot_spec("talos")[0].dual_arm_workspace != load_robot_spec("hrp2")[0].dual_arm_workspace
 
 
+def test_the_demo_scene_is_the_plant_unless_the_robot_names_its_own(tmp_path):
+    """``demo_scene`` (issue 23: a robot too small for the plant's valve names a scene made for
+    its size): without the key, the plant; a name is read beside robot.yaml; a missing file or
+    a value that is no YAML file name is refused at load, naming the key."""
+    plant = str(config_path("scenes/plant.yaml"))
+    assert load_robot_spec("hrp2")[0].demo_scene == plant
+    doc_path = _write(tmp_path, lambda d: d.update(demo_scene="small_plant.yaml"))
+    (doc_path.parent / "small_plant.yaml").write_bytes(Path(plant).read_bytes())
+    assert load_robot_spec(doc_path)[0].demo_scene == str(doc_path.parent / "small_plant.yaml")
+    for value, text in (("nowhere.yaml", "demo_scene 'nowhere.yaml': no such file"),
+                        (3, "demo_scene must be a scene YAML file"), ("plant.txt", "demo_scene must be")):
+        with pytest.raises(ValueError, match=text):
+            load_robot_spec(_write(tmp_path, lambda d, v=value: d.update(demo_scene=v)))
+    for name in ROBOTS:   # every shipped robot's demo scene exists
+        assert Path(load_robot_spec(name)[0].demo_scene).is_file(), name
+
+
 def test_dual_arm_files_are_read_beside_robot_yaml(tmp_path):
     """A robot's trained files live in its directory (issue 23 part 5): a copy of the directory
     elsewhere reads its own copies, not config/'s."""

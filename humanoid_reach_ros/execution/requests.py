@@ -268,16 +268,19 @@ class ExecutionRequests:
                                      com_compensation=not no_com)
         return Motion(mid, label, "trajectory", spline=spline, arm=arm, params=params, q_measured=q0, note=note)
 
-    def head_poses(self, yaw: list[float], pitch: list[float]) -> np.ndarray:
-        """Validated head poses (K, 2) [rad] of a look request: as many yaws as pitches, finite,
-        within the head joints' limits; an empty request is the scan pattern (``scan_poses_deg``,
-        a parameter for any robot: its poses are clamped into this robot's head limits, where a
-        goal's poses outside them are refused)."""
+    def look_targets(self, yaw: list[float], pitch: list[float]) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """What a look request at head angles turns into: ``(head poses (K, 2) [rad], None)`` on a
+        robot with a neck (:meth:`head_poses`), ``(None, gaze points (K, 3) [m, world])`` on one
+        without (:meth:`direction_points`: the balanced whole-body gaze then aims the camera
+        with the chest). An empty request is the scan pattern either way."""
+        if self.robot.spec.has_neck:
+            return self.head_poses(yaw, pitch), None
+        return None, self.direction_points(yaw, pitch)
+
+    def _requested_angles(self, yaw: list[float], pitch: list[float]) -> tuple[np.ndarray, str, bool]:
+        """``(poses (K, 2) [rad], what, scan)``: the goal's yaw/pitch pairs, or the scan pattern
+        (``scan_poses_deg``) for an empty goal; INVALID_GOAL for unpaired or NaN/inf angles."""
         bad = C.INVALID_GOAL
-        try:   # head angles need a neck; a robot without one aims its camera at points (gaze_points)
-            self.robot.spec.require_neck("a look at head angles (yaw_rad/pitch_rad, or the scan's scan_poses_deg)")
-        except ValueError as exc:
-            raise RequestError(bad, str(exc)) from None
         if len(yaw) != len(pitch):
             raise RequestError(bad, f"{len(yaw)} yaw angles but {len(pitch)} pitch angles: give one pitch per yaw")
         scan = len(yaw) == 0
@@ -290,6 +293,20 @@ class ExecutionRequests:
             poses, what = np.column_stack([np.asarray(yaw, float), np.asarray(pitch, float)]), "the goal"
         if not np.all(np.isfinite(poses)):
             raise RequestError(bad, f"{what} has NaN/inf angles")
+        return poses, what, scan
+
+    def head_poses(self, yaw: list[float], pitch: list[float]) -> np.ndarray:
+        """Validated head poses (K, 2) [rad] of a look request: as many yaws as pitches, finite,
+        within the head joints' limits; an empty request is the scan pattern (``scan_poses_deg``,
+        a parameter for any robot: its poses are clamped into this robot's head limits, where a
+        goal's poses outside them are refused). A robot without a neck has no head angles
+        (INVALID_GOAL): :meth:`look_targets` turns its looks into gaze points."""
+        bad = C.INVALID_GOAL
+        try:
+            self.robot.spec.require_neck("a look at head angles (yaw_rad/pitch_rad, or the scan's scan_poses_deg)")
+        except ValueError as exc:
+            raise RequestError(bad, str(exc)) from None
+        poses, what, scan = self._requested_angles(yaw, pitch)
         idx = [self.robot.joint_index[n] for n in self.head_joints]
         lo, hi = self.robot.lower[idx], self.robot.upper[idx]
         if scan:
@@ -301,6 +318,28 @@ class ExecutionRequests:
                                             f"{name}'s limits [{math.degrees(lo[j]):.1f}, {math.degrees(hi[j]):.1f}] "
                                             "deg")
         return poses
+
+    def direction_points(self, yaw: list[float], pitch: list[float]) -> np.ndarray:
+        """Gaze points (K, 3) [m, world] for look directions: each yaw/pitch pair [rad] (pitch > 0
+        looks down, yaw > 0 to the left, both from the stance's forward axis, world x) is the
+        point ``look_distance_m`` from the camera at the reference posture (half-sitting on the
+        stance feet) in that direction. This is how a robot without a neck (its camera turns only
+        with the body) takes the scan pattern and a look at angles: the same directions the
+        head's angles give a robot whose camera looks level at zero head angles. INVALID_GOAL
+        for unpaired or NaN/inf angles or a pitch beyond +-90 deg."""
+        poses, what, _ = self._requested_angles(yaw, pitch)
+        steep = np.abs(poses[:, 1]) > math.pi / 2
+        if steep.any():
+            k = int(np.argmax(steep))
+            raise RequestError(C.INVALID_GOAL, f"pose {k} of {what}: pitch {math.degrees(poses[k, 1]):.1f} deg is "
+                                               "beyond +-90 deg (straight down or up)")
+        with self._fk_lock:
+            hs = self.robot.half_sitting_joints
+            camera = self.robot.frame_pose(self.robot.config(hs, self.robot.base_on_feet(hs)),
+                                           self.robot.camera_frame).translation.copy()
+        y, p = poses[:, 0], poses[:, 1]
+        d = np.column_stack([np.cos(p) * np.cos(y), np.cos(p) * np.sin(y), -np.sin(p)])
+        return camera + float(self.p["look_distance_m"]) * d
 
     @property
     def head_joints(self) -> list[str]:

@@ -211,8 +211,10 @@ def look_goal(node, goal_handle) -> Look.Result:
     label, req, t0 = f"look #{n}", goal_handle.request, time.monotonic()
     result = Look.Result(error_code=int(C.SUCCESS))
     try:
-        points = exec_msgs.gaze_points(req)
-        poses = node.requests.head_poses(list(req.yaw_rad), list(req.pitch_rad)) if points is None else None
+        points, poses, directions = exec_msgs.gaze_points(req), None, False
+        if points is None:   # head angles; a robot without a neck looks in their directions by a gaze
+            poses, points = node.requests.look_targets(list(req.yaw_rad), list(req.pitch_rad))
+            directions = points is not None
         dwell = float(req.dwell_s) if math.isfinite(req.dwell_s) and req.dwell_s > 0 else node.p["scan_dwell_s"]
         if dwell > 60.0:
             raise RequestError(C.INVALID_GOAL, f"dwell_s {dwell:g} s is longer than 60 s")
@@ -222,7 +224,8 @@ def look_goal(node, goal_handle) -> Look.Result:
         return Look.Result(error_code=exc.code, message=str(exc))
     log = node.get_logger()
     count, what, item = (len(poses), "head poses", "pose") if points is None else (len(points), "gaze points", "point")
-    log.info(f"{label}: accepted: {counted(count, what)}, {dwell:g} s each")
+    log.info(f"{label}: accepted: {counted(count, what)}, {dwell:g} s each"
+             + (" (the directions asked, for a robot without a neck)" if directions else ""))
     fb = Look.Feedback(pose_count=count)
     unseen = []
     for k in range(count):

@@ -91,6 +91,9 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "marker_look_deg": ParamSpec([2.0, 40.0], "where the head looks for the target's marker: yaw, pitch [deg] "
                                  "(reach_operator --marker turns it there when /target_pose is stale and no marker "
                                  "position is known; the plant's valve from half-sitting, the demo's aim)"),
+    "look_distance_m": ParamSpec(1.0, "a robot without a neck looks in a direction (the scan pattern, a look at "
+                                 "yaw/pitch) by a whole-body gaze at the point this far from its camera [m]",
+                                 (0.1, 20.0)),
     "scan_dwell_s": ParamSpec(1.0, "the look action holds each head pose this long by default [s]", (0.0, 60.0)),
     "head_speed_rad_s": ParamSpec(1.0, "peak head joint speed of the look action [rad/s]", (0.01, 10.0)),
     "warn_throttle_s": ParamSpec(1.0, "minimum interval between repeated warnings [s]", (0.0, 3600.0)),

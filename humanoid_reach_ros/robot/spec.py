@@ -44,8 +44,9 @@ PACKAGE_SCHEME = "package://"
 #: kept as the default so that descriptions written before the key read as before)
 DEFAULT_DUAL_ARM_WORKSPACE = "robots/hrp2/dual_arm_workspace.yaml"   # config/-relative: HRP-2's
 _KEYS = {"robot_name", "urdf", "collision_model", "base_link", "limbs", "chest", "head", "gripper_joints",
-         "sole_rectangle_m", "torso_regression", "dual_arm_workspace", "half_sitting", "frames"}
-_REQUIRED = _KEYS - {"gripper_joints", "torso_regression", "dual_arm_workspace", "frames"}
+         "sole_rectangle_m", "torso_regression", "dual_arm_workspace", "half_sitting", "frames", "demo_scene"}
+_REQUIRED = _KEYS - {"gripper_joints", "torso_regression", "dual_arm_workspace", "frames", "demo_scene"}
+DEFAULT_DEMO_SCENE = "scenes/plant.yaml"   # config/-relative: the plant, made for HRP-2's and Talos's size
 #: roles of the ``chest`` entry: required, then optional
 _CHEST_ROLES, _CHEST_OPTIONAL = ("yaw", "pitch"), ("roll",)
 #: roles of the ``head`` entry: the camera frame, required; the neck's joints, both or neither
@@ -104,6 +105,10 @@ class RobotSpec:
     package_dirs: tuple[Path, ...] = ()
     #: the chest's roll joint where the description names one (``chest.roll``), else None
     chest_roll: str | None = None
+    #: the scene ``make demo`` reaches in, absolute: the description's ``demo_scene`` (beside
+    #: robot.yaml), else the plant (``DEFAULT_DEMO_SCENE``); a robot too small for the plant's
+    #: valve names a scene made for its size
+    demo_scene: str = ""
 
     @property
     def hand_frames(self) -> dict[str, str]:
@@ -253,6 +258,22 @@ def _dual_arm_workspace(doc, robot_dir: Path, where: str) -> str:
     return str(p)
 
 
+def _demo_scene(doc, robot_dir: Path, where: str) -> str:
+    """The ``demo_scene`` entry, as an absolute path: a scene YAML beside robot.yaml (or
+    absolute) that exists; without the key, the plant (``DEFAULT_DEMO_SCENE``). Its content is
+    checked by ``sim.scene.load_scene`` when the demo starts (the robot layer does not read scenes)."""
+    scene = doc.get("demo_scene")
+    if scene is None:
+        return str(config_path(DEFAULT_DEMO_SCENE))
+    if not isinstance(scene, str) or not scene.endswith((".yaml", ".yml")):
+        raise ValueError(f"{where}: demo_scene must be a scene YAML file beside robot.yaml (or absolute), "
+                         f"got {scene!r}")
+    p = (robot_dir / scene).resolve()
+    if not p.is_file():
+        raise ValueError(f"{where}: demo_scene {scene!r}: no such file {p}")
+    return str(p)
+
+
 def _chest_and_head(doc, where: str) -> tuple[dict, dict]:
     """The ``chest`` and ``head`` entries, checked: the chest's yaw and pitch joints (and
     optionally its roll); the head's camera frame and either no neck or a neck's yaw and pitch
@@ -350,7 +371,7 @@ def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]
         head_yaw=head.get("yaw"), head_pitch=head.get("pitch"), camera_frame=head["camera_frame"],
         gripper_joints=tuple(grippers), sole_rectangle=tuple(float(x) for x in rect),
         half_sitting_deg={str(k): float(v) for k, v in hs.items()}, torso_regression=reg,
-        dual_arm_workspace=workspace)
+        dual_arm_workspace=workspace, demo_scene=_demo_scene(doc, path.parent, where))
     return spec, doc
 
 
