@@ -51,6 +51,8 @@ def warm_up_all() -> dict[str, float]:
     ctl.set_targets(pair.p_right, pair.R_right, pair.p_left, pair.R_left)
     for _ in range(3):
         ctl.step()
+    from humanoid_reach_ros.reach import redundant_arms
+    redundant_arms.warm_up()   # a 7-joint arm's control step (Talos's), compiled
     times["dual_arm"] = time.perf_counter() - t
     t = time.perf_counter()
     from humanoid_reach_ros.sim import camera
