@@ -4,6 +4,11 @@ geometry the planner's bounds use): the limbs neither of ``LimbIK``'s hand-deriv
 covers -- Talos's 7-joint arms, any 6R chain of the solvable class. Its solver is the compiled
 twin (``robot/general_ik_compiled.py``) unless asked for the numpy reference.
 
+Any other 6R or 7R revolute chain (issue 23: the Unitree G1's arms and legs, offsets between
+all their axes) gets the numerical solver of ``robot/numerical_ik.py`` (kind ``"numerical"``;
+a named simplification: a local method with restarts, which can miss a solution a closed
+form would find) and a reach geometry that is a plain upper bound (:class:`GeneralLimb`).
+
 No ROS here.
 """
 from __future__ import annotations
@@ -15,6 +20,7 @@ import numpy as np
 from humanoid_reach_ros.robot.general_ik import (Chain6, GeneralLimbIK, RedundantLimbIK, _centre_distance_range,
                                                  rotations)
 from humanoid_reach_ros.robot.general_ik_compiled import CompiledGeneralLimbIK, CompiledRedundantLimbIK
+from humanoid_reach_ros.robot.numerical_ik import NumericalLimbIK
 from humanoid_reach_ros.robot.ik_types import IKReason, IKResult
 
 
@@ -28,7 +34,14 @@ class GeneralLimb:
     origin and the distances are bounds (the 6-DOF subchain's centre distances widened by
     the distance ``|t2|`` of the subchain's root-end centre from joint 1's origin, which
     joint 1 swings about): still conservative for ``maybe_reachable``, no longer tight; the
-    planner's out-of-reach bound uses the tight form, :meth:`reach_centres`."""
+    planner's out-of-reach bound uses the tight form, :meth:`reach_centres`.
+
+    A chain neither closed form accepts (kind ``"numerical"``, :class:`NumericalLimbIK`, the
+    same solver with or without ``compiled_solver``): ``t0`` is joint 1's origin, the tip-end
+    centre the last joint's origin (``te`` / ``Re`` the tip in the last joint's frame),
+    ``l1 + l2`` the sum of the lengths of the translations between consecutive joint
+    origins -- an upper bound of the distance between the two centres (the triangle
+    inequality along the chain, whatever the angles) -- and ``|l1 - l2|`` = 0."""
 
     #: the planner's fused projection kernel is LimbIK's (hand-derived legs); not this limb's
     compiled = False
@@ -42,29 +55,42 @@ class GeneralLimb:
         self.q_default = np.clip(q_hs, self.lower, self.upper)
         c = self.chain
         self.n_joints = len(c.axes)
+        try:
+            self._closed_form(compiled_solver)
+        except ValueError:      # neither closed form accepts the chain: the numerical solver
+            self.kind = "numerical"
+            self.ik = NumericalLimbIK(c, self.q_default)
+            d_max = float(np.sum(np.linalg.norm(c.t[1:], axis=1)))
+            self.l1 = self.l2 = d_max / 2
+            self.centre_reach = d_max
+        # the root-end centre is joint 1's origin and the tip-end centre joint 6's (their
+        # translations t2 (, t3) and t6 (, t5) are zero), whichever end has three axes;
+        # a 7-joint chain: joint 1's origin, the subchain's centre |t2| from it; the numerical
+        # kind: joint 1's and the last joint's origins
+        self.t0 = c.t[0].copy()
+        self.te, self.Re = c.te.copy(), c.Re.copy()
+
+    def _closed_form(self, compiled_solver: bool) -> None:
+        """The closed form's solver and reach geometry (ValueError when the chain is outside
+        its class)."""
+        c = self.chain
         # numba twins of the closed forms (robot/general_ik_compiled.py: the same answers, 16 us
         # instead of 51 ms a Talos arm pose), or the numpy references (``compiled_solver=False``)
         if self.n_joints == 7:
-            self.kind = "redundant"
-            self.ik = CompiledRedundantLimbIK(c, self.q_default) if compiled_solver \
+            ik = CompiledRedundantLimbIK(c, self.q_default) if compiled_solver \
                 else RedundantLimbIK(c, self.q_default)
-            solver, swing = self.ik.sub._solver, float(np.linalg.norm(c.t[1]))
+            kind, solver, swing = "redundant", ik.sub._solver, float(np.linalg.norm(c.t[1]))
         else:
-            self.kind = "general"
-            self.ik = CompiledGeneralLimbIK(c, self.q_default) if compiled_solver \
+            ik = CompiledGeneralLimbIK(c, self.q_default) if compiled_solver \
                 else GeneralLimbIK(c, self.q_default)
-            solver, swing = self.ik._solver, 0.0
+            kind, solver, swing = "general", ik._solver, 0.0
+        self.kind, self.ik = kind, ik
         # centres of the two ends and the distance range between them (elbow / knee swing)
         c_min, c_max = _centre_distance_range(solver)
         d_max, d_min = c_max + swing, max(c_min - swing, 0.0)
         self.l1, self.l2 = float((d_max + d_min) / 2), float((d_max - d_min) / 2)
         #: the closed form's own centre distance bound, without the swing (reach_centres)
         self.centre_reach = c_max
-        # the root-end centre is joint 1's origin and the tip-end centre joint 6's (their
-        # translations t2 (, t3) and t6 (, t5) are zero), whichever end has three axes;
-        # a 7-joint chain: joint 1's origin, the subchain's centre |t2| from it
-        self.t0 = c.t[0].copy()
-        self.te, self.Re = c.te.copy(), c.Re.copy()
 
     def reach_centres(self, step_rad: float = 0.05) -> tuple[np.ndarray, float, float]:
         """The tight form of the reach bound: ``(points (K, 3), slack [m], reach [m])`` in the
@@ -80,8 +106,8 @@ class GeneralLimb:
         ``|t2|`` in every direction, while the centre only moves on the circle (Talos: the
         joint-2 centre is 0.047 m above joint 1's origin at any joint-1 angle, 0.539 m from the
         wrist at most, so the wrist rises 0.586 m above joint 1's origin at most; ``l1 + l2`` =
-        0.683 m credits it with 0.098 m more)."""
-        if self.n_joints == 6:
+        0.683 m credits it with 0.098 m more). The numerical kind: ``t0``, ``l1 + l2``, no slack."""
+        if self.n_joints == 6 or self.kind == "numerical":
             return self.t0[None].copy(), 0.0, self.l1 + self.l2
         c = self.chain
         n = max(1, int(math.ceil((c.upper[0] - c.lower[0]) / step_rad - 1e-9)))

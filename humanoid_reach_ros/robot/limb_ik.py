@@ -992,9 +992,10 @@ def _kernel_arg(a: np.ndarray) -> np.ndarray:
 
 
 def warm_up() -> None:
-    """Compile (or load from the numba cache) the leg kernel on a tiny batch, and the general
-    closed form's twins (robot/general_ik_compiled.py: Talos's arms, any 6R / 7R limb)."""
-    from humanoid_reach_ros.robot import general_ik_compiled
+    """Compile (or load from the numba cache) the leg kernel on a tiny batch, the general
+    closed form's twins (robot/general_ik_compiled.py: Talos's arms, any 6R / 7R limb of its
+    class) and the numerical solver's kernels (robot/numerical_ik.py: any other 6R / 7R limb)."""
+    from humanoid_reach_ros.robot import general_ik_compiled, numerical_ik
 
     eye = np.eye(3)[None]
     z = np.zeros((1, 3))
@@ -1002,21 +1003,26 @@ def warm_up() -> None:
     _leg_ik_kernel(z, eye, z - [0.0, 0.0, 0.6], eye, np.zeros((1, 6)), eye[0], z[0], eye[0], z[0], 0.3, 0.3,
                    np.full(6, -3.0), np.full(6, 3.0), *out)
     general_ik_compiled.warm_up()
+    numerical_ik.warm_up()
 
 
 def _limb_solver(model: RobotModel, name: str, compiled: bool):
-    """The limb's closed form: :class:`LimbIK` (the two hand-derived patterns, legs compiled)
-    where the chain has them, else the general closed form of ``robot/general_ik.py`` (any
-    axis directions and offsets with three intersecting axes at one end and two at the
-    other; ``robot/general_limb.py``, its numba twin when ``compiled``). ValueError naming
-    both reasons when neither applies."""
+    """The limb's solver: :class:`LimbIK` (the two hand-derived patterns, legs compiled)
+    where the chain has them, else :class:`GeneralLimb` (``robot/general_limb.py``): the
+    general closed form of ``robot/general_ik.py`` (any axis directions and offsets with
+    three intersecting axes at one end and two at the other; its numba twin when
+    ``compiled``), and for any other 6R / 7R revolute chain the numerical solver of
+    ``robot/numerical_ik.py`` (a local method with restarts). LimbStructureError naming both
+    reasons only for a limb no solver takes: a joint that is not revolute about a fixed
+    axis, joints that are not one serial chain, or not 6 (arms: 7) joints."""
     try:
         return LimbIK(model, name, compiled)
     except LimbStructureError as specific:
         try:
             return GeneralLimb(model, name, compiled)
         except ValueError as general:
-            raise LimbStructureError(f"{specific}; and the general closed form: {general}") from None
+            raise LimbStructureError(f"{specific}; and the general / numerical solvers (a serial chain of 6 or 7 "
+                                     f"revolute joints): {general}") from None
 
 
 @dataclass(frozen=True, eq=False)
