@@ -42,6 +42,17 @@ from humanoid_reach_ros.robot.general_ik import Chain6, GeneralLimbIK, Redundant
 from humanoid_reach_ros.robot.general_ik_compiled import compiled_general_ik  # noqa: E402
 from humanoid_reach_ros.robot.limb_ik import LimbIKSet  # noqa: E402
 from humanoid_reach_ros.robot.model import RobotModel  # noqa: E402
+from humanoid_reach_ros.robot.numerical_ik import NumericalLimbIK  # noqa: E402
+from humanoid_reach_ros.robot import numerical_ik  # noqa: E402
+
+G1_URDF = "share/example-robot-data/robots/g1_description/urdf/g1_29dof_rev_1_0.urdf"
+G1_JOINTS = {
+    "right_leg": ("pelvis", [f"right_{j}_joint" for j in ("hip_pitch", "hip_roll", "hip_yaw", "knee", "ankle_pitch",
+                                                           "ankle_roll")], "right_ankle_roll_link"),
+    "right_arm": ("torso_link", [f"right_{j}_joint" for j in ("shoulder_pitch", "shoulder_roll", "shoulder_yaw",
+                                                              "elbow", "wrist_roll", "wrist_pitch", "wrist_yaw")],
+                  "right_wrist_yaw_link"),
+}
 
 
 def limb_chain(robot: RobotModel, limb: str):
@@ -108,6 +119,62 @@ def measure_refs(key: str, numpy_ik, fast, P, R, Q, calls: int, numpy_calls: int
     return out
 
 
+class _G1:
+    """The Unitree G1 from example-robot-data's URDF (free-flyer root), with what
+    Chain6.from_model reads of a RobotModel (``model``, ``joint_index``, ``lower``, ``upper``)."""
+
+    def __init__(self) -> None:
+        import cmeel
+        import pinocchio as pin
+
+        urdf = Path(cmeel.__path__[0]).parent / "cmeel.prefix" / G1_URDF
+        self.model = m = pin.buildModelFromUrdf(str(urdf), pin.JointModelFreeFlyer())
+        self.joint_index = {m.names[j]: m.joints[j].idx_q - 7 for j in range(2, m.njoints)}
+        self.lower, self.upper = m.lowerPositionLimit[7:].copy(), m.upperPositionLimit[7:].copy()
+
+    def chain(self, limb: str):
+        root, joints, tip = G1_JOINTS[limb]
+        c = Chain6.from_model(self, root, joints, tip)
+        return c, np.clip(np.zeros(len(joints)), c.lower, c.upper)
+
+
+def measure_numerical(name: str, chain, q_default, calls: int, rng) -> dict:
+    """NumericalLimbIK on one chain: default reference, tracking reference, unreachable poses."""
+    nj = len(chain.axes)
+    ik = NumericalLimbIK(chain, q_default)
+    q = rng.uniform(chain.lower, chain.upper, (calls, nj))
+    P, R = chain.fk(q)
+    near = q + rng.uniform(-0.05, 0.05, q.shape)
+    out = {}
+    for kind, refs in (("default", None), ("tracking", near)):
+        key = name if kind == "default" else f"{name}_{kind}"
+        rows = [(P[i], R[i], None if refs is None else refs[i]) for i in range(calls)]
+        ik.solve(*rows[0])
+        ik.solve_one(*rows[0])
+        t_s, answers = median_us(ik.solve, rows)
+        t_one, _ = median_us(ik.solve_one, rows)
+        ok = np.array([a.ok[0] for a in answers])
+        qa = np.array([a.q[0] for a in answers])
+        p2, R2 = chain.fk(np.nan_to_num(qa))
+        err = max(float(np.abs(p2 - P)[ok].max(initial=0.0)), float(np.abs(R2 - R)[ok].max(initial=0.0)))
+        dq = np.abs(qa - q).max(axis=1)[ok]
+        out.update({f"{key}_us_numerical": t_s, f"{key}_us_numerical_one": t_one, f"{key}_ok_rate": float(ok.mean()),
+                    f"{key}_max_fk_err": err, f"{key}_median_dq_to_drawn": float(np.median(dq))})
+        print(f"{key:22s} numerical solve {t_s:8.2f} us, solve_one {t_one:8.2f} us | ok {ok.mean():.3f} | "
+              f"max FK error {err:.1e} | median max|q - drawn| {np.median(dq):.3f} rad")
+    # poses 0.5 m beyond the reach bound (the last joint's origin that far from the first's)
+    m = min(calls, 200)
+    d = rng.normal(size=(m, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    bound = float(np.sum(np.linalg.norm(chain.t[1:], axis=1)))
+    Pf = chain.t[0] + (bound + 0.5) * d + R[:m] @ (chain.Re.T @ chain.te)
+    t_far, answers = median_us(ik.solve_one, [(Pf[i], R[i]) for i in range(m)])
+    out[f"{name}_unreachable_us_numerical_one"] = t_far
+    ok_far = float(np.mean([a[0] for a in answers]))
+    print(f"{name + '_unreachable':22s} numerical solve_one {t_far:8.2f} us (ok {ok_far:.3f})")
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--calls", type=int, default=2000, help="compiled calls per limb (distinct poses)")
@@ -117,6 +184,7 @@ def main() -> None:
     rng = np.random.default_rng(args.seed)
     t0 = time.perf_counter()
     general_ik_compiled.warm_up()
+    numerical_ik.warm_up()
     warm_s = time.perf_counter() - t0
 
     talos, hrp2 = RobotModel("talos"), RobotModel("hrp2")
@@ -154,6 +222,14 @@ def main() -> None:
         "speedup_arm_tracking": res["talos_arm_tracking_us_numpy"] / res["talos_arm_tracking_us_compiled"],
         "speedup_leg": res["talos_leg_us_numpy"] / res["talos_leg_us_compiled"],
     })
+    # the numerical solver on the Unitree G1 (no closed form), against the same yardstick
+    g1 = _G1()
+    res.update(measure_numerical("g1_arm", *g1.chain("right_arm"), args.calls, rng))
+    res.update(measure_numerical("g1_leg", *g1.chain("right_leg"), args.calls, rng))
+    for key in ("g1_arm", "g1_arm_tracking", "g1_leg", "g1_leg_tracking"):
+        res[f"{key}_one_vs_hrp2_ratio"] = res[f"{key}_us_numerical_one"] / t_hrp2
+    print("G1 numerical solve_one / HRP-2 arm CompiledArmIK.solve: " + ", ".join(
+        f"{k} {res[f'{k}_one_vs_hrp2_ratio']:.1f}" for k in ("g1_arm", "g1_arm_tracking", "g1_leg", "g1_leg_tracking")))
     print(f"speedup (numpy / compiled solve): arm {res['speedup_arm']:.0f}x, arm tracking "
           f"{res['speedup_arm_tracking']:.0f}x, leg {res['speedup_leg']:.0f}x; Talos arm / HRP-2 arm "
           f"{res['talos_arm_vs_hrp2_ratio']:.2f} (solve_one {res['talos_arm_one_vs_hrp2_ratio']:.2f}, tracking "
@@ -167,7 +243,11 @@ def main() -> None:
         "reference_joints": "default: half-sitting clipped into the limits; tracking: the drawn joints",
         "limbs": {"talos_arm": "talos right_arm, 7R, RedundantLimbIK samples=16",
                   "talos_leg": "talos right_leg as a GeneralLimbIK chain (6R, reversed form)",
-                  "hrp2_arm": "hrp2 right_arm: CompiledArmIK.solve (hand-derived), and the general compiled kernel"},
+                  "hrp2_arm": "hrp2 right_arm: CompiledArmIK.solve (hand-derived), and the general compiled kernel",
+                  "g1_arm": "Unitree G1 right arm (URDF g1_29dof_rev_1_0), 7R: NumericalLimbIK",
+                  "g1_leg": "Unitree G1 right leg, 6R: NumericalLimbIK"},
+        "numerical_reference_joints": ("default: zero joints clipped into the limits; tracking: the drawn joints "
+                                       "+ uniform(-0.05, 0.05) rad; unreachable: 0.5 m beyond the reach bound"),
         "warm_up_s": warm_s,
         **res,
         "machine": {"description": describe_machine(), "load_avg_1m": round(os.getloadavg()[0], 2)},
