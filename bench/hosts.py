@@ -16,7 +16,11 @@ Per placement: the graph idle (``IDLE_S``), then the operator's flow from hr_ope
 a ``reach_operator --json`` process (bench/session.py's ``--operator-child``: the real CLI with a
 recorder of its /plan_reach calls): ``--scan``, ``--marker --execute`` (the plant's valve),
 ``--target 0.50 0.20 1.08 --execute`` (under the left shoulder pipe, a retreat from the valve
-first), ``--home --execute``; then idle again.
+first), ``--home --execute``; then ``--plans`` plan-only requests (the valve and the second
+target in turn: more samples of the operator's wait for a plan, each /plan_reach call from
+request sent to response received in the CLI); then idle again. The planner's map after the
+scan: the voxels of its /diagnostics 'map' status over the robot-side mapper's occupied voxels
+(both reported at least 2 s after the scan ended).
 
 Then, with the planner on compute (same graph), three link faults, each a 5 s cut
 (``tools/hosts.sh link HOST down``, then ``up``): (a) ``reach``: the operator's link during a
@@ -41,7 +45,8 @@ root / bad arguments. Ctrl-C, SIGTERM or an exception: every process started is 
 ``tools/hosts.sh down`` runs.
 
 Usage: ``sudo python bench/hosts.py [--out out/bench_hosts] [--placements compute robot]
-[--no-cuts] [--cuts reach scan plan] [--no-flow] [--timeout 30]``.
+[--no-cuts] [--cuts reach scan plan] [--no-flow] [--plans 6] [--timeout 30] [--idle 10]``; the test suite's
+reduced run (test/test_hosts_bench.py): ``--placements compute --no-flow --cuts scan --idle 3``.
 """
 from __future__ import annotations
 
@@ -78,12 +83,13 @@ PING_PERIOD_S = 0.5
 PING_TARGET = ("3.0", "0.0", "1.0")    # out of reach: answered at once, no sampling (a cheap request)
 BUDGET_S = 10.0
 SECOND_TARGET = ("0.50", "0.20", "1.08")   # bench/session.py's plant "under_shoulder_pipe"
+VALVE = ("0.71", "0.03", "0.90")           # the plant's valve, given (test_hosts.py's)
 FLOW = (("scan", ["--scan"]), ("marker", ["--marker", "--execute"]),
         ("target", ["--target", *SECOND_TARGET, "--execute"]), ("home", ["--home", "--execute"]))
 CUTS = {   # name: (host cut, the CLI's arguments, the event after which to cut, delay after it [s])
     "reach": ("operator", ["--target", *SECOND_TARGET, "--execute"], "execute_sent", 0.3),
     "scan": ("operator", ["--scan"], "look_start", 2.0),
-    "plan": ("compute", ["--target", "0.71", "0.03", "0.90", "--goals", "300"], "plan_sent", 0.1),
+    "plan": ("compute", ["--target", *VALVE, "--goals", "300"], "plan_sent", 0.1),
 }
 TARGETS = {
     "hosts_flow_success_rate": ("==", 1.0), "plan_wait_ms_p95_remote_planner": ("<=", 300.0),
@@ -527,9 +533,9 @@ def run_placement(b: Bench, placement: str, args: argparse.Namespace, out: Path)
     b.log(f"placement {placement}: the planner in hr_{placement}; graph up ...")
     try:
         res.update(b.graph_up(placement, out))
-        b.log(f"  graph up in {res['graph_up_s']} s; idle {IDLE_S:g} s")
+        b.log(f"  graph up in {res['graph_up_s']} s; idle {args.idle:g} s")
         time.sleep(3.0)     # the start-up's discovery settles
-        res["idle"] = idle_window(b, IDLE_S)
+        res["idle"] = idle_window(b, args.idle)
         durations: dict[str, float] = {}
         if not args.no_flow:
             for k, (name, step_args) in enumerate(FLOW):
@@ -546,9 +552,24 @@ def run_placement(b: Bench, placement: str, args: argparse.Namespace, out: Path)
                 if name == "scan":
                     res["map"] = map_ratio(b, run["t_end"])
                     b.log(f"  map after the scan: {res['map']}")
+            for k in range(args.plans):     # plan only: more samples of the operator's wait for a plan
+                target = VALVE if k % 2 == 0 else SECOND_TARGET
+                run = b.operator(["--target", *target, "--seed", str(200 + k), "--budget", f"{BUDGET_S:g}"],
+                                 f"plan_{k:02d}", out)
+                rec = step_record(run, b.t0)
+                rec["name"] = f"plan_{k}"
+                rec["t"] = (run["t_start"], run["t_end"])
+                res["steps"].append(rec)
+                b.log(f"  plan {k}  {'ok  ' if rec['success'] else 'FAIL'} exit {run['exit_code']} "
+                      f"{run['duration_s']:.1f} s plan waits {rec['plan_waits_ms']} ms (planner "
+                      f"{rec['planner_total_ms']} ms)" + ("" if rec["success"] else f" | {rec['stderr_last']}"))
             time.sleep(2.0)     # the executor's hold ends
-            res["idle_after"] = idle_window(b, IDLE_S)
+            res["idle_after"] = idle_window(b, args.idle)
             flow = [s for s in res["steps"]]
+            for st in flow:
+                st["operator_link_mb"] = link_mb(b.sampler, "operator", *st["t"])
+                st["operator_link_peak_mbit_s"] = round((b.sampler.peak("operator", *st["t"]) or {}).get(
+                    "both", 0.0) / 1e6, 2)
             if flow:
                 t_a, t_b = flow[0]["t"][0], flow[-1]["t"][1]
                 res["operator_link_peak"] = b.sampler.peak("operator", t_a, t_b)
@@ -580,6 +601,11 @@ def run_placement(b: Bench, placement: str, args: argparse.Namespace, out: Path)
         for k in ("t_down", "t_up"):
             c[k] = round(c[k] - b.t0, 2)
     return res
+
+
+def link_mb(sampler: LinkSampler, host: str, t0: float, t1: float) -> float | None:
+    s = sampler._series(host, t0, t1)
+    return round((s[-1][1] + s[-1][2] - s[0][1] - s[0][2]) / 1e6, 3) if len(s) >= 2 else None
 
 
 def idle_window(b: Bench, seconds: float) -> dict[str, Any]:
@@ -710,6 +736,13 @@ def run_cuts(b: Bench, args: argparse.Namespace, out: Path, durations: dict[str,
     return results
 
 
+def save_links(sampler: LinkSampler, t_ref: float, path: Path) -> None:
+    """The counters as sampled: t [s from the bench's start], then per host rx, tx bytes."""
+    rows = [[round(t - t_ref, 3), *[v for h in HOSTS for v in c[h]]] for t, c in list(sampler.samples)]
+    path.write_text(json.dumps({"columns": ["t_s", *[f"{h}_{d}" for h in HOSTS for d in ("rx", "tx")]],
+                                "rows": rows}))
+
+
 def recovery(path: Path, t_up: float) -> float | None:
     deadline = time.monotonic() + RECOVERY_DEADLINE_S
     while time.monotonic() < deadline:
@@ -777,6 +810,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="which faults (with the planner on compute; default all: reach scan plan)")
     ap.add_argument("--no-flow", action="store_true", help="skip the operator's flow (the cuts only)")
     ap.add_argument("--timeout", type=float, default=30.0, help="reach_operator --timeout of every step (default 30)")
+    ap.add_argument("--plans", type=int, default=6, help="plan-only requests after the flow, per placement (more "
+                    "samples of the wait for a plan; default 6)")
+    ap.add_argument("--idle", type=float, default=IDLE_S, help=f"each idle window [s] (default {IDLE_S:g})")
     ap.add_argument("--wait-hosts", type=float, default=0.0, help="when the namespaces are up (another run), wait "
                     "this long for them to go (default 0: exit 1 at once)")
     args = ap.parse_args(argv)
@@ -830,6 +866,7 @@ def main(argv: list[str] | None = None) -> int:
         log("interrupted: stopping every process and taking the namespaces down")
     finally:
         b.close()
+        save_links(b.sampler, b.t0, out / "links.json")
     if interrupted:
         return 130
     figures = summarize(placements)
