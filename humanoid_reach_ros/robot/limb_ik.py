@@ -1014,7 +1014,7 @@ def _limb_solver(model: RobotModel, name: str, compiled: bool):
     ``compiled``), and for any other 6R / 7R revolute chain the numerical solver of
     ``robot/numerical_ik.py`` (a local method with restarts). LimbStructureError naming both
     reasons only for a limb no solver takes: a joint that is not revolute about a fixed
-    axis, joints that are not one serial chain, or not 6 (arms: 7) joints."""
+    axis, joints that are not one serial chain, or other than 6 or 7 joints."""
     try:
         return LimbIK(model, name, compiled)
     except LimbStructureError as specific:
