@@ -217,16 +217,20 @@ class Projector:
         self._v_c = np.array(self.v, dtype=float)
         self._cog_xy_c = np.array(self.cog_approx_xy, dtype=float)
         self._q_ref_c = np.array(self.q_ref, dtype=float)
-        #: project_plan_config runs the fused numba kernel when the IK set is compiled
-        self.compiled = bool(getattr(self.ik, "compiled", False))
+        #: project_plan_config runs the fused numba kernel when the IK set is compiled and both
+        #: legs have the hand-derived compiled leg kernel (``LimbIK``'s z x y | y | y x pattern);
+        #: other legs (a general closed form, the numerical solver) go through the limb protocol
         legs = [self.ik[leg] for leg in LEGS]
-        kc = [np.ascontiguousarray(np.stack([lk._kc[i] for lk in legs])) for i in range(8)]
-        self._kernel_legs = (
-            np.ascontiguousarray(np.stack([self.cols[leg] for leg in LEGS]), dtype=np.int64),
-            np.ascontiguousarray(np.stack([self.feet[leg][0] for leg in LEGS])),
-            np.ascontiguousarray(np.stack([self.feet[leg][1] for leg in LEGS])),
-            np.ascontiguousarray(np.stack([lk.q_default for lk in legs])),
-            *kc)
+        self.compiled = bool(getattr(self.ik, "compiled", False)) and all(hasattr(lk, "_kc") for lk in legs)
+        self._kernel_legs: tuple = ()
+        if self.compiled:
+            kc = [np.ascontiguousarray(np.stack([lk._kc[i] for lk in legs])) for i in range(8)]
+            self._kernel_legs = (
+                np.ascontiguousarray(np.stack([self.cols[leg] for leg in LEGS]), dtype=np.int64),
+                np.ascontiguousarray(np.stack([self.feet[leg][0] for leg in LEGS])),
+                np.ascontiguousarray(np.stack([self.feet[leg][1] for leg in LEGS])),
+                np.ascontiguousarray(np.stack([lk.q_default for lk in legs])),
+                *kc)
         #: joints of each arm: the planning space of an arm is (q_arm (n), z_t, rpy_t (3))
         self.arm_dof = {arm: len(robot.limbs[f"{arm}_arm"].joints) for arm in ARM_CODES}
         self._kernel_arm = {}
