@@ -2,7 +2,7 @@
 """A scene scaled for a smaller (or larger) robot: ``demo_scene`` of its robot.yaml
 (docs/adding_a_robot.md).
 
-    python tools/scale_scene.py config/scenes/plant.yaml OUT.yaml --xy 0.65 --z 0.82 --parts 0.7 --shift-x 0.1
+    python tools/scale_scene.py config/scenes/plant.yaml OUT.yaml --xy 0.65 --z 0.82 --parts 1.0 --shift-x 0.1
 
 Positions scale about the world origin (the floor midway between the soles): x and y by
 ``--xy``, z by ``--z`` (a robot's reach shrinks less in height than forwards when its legs
@@ -12,7 +12,10 @@ sphere radii, box edges, the torus, the marker's printed size, and every primiti
 target's group about the target's centre (the valve: hub, rim, spokes and stem keep their
 shape, the rim stays round). Planes and the floor are unchanged. The output is the scene's
 YAML document with these numbers (comments are not kept: write the new scene's header by
-hand, saying how it was made).
+hand, saying how it was made). Keep ``--parts 1`` for a demo scene: the plant's pipes and
+valve are real objects that do not shrink with the robot, and the marker's printed size and
+place are what marker_localizer's parameters say (``marker_sizes_m``,
+``marker_object_poses``); another ``--parts`` needs those changed to match.
 """
 from __future__ import annotations
 
