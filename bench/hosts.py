@@ -26,7 +26,9 @@ Then, with the planner on compute (same graph), three link faults, each a 5 s cu
 (``tools/hosts.sh link HOST down``, then ``up``): (a) ``reach``: the operator's link during a
 reach's execution (0.3 s after the goal was sent); (b) ``scan``: the operator's link during a
 scan (2 s after the /look goal); (c) ``plan``: the compute link while a plan is computed (0.1 s
-after the request left the CLI; the plan asks for 300 goal postures so that it takes a while).
+after the request left the CLI; the plan asks for 300 goal postures so that it takes a while);
+(d) ``start``: the operator's link down as the CLI starts (a plan to the valve; its DDS
+participant is made while the link has no carrier).
 For each: the executor's overruns in the cut (its ``overruns_total`` in ``/diagnostics``, the
 last report before the cut against the first one a second after it), the feet drift measured
 from ``/joint_states`` in the cut (``graph_metrics.measured_balance``, as bench/session.py
@@ -45,7 +47,7 @@ root / bad arguments. Ctrl-C, SIGTERM or an exception: every process started is 
 ``tools/hosts.sh down`` runs.
 
 Usage: ``sudo python bench/hosts.py [--out out/bench_hosts] [--placements compute robot]
-[--no-cuts] [--cuts reach scan plan] [--no-flow] [--plans 6] [--timeout 30] [--idle 10]``; the test suite's
+[--no-cuts] [--cuts reach scan plan start] [--no-flow] [--plans 6] [--timeout 30] [--idle 10]``; the test suite's
 reduced run (test/test_hosts_bench.py): ``--placements compute --no-flow --cuts scan --idle 3``.
 """
 from __future__ import annotations
@@ -53,6 +55,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -90,6 +93,8 @@ CUTS = {   # name: (host cut, the CLI's arguments, the event after which to cut,
     "reach": ("operator", ["--target", *SECOND_TARGET, "--execute"], "execute_sent", 0.3),
     "scan": ("operator", ["--scan"], "look_start", 2.0),
     "plan": ("compute", ["--target", *VALVE, "--goals", "300"], "plan_sent", 0.1),
+    # the operator's link down when the CLI starts (its DDS participant is created on a link without carrier)
+    "start": ("operator", ["--target", *VALVE], "spawned", 0.0),
 }
 TARGETS = {
     "hosts_flow_success_rate": ("==", 1.0), "plan_wait_ms_p95_remote_planner": ("<=", 300.0),
@@ -529,6 +534,7 @@ class ProbeData:
 # ---------------------------------------------------------------- a placement
 def run_placement(b: Bench, placement: str, args: argparse.Namespace, out: Path) -> dict[str, Any]:
     res: dict[str, Any] = {"placement": placement, "planner_on": f"hr_{placement}", "steps": [], "cuts": []}
+    shutil.rmtree(out, ignore_errors=True)     # this run's logs, events and probe files only (they are appended to)
     out.mkdir(parents=True, exist_ok=True)
     b.log(f"placement {placement}: the planner in hr_{placement}; graph up ...")
     try:
@@ -652,7 +658,7 @@ def run_cuts(b: Bench, args: argparse.Namespace, out: Path, durations: dict[str,
     b._wait_file(pdir / "pinger.ready", pinger, "the pinger's /plan_reach")
     results = []
     expected = {"reach": durations.get("target", 60.0), "scan": durations.get("scan", 60.0),
-                "plan": BUDGET_S}
+                "plan": BUDGET_S, "start": BUDGET_S}
     for name in args.cuts:
         host, cli, event, delay = CUTS[name]
         b.log(f"  cut {name}: the {host} link down {CUT_S:g} s {delay:g} s after '{event}'")
@@ -660,7 +666,8 @@ def run_cuts(b: Bench, args: argparse.Namespace, out: Path, durations: dict[str,
 
         def hook(evs: list[dict], t_start: float, host=host, event=event, delay=delay, state=state) -> None:
             if "t_down" not in state:
-                ev = next((e for e in evs if e["event"] == event), None)
+                ev = ({"t": t_start} if event == "spawned" else
+                      next((e for e in evs if e["event"] == event and e["t"] >= t_start), None))
                 if ev is not None and time.monotonic() >= ev["t"] + delay:
                     state["event_t"] = ev["t"]
                     state["t_down"] = b.link(host, "down")
@@ -807,7 +814,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="where the planner runs, one graph each (default: compute robot)")
     ap.add_argument("--no-cuts", action="store_true", help="no link faults")
     ap.add_argument("--cuts", nargs="+", choices=tuple(CUTS), default=list(CUTS),
-                    help="which faults (with the planner on compute; default all: reach scan plan)")
+                    help="which faults (with the planner on compute; default all: reach scan plan start)")
     ap.add_argument("--no-flow", action="store_true", help="skip the operator's flow (the cuts only)")
     ap.add_argument("--timeout", type=float, default=30.0, help="reach_operator --timeout of every step (default 30)")
     ap.add_argument("--plans", type=int, default=6, help="plan-only requests after the flow, per placement (more "
