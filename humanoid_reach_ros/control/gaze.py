@@ -183,6 +183,9 @@ class Gaze:
     chest_moved_rad: float
     balanced: bool = False
     range_limits_m: tuple[float, float] = (0.0, math.inf)
+    #: why the motion stops short of this gaze ("" when it goes all the way): the executor's
+    #: look keeps its clearance (``ExecutionRequests.gaze``); ``joints`` are then where it stops
+    held_back: str = ""
 
     @property
     def off_axis_deg(self) -> float:
@@ -191,6 +194,8 @@ class Gaze:
     @property
     def unseen_reason(self) -> str:
         """Why the camera does not see the point ("" when it does)."""
+        if self.held_back:
+            return self.held_back
         if self.visible:
             return ""
         if self.off_axis_rad > self.half_fov_rad:

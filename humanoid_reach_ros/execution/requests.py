@@ -402,12 +402,70 @@ class ExecutionRequests:
                 g = self.gaze_solver().balanced(start, point)
         except ValueError as exc:
             raise RequestError(C.INVALID_GOAL, f"gaze point {point!r}: {exc}") from None
+        share, why = self.look_clearance(start, g.joints)
+        if share < 1.0:   # the body would come too near the map or itself: turn only part of the way
+            g = dataclasses.replace(g, joints=start + share * (g.joints - start), visible=False, held_back=(
+                f"turned {100 * share:.0f} % of the way to its gaze: {why}"))
         yaw, pitch = self.head_targets(g.joints)
         note = (f"gaze at {np.round(g.point, 3).tolist()}: head yaw {math.degrees(yaw):.1f}, pitch "
                 f"{math.degrees(pitch):.1f} deg, chest moved {math.degrees(g.chest_moved_rad):.1f} deg, "
                 f"{g.off_axis_deg:.2f} deg off the camera axis" + ("" if g.visible else f"; {g.unseen_reason}"))
         return Motion(mid, label, "trajectory", spline=self._look_spline(start, g.joints), arm="right",
                       params=self._executor_params(), q_measured=q0, note=note), g
+
+    def look_clearance(self, start: np.ndarray, goal: np.ndarray, samples: int = 20,
+                       bisections: int = 6) -> tuple[float, str]:
+        """How far a look or gaze from joints ``start`` towards ``goal`` may go: ``(share, why)``,
+        ``share`` in [0, 1] of the joint-space way (the look's reference is that straight line,
+        timed), the largest with every sample keeping the clearance ``security_distance_m +
+        look_clearance_m`` to the map and between the robot's own shapes (or, from a start
+        already nearer, no nearer than the start), and why it stops (``""`` at 1). Why: a gaze
+        that turns the chest swings the arms with it (a robot without a neck turns its body to
+        look); where that reference runs into the velocity dampers the hand stays off its
+        reference and the look fails after the settle timeout (the G1's 33 deg turns, hands in
+        front of its thighs). ``samples`` points along the way, then ``bisections`` halvings
+        between the last clear and the first blocked one."""
+        coll = self._look_collision()
+        need = float(self.p["security_distance_m"]) + float(self.p["look_clearance_m"])
+
+        def clearance(share: float) -> tuple[float, str]:
+            j = start + share * (goal - start)
+            with self._fk_lock:
+                q = self.robot.config(j, self.robot.base_on_feet(j))
+            d_env, d_self = coll.min_distance(q), coll.self_min_distance(q)
+            return (d_env, "the map") if d_env <= d_self else (d_self, "its own body")
+
+        need = min(need, clearance(0.0)[0])
+        last = 0.0
+        for share in np.linspace(0.0, 1.0, samples + 1)[1:]:
+            d, what = clearance(float(share))
+            if d < need:
+                lo, hi = last, float(share)
+                for _ in range(bisections):
+                    mid = 0.5 * (lo + hi)
+                    if clearance(mid)[0] >= need:
+                        lo = mid
+                    else:
+                        hi = mid
+                return lo, (f"further, the body would come within {max(d, 0.0) * 1e3:.0f} mm of {what} (the look "
+                            f"keeps {need * 1e3:.0f} mm)")
+            last = float(share)
+        return 1.0, ""
+
+    def _look_collision(self):
+        """A :class:`~humanoid_reach_ros.geometry.distance.RobotCollision` on the current map
+        (cached per sphere tree) for :meth:`look_clearance`."""
+        from humanoid_reach_ros.geometry.distance import RobotCollision
+        from humanoid_reach_ros.robot.shapes import load_collision_model
+        with self._map_lock:
+            tree = self._tree_cache if self._tree_cache is not None else self._tree(None)
+        cached = getattr(self, "_look_coll", None)
+        if cached is None or cached.tree is not tree:
+            cm = getattr(self, "_look_cm", None)
+            if cm is None:
+                cm = self._look_cm = load_collision_model(None, self.robot)
+            cached = self._look_coll = RobotCollision(self.robot, cm, tree)
+        return cached
 
     def head_targets(self, joints: np.ndarray) -> tuple[float, float]:
         """Head yaw and pitch [rad] of a joint vector (the ``Look`` feedback's fields); without a

@@ -482,16 +482,17 @@ class ReachPlanner:
                 return result, path, nodes
         return result, None, nodes
 
-    def validity_fn(self, arm: str, collision: RobotCollision):
+    def validity_fn(self, arm: str, collision: RobotCollision, projector: Projector | None = None):
         """``is_valid_batch(Q_plan (k, n + 4)) -> (k,)``: projection ok and collision-free.
 
         With the compiled kinematics and early exit (the defaults) this is a
         :class:`~humanoid_reach_ros.planning.plan_check.PlanChecker` (projection, forward
         kinematics and collision tests fused in one kernel, specialised to the planning
-        manifold; same verdicts), built once per arm and map."""
-        if self.early_exit_checks and self.projector.compiled:
+        manifold; same verdicts), built once per arm and map. ``projector``: another manifold
+        than the planner's (the way home's start-posture manifold), checked through it."""
+        if projector is None and self.early_exit_checks and self.projector.compiled:
             return self._plan_checker(arm, collision)
-        projector = self.projector
+        projector = self.projector if projector is None else projector
 
         def is_valid(Q: np.ndarray) -> np.ndarray:
             res = projector.project_plan_config(Q, arm)
@@ -1125,7 +1126,7 @@ class ReachPlanner:
             if pre is None or tail is None:
                 failures.append((arm, f"start-posture manifold: {self._pre_segment_why}"))
                 continue
-            checker = PlanChecker(proj, collision, arm) if self.projector.compiled else None
+            checker = PlanChecker(proj, collision, arm) if proj.compiled else self.validity_fn(arm, collision, proj)
             result, path_plan, n_nodes = self.search_path(
                 arm, start_plan[0], goal_plan, collision, rng, planner, remaining, None,
                 shortcut_s=lambda: min(self.params.shortcut_time_s, max(0.0, deadline - time.perf_counter())),
