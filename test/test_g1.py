@@ -12,7 +12,7 @@ import pytest
 from scipy.spatial import ConvexHull
 
 from humanoid_reach_ros.reach.balance import polygon_margin, support_polygon
-from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 from humanoid_reach_ros.robot.shapes import load_collision_model, point_segment_distance
 
 ARMS = ("right_arm", "left_arm")
@@ -251,3 +251,82 @@ def test_the_zero_posture_touches_where_the_description_says(g1, cm):
     P0, P1, r = cm.world_shapes(g1.forward(g1.config(np.zeros(g1.n_joints))))
     hits = {frozenset(p[:2]) for p in cm.colliding_pairs(P0, P1, r)}
     assert hits == {frozenset(p) for p in (("r_upper_arm", "chest_lower"), ("l_upper_arm", "chest_lower"))}, hits
+
+
+# ---------------------------------------------------------------- planning and looking (issue 23)
+def test_every_limb_gets_the_numerical_solver_and_the_projector_goes_through_the_protocol(g1):
+    """The G1's limbs have no closed form: all four get the numerical solver behind the limb
+    protocol; the planner's projection has no fused leg kernel for them and goes through it."""
+    from humanoid_reach_ros.planning.projector import Projector
+    from humanoid_reach_ros.robot.limb_ik import LimbIKSet
+
+    ik = LimbIKSet(g1)
+    assert {ik[n].kind for n in ik.names} == {"numerical"}
+    proj = Projector(g1, ik)
+    assert not proj.compiled
+    q = proj.q_ref
+    for arm in ("right", "left"):
+        back = proj.project_plan_config(proj.plan_config_of(q[None], arm), arm)
+        assert back.ok.all()
+        np.testing.assert_allclose(back.q[0], q, atol=1e-7)
+
+
+def test_the_g1_reaches_its_demo_valve_and_plans_the_way_home(g1):
+    """The valve of the plant made for the G1's size (robot.yaml demo_scene), the map without
+    the valve, as the demo's planner sees it: a collision-free reach ending at the valve, then
+    the way home from the reached posture (the start-posture manifold checked through itself)."""
+    from humanoid_reach_ros.nodes.common import scene_file_voxels
+    from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner
+    from humanoid_reach_ros.planning.wgr import valve_region
+    from humanoid_reach_ros.sim.scene import load_scene
+
+    planner = ReachPlanner(g1, params=PlannerParams(safety_margin_m=0.01))
+    planner.set_map(scene_file_voxels(g1.spec.demo_scene, planner.params.resolution_m, ("valve",)))
+    target = load_scene(g1.spec.demo_scene).target.pose[:3, 3]
+    out = planner.plan(g1.half_sitting_joints, PlanRequest(valve_region(target_p=target), seed=0,
+                                                            time_budget_s=10.0))
+    assert out.success, out.message
+    assert planner.collision.check_batch(out.waypoints).all()
+    np.testing.assert_allclose(g1.frame_pose(out.waypoints[-1], g1.hand_frames[out.arm]).translation, target,
+                               atol=1e-6)
+    for q in out.waypoints:   # the feet stay on their stance
+        for s, stance in zip(g1.sole_frames, g1.stance_soles):
+            np.testing.assert_allclose(g1.frame_pose(q, s).homogeneous, stance.homogeneous, atol=1e-6)
+    home = planner.plan(out.waypoints[-1][N_BASE_Q:], PlanRequest(None, home=True, seed=0, time_budget_s=10.0))
+    assert home.success, home.message
+    np.testing.assert_allclose(home.waypoints[-1][N_BASE_Q:], g1.half_sitting_joints, atol=1e-6)
+
+
+def test_a_look_without_a_neck_stops_short_of_the_map(g1):
+    """The scan pattern on the G1 (directions, gazed at with the chest): in its demo scene the
+    wide turns would swing a hand towards the passage pipe; those gazes stop where the body
+    keeps ``security_distance_m + look_clearance_m`` (``held_back`` says so, the point counts as
+    unseen), the shortened motion keeps it (to 3 mm: it is checked at 20 samples of the way,
+    and between two the body moves less than that here), and without a map every gaze goes all
+    the way."""
+    from humanoid_reach_ros.execution.requests import ExecutionRequests
+    from humanoid_reach_ros.nodes import reach_executor_params
+    from humanoid_reach_ros.sim.scene import load_scene
+
+    p = {k: spec.default for k, spec in reach_executor_params.PARAMETERS.items()}
+    p["scene_file"] = ""
+    free = ExecutionRequests(g1, p)
+    req = ExecutionRequests(g1, p)
+    req.scene_map(load_scene(g1.spec.demo_scene).voxelize(exclude_groups=("valve",)), "g1 plant")
+    _, points = req.look_targets([], [])
+    coll = req._look_collision()
+    need = p["security_distance_m"] + p["look_clearance_m"]
+    j, held = g1.half_sitting_joints, 0
+    for k, point in enumerate(points):
+        _, g = req.gaze(k, f"point {k}", point, j, "")
+        _, g_free = free.gaze(k, f"point {k}", point, j, "")
+        assert not g_free.held_back
+        if g.held_back:
+            held += 1
+            assert not g.visible and g.unseen_reason.startswith("turned ") and "of the map" in g.held_back
+            d0 = coll.min_distance(g1.config(j, g1.base_on_feet(j)))
+            for s in np.linspace(0.0, 1.0, 11):
+                x = j + s * (g.joints - j)
+                assert coll.min_distance(g1.config(x, g1.base_on_feet(x))) >= min(need, d0) - 0.003, (k, s)
+        j = g.joints
+    assert held >= 1
