@@ -495,6 +495,9 @@ def step_record(run: dict[str, Any], t_ref: float) -> dict[str, Any]:
             "planner_total_ms": round(float((plan.get("statistics") or {}).get("total_time_s", 0.0)) * 1e3, 1)
             if plan else None,
             "map_voxels_in_plan": (plan.get("statistics") or {}).get("map_voxels") if plan else None,
+            # the last call's wait less the planner's own time: the transport (and the planner's queue)
+            "plan_overhead_ms": round(plan_waits_ms(run["events"])[-1] - float((plan.get("statistics") or {}).get(
+                "total_time_s", 0.0)) * 1e3, 1) if plan and plan_waits_ms(run["events"]) else None,
             "auto_looks": len(s.get("auto_looks") or []),
             "execution": {k: ex.get(k) for k in ("outcome", "success", "error_name", "duration_s", "overruns")}
             if ex else None,
@@ -775,6 +778,11 @@ def summarize(placements: list[dict[str, Any]]) -> dict[str, Any]:
     scan = next((p["compute_link_during_scan"]["both"] for p in placements
                  if p["placement"] == "compute" and p.get("compute_link_during_scan")), None)
 
+    over = {pl: [s["plan_overhead_ms"] for p in placements if p["placement"] == pl for s in p["steps"]
+                 if s.get("plan_overhead_ms") is not None] for pl in ("compute", "robot")}
+    own = {pl: [s["planner_total_ms"] for p in placements if p["placement"] == pl for s in p["steps"]
+                if s.get("planner_total_ms")] for pl in ("compute", "robot")}
+
     def r(v, nd=3):
         return None if v is None else round(v, nd)
     drifts = [c.get("feet_drift_mm") for c in cuts if c.get("feet_drift_mm") is not None]
@@ -798,6 +806,9 @@ def summarize(placements: list[dict[str, Any]]) -> dict[str, Any]:
         "plan_wait_ms_p95_local_planner": r(percentile(local, 95), 1) if local else None,
         "plan_wait_ms_p50_local_planner": r(percentile(local, 50), 1) if local else None,
         "plan_calls": {"remote": len(remote), "local": len(local)},
+        "plan_overhead_ms_p95_remote_planner": r(percentile(over["compute"], 95), 1) if over["compute"] else None,
+        "plan_overhead_ms_p95_local_planner": r(percentile(over["robot"], 95), 1) if over["robot"] else None,
+        "planner_own_ms_p95_remote_planner": r(percentile(own["compute"], 95), 1) if own["compute"] else None,
         "flow_steps": len(steps), "cuts_done": len(cuts),
     }
 
