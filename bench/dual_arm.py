@@ -42,7 +42,7 @@ the bench's own bookkeeping holds ~10^6 objects; with the collector on during th
 step of a full run took 154 ms against a p99 of 0.33 ms) and on between pairs. CPU time of the
 thread (``time.thread_time``, the headline figures) and wall time
 (``time.perf_counter``) of the same steps; ``same_pairs`` gives both ratios. The proposed
-step runs compiled (reach/fast_legs.py, reach/fast_arms.py; the kernels are loaded from
+step runs compiled (dual_arm/fast_legs.py, kinematics/hand_derived_compiled.py; the kernels are loaded from
 numba's cache when the controller is built). ``reachability``: fraction of pairs for
 which eq. 5 holds for both hands at the chosen CoM candidate, for which the final
 whole-body configuration exists (solved from the initial posture, untimed), and whose
@@ -83,12 +83,12 @@ import numpy as np
 import pinocchio as pin
 
 from humanoid_reach_ros.testing.machine import describe
-from humanoid_reach_ros.reach.balance import com_projection, polygon_margin, support_polygon, zmp_trajectory
-from humanoid_reach_ros.reach.controller import DualArmReachController, min_jerk
-from humanoid_reach_ros.reach.kinematics import HandTargets, rodrigues_interpolate
-from humanoid_reach_ros.reach.torso_regression import TorsoRegression
-from humanoid_reach_ros.reach.upper_body_ik import UpperBodyIK
-from humanoid_reach_ros.reach.whole_body_ik import FullBodyLMIK, measure_errors
+from humanoid_reach_ros.dual_arm.balance import com_projection, polygon_margin, support_polygon, zmp_trajectory
+from humanoid_reach_ros.dual_arm.controller import DualArmReachController, min_jerk
+from humanoid_reach_ros.dual_arm.targets import HandTargets, rodrigues_interpolate
+from humanoid_reach_ros.dual_arm.torso_regression import TorsoRegression
+from humanoid_reach_ros.dual_arm.upper_body_ik import UpperBodyIK
+from humanoid_reach_ros.dual_arm.whole_body_ik import FullBodyLMIK, measure_errors
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT, robots
 

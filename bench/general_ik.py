@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
-"""Benchmark: the compiled general closed-form IK (humanoid_reach_ros.robot.general_ik_compiled)
-against its numpy reference (robot/general_ik.py), one pose per call, with HRP-2's
+"""Benchmark: the compiled general closed-form IK (humanoid_reach_ros.kinematics.general_ik_compiled)
+against its numpy reference (kinematics/general_ik.py), one pose per call, with HRP-2's
 hand-derived compiled arm kernel (reach/fast_arms.CompiledArmIK) as the yardstick.
 
 Limbs: Talos's right arm (7R: RedundantLimbIK, 16 first-joint values) and right leg as a
@@ -36,14 +36,14 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from humanoid_reach_ros.testing.machine import describe as describe_machine  # noqa: E402
-from humanoid_reach_ros.reach.fast_arms import CompiledArmIK  # noqa: E402
-from humanoid_reach_ros.robot import general_ik_compiled  # noqa: E402
-from humanoid_reach_ros.robot.general_ik import Chain6, GeneralLimbIK, RedundantLimbIK  # noqa: E402
-from humanoid_reach_ros.robot.general_ik_compiled import compiled_general_ik  # noqa: E402
-from humanoid_reach_ros.robot.limb_ik import LimbIKSet  # noqa: E402
+from humanoid_reach_ros.kinematics.hand_derived_compiled import CompiledArmIK  # noqa: E402
+from humanoid_reach_ros.kinematics import general_ik_compiled  # noqa: E402
+from humanoid_reach_ros.kinematics.general_ik import Chain6, GeneralLimbIK, RedundantLimbIK  # noqa: E402
+from humanoid_reach_ros.kinematics.general_ik_compiled import compiled_general_ik  # noqa: E402
+from humanoid_reach_ros.kinematics.registry import LimbIKSet  # noqa: E402
 from humanoid_reach_ros.robot.model import RobotModel  # noqa: E402
-from humanoid_reach_ros.robot.numerical_ik import NumericalLimbIK  # noqa: E402
-from humanoid_reach_ros.robot import numerical_ik  # noqa: E402
+from humanoid_reach_ros.kinematics.numerical_ik import NumericalLimbIK  # noqa: E402
+from humanoid_reach_ros.kinematics import numerical_ik  # noqa: E402
 
 G1_URDF = "share/example-robot-data/robots/g1_description/urdf/g1_29dof_rev_1_0.urdf"
 G1_JOINTS = {

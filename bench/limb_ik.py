@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Benchmark: closed-form limb IK (humanoid_reach_ros.robot.limb_ik) vs numerical CLIK.
+"""Benchmark: closed-form limb IK (humanoid_reach_ros.kinematics.hand_derived) vs numerical CLIK.
 
 Poses: for each of the four limbs, whole-body configurations with every joint
 uniform within its limits and a random base pose; the limb's root and tip poses
@@ -37,10 +37,10 @@ import numpy as np
 import pinocchio as pin
 
 try:
-    from humanoid_reach_ros.robot.limb_ik import LimbIKSet
+    from humanoid_reach_ros.kinematics.registry import LimbIKSet
 except ImportError:  # run from a source checkout without PYTHONPATH
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from humanoid_reach_ros.robot.limb_ik import LimbIKSet
+    from humanoid_reach_ros.kinematics.registry import LimbIKSet
 from humanoid_reach_ros.robot.model import RobotModel
 
 SEED = 12345

@@ -38,8 +38,8 @@ def warm_up_all() -> dict[str, float]:
     WholeBodyExecutor(robot, load_collision_model(None, robot), ExecutorParams()).warm_up()
     times["executor"] = time.perf_counter() - t
     t = time.perf_counter()
-    from humanoid_reach_ros.reach.controller import ControllerConfig, DualArmReachController
-    from humanoid_reach_ros.reach.torso_regression import ReachWorkspace, TorsoRegression
+    from humanoid_reach_ros.dual_arm.controller import ControllerConfig, DualArmReachController
+    from humanoid_reach_ros.dual_arm.torso_regression import ReachWorkspace, TorsoRegression
 
     robot = RobotModel()
     ctl = DualArmReachController(robot, TorsoRegression.load(robot.spec.torso_regression),
@@ -51,8 +51,8 @@ def warm_up_all() -> dict[str, float]:
     ctl.set_targets(pair.p_right, pair.R_right, pair.p_left, pair.R_left)
     for _ in range(3):
         ctl.step()
-    from humanoid_reach_ros.reach import redundant_arms
-    redundant_arms.warm_up()   # a 7-joint arm's control step (Talos's), compiled
+    from humanoid_reach_ros import kinematics
+    kinematics.warm_up()   # every limb solver's kernels and a 7-joint arm's control step (Talos's)
     times["dual_arm"] = time.perf_counter() - t
     t = time.perf_counter()
     from humanoid_reach_ros.sim import camera

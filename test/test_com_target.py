@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from humanoid_reach_ros.reach.com_target import ComTargetSelector, interpolate_com
-from humanoid_reach_ros.reach.kinematics import HandTargets
-from humanoid_reach_ros.reach.whole_body_ik import lowered_initial_posture
+from humanoid_reach_ros.dual_arm.com_target import ComTargetSelector, interpolate_com
+from humanoid_reach_ros.dual_arm.targets import HandTargets
+from humanoid_reach_ros.dual_arm.whole_body_ik import lowered_initial_posture
 from humanoid_reach_ros.robot.model import RobotModel
 
 

@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from humanoid_reach_ros.reach.balance import (
+from humanoid_reach_ros.dual_arm.balance import (
     com_projection, polygon_margin, support_polygon, zmp_trajectory,
 )
-from humanoid_reach_ros.reach.controller import ControllerConfig, DualArmReachController
+from humanoid_reach_ros.dual_arm.controller import ControllerConfig, DualArmReachController
 
 MARGIN_M = 0.02
 #: fixed target pairs (right, left) [m] in the workspace: mid, low (squat), asymmetric

@@ -28,8 +28,8 @@ from sensor_msgs.msg import JointState
 
 from humanoid_reach_ros.io import exec_msgs, msgs
 from humanoid_reach_ros.io.exec_msgs import ExecInputError
-from humanoid_reach_ros.reach.controller import ControllerConfig, DualArmReachController
-from humanoid_reach_ros.reach.torso_regression import ReachWorkspace
+from humanoid_reach_ros.dual_arm.controller import ControllerConfig, DualArmReachController
+from humanoid_reach_ros.dual_arm.torso_regression import ReachWorkspace
 from humanoid_reach_ros.robot.model import RobotModel
 
 from test_reach_executor_node import (DEEP, DRIVER_PARAMS, JUMP_PERIODS, PARAMS_FILE, READY, Run, command_array,

@@ -3,7 +3,7 @@ the description loads from example-robot-data's URDF with the frames it adds (so
 points measured on the meshes, the depth camera's optical frame), the stance is level and
 symmetric, the camera looks forward and down, half-sitting is balanced, the collision model
 covers the meshes and half-sitting is free of self-collision. The limbs' IK (numerical:
-robot/numerical_ik.py) and planning are test_numerical_ik's and the planner's tests, not these."""
+kinematics/numerical_ik.py) and planning are test_numerical_ik's and the planner's tests, not these."""
 from __future__ import annotations
 
 import numpy as np
@@ -11,7 +11,7 @@ import pinocchio as pin
 import pytest
 from scipy.spatial import ConvexHull
 
-from humanoid_reach_ros.reach.balance import polygon_margin, support_polygon
+from humanoid_reach_ros.dual_arm.balance import polygon_margin, support_polygon
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 from humanoid_reach_ros.robot.shapes import load_collision_model, point_segment_distance
 
@@ -258,7 +258,7 @@ def test_every_limb_gets_the_numerical_solver_and_the_projector_goes_through_the
     """The G1's limbs have no closed form: all four get the numerical solver behind the limb
     protocol; the planner's projection has no fused leg kernel for them and goes through it."""
     from humanoid_reach_ros.planning.projector import Projector
-    from humanoid_reach_ros.robot.limb_ik import LimbIKSet
+    from humanoid_reach_ros.kinematics.registry import LimbIKSet
 
     ik = LimbIKSet(g1)
     assert {ik[n].kind for n in ik.names} == {"numerical"}

@@ -1,4 +1,4 @@
-"""General closed-form 6R IK (robot/general_ik.py): HRP-2's four limbs give the specialized
+"""General closed-form 6R IK (kinematics/general_ik.py): HRP-2's four limbs give the specialized
 solver's answers; random chains of the solvable class, whatever their axis directions and
 offsets, come back from FK; other chains are refused."""
 from __future__ import annotations
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from humanoid_reach_ros.robot.general_ik import Chain6, GeneralLimbIK
-from humanoid_reach_ros.robot.limb_ik import LimbIKSet
+from humanoid_reach_ros.kinematics.general_ik import Chain6, GeneralLimbIK
+from humanoid_reach_ros.kinematics.registry import LimbIKSet
 from humanoid_reach_ros.robot.model import RobotModel
 
 
@@ -93,7 +93,7 @@ def test_a_limb_off_the_hand_derived_patterns_gets_the_general_closed_form(tmp_p
     """HRP-2 with its right shoulder's first axis tilted (a robot the hand-derived arm pattern
     refuses): the limb set gives it the general solver, behind the same protocol, and the goal
     sampler's projector reaches through it."""
-    from humanoid_reach_ros.robot.general_limb import GeneralLimb
+    from humanoid_reach_ros.kinematics.general_limb import GeneralLimb
     from humanoid_reach_ros.robot.spec import robot_config_path
 
     src = robot_config_path("hrp2").parent
@@ -144,7 +144,7 @@ def test_seven_dof_arm_closed_form_on_a_subchain_with_the_first_joint_sampled():
     """A random 7R arm of Talos's form (shoulder joints 2-3 intersecting, spherical wrist
     5-6-7, offsets elsewhere): poses of random joints are reached; with the drawn joints as
     reference the drawn solution comes back."""
-    from humanoid_reach_ros.robot.general_ik import RedundantLimbIK
+    from humanoid_reach_ros.kinematics.general_ik import RedundantLimbIK
 
     rng = np.random.default_rng(11)
     R = Rotation.random(7, random_state=5).as_matrix()

@@ -1,5 +1,5 @@
-"""The compiled general closed-form IK (robot/general_ik_compiled.py) gives its numpy reference's
-answers (robot/general_ik.py): the same ``ok`` and the same joints where ok, on Talos's 7-DOF
+"""The compiled general closed-form IK (kinematics/general_ik_compiled.py) gives its numpy reference's
+answers (kinematics/general_ik.py): the same ``ok`` and the same joints where ok, on Talos's 7-DOF
 arms (RedundantLimbIK, the subchain in the direct form) and legs, HRP-2's four limbs (6R,
 reversed form), the 7R arm's subchain on its own (6R, direct form) and random chains of the
 class in both forms (test_general_ik.py's constructions); reachable poses from the FK of
@@ -19,8 +19,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from humanoid_reach_ros.robot.general_ik import Chain6, GeneralLimbIK, RedundantLimbIK
-from humanoid_reach_ros.robot.general_ik_compiled import (
+from humanoid_reach_ros.kinematics.general_ik import Chain6, GeneralLimbIK, RedundantLimbIK
+from humanoid_reach_ros.kinematics.general_ik_compiled import (
     CompiledGeneralLimbIK, CompiledRedundantLimbIK, compiled_general_ik, warm_up,
 )
 from humanoid_reach_ros.robot.model import RobotModel

@@ -26,9 +26,10 @@ PKG_DIR = Path(__file__).resolve().parents[1] / PKG
 LAYERS: list[tuple[str, ...]] = [
     ("", "codes", "paths", "yaml_checks"),  # "" is the package itself (__init__: __version__)
     ("robot",),
+    ("kinematics",),                     # limb IK: the solver protocol, registry and solvers
     ("geometry",),
     ("scene",),                          # the planning scene: the one world model
-    ("perception", "reach", "sim"),      # sim: the scene description and simulated sensors
+    ("perception", "dual_arm", "sim"),   # sim: the scene description and simulated sensors
     ("control",),                        # the HQP, tasks, limits, the whole-body executor
     ("planning",),                       # smooth reshaping solves with control's HQP
     ("execution",),                      # supervisor and engines around control / reach / planning
@@ -39,7 +40,8 @@ LAYERS: list[tuple[str, ...]] = [
     ("testing",),                        # tooling of tests and benches: nothing above imports it
 ]
 RANK = {unit: i for i, layer in enumerate(LAYERS) for unit in layer}
-CORE = ("robot", "geometry", "scene", "perception", "reach", "sim", "control", "planning", "execution")
+CORE = ("robot", "kinematics", "geometry", "scene", "perception", "dual_arm", "sim", "control", "planning",
+        "execution")
 
 #: known cycles, each an import edge (importer, imported) whose removal breaks it (none left: the
 #: planning/path <-> rrt_connect / prm cycle went with planning/space.py).
@@ -229,3 +231,14 @@ def test_core_never_imports_rclpy_or_messages() -> None:
             bad += [f"{module}:{node.lineno} {n}" for n in names
                     if n.split(".")[0] in ros or n.split(".")[0].endswith("_msgs")]
     assert not bad, "\n".join(bad)
+
+
+def test_the_rest_of_the_package_uses_kinematics_through_its_api():
+    """Issue 23: planning, the dual-arm controller, the executor and the nodes use the limb
+    solvers through ``humanoid_reach_ros.kinematics`` (the protocol, the registry and the
+    compiled pieces it exports), never one of its modules directly."""
+    modules = module_files()
+    bad = [str(imp) for mod, path in modules.items() if not mod.startswith(f"{PKG}.kinematics")
+           for imp in imports_of(mod, path, modules)
+           if imp.imported.startswith(f"{PKG}.kinematics.")]
+    assert not bad, "import the kinematics package's API, not its modules:\n" + "\n".join(bad)

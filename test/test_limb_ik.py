@@ -1,16 +1,12 @@
-"""Closed-form limb IK (humanoid_reach_ros.robot.limb_ik) against pinocchio."""
+"""Closed-form limb IK (humanoid_reach_ros.kinematics.hand_derived) against pinocchio."""
 from __future__ import annotations
 
 import numpy as np
 import pinocchio as pin
 import pytest
 
-from humanoid_reach_ros.robot.limb_ik import (
-    IKReason,
-    LimbIK,
-    LimbIKSet,
-    LimbStructureError,
-)
+from humanoid_reach_ros.kinematics.hand_derived import IKReason, LimbIK, LimbStructureError
+from humanoid_reach_ros.kinematics.registry import LimbIKSet
 from humanoid_reach_ros.robot.model import RobotModel
 
 LIMBS = ("right_leg", "left_leg", "right_arm", "left_arm")

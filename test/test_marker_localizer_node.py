@@ -288,7 +288,7 @@ def test_two_hand_markers_give_dual_arm_targets(start_node, ros_probe) -> None:
     """Markers 3 and 5 in one image -> /dual_arm/targets [right, left] at the markers'
     object positions (M_T_O: 2 cm in front of each face) with the workspace rule's
     orientations; an image with one of them only publishes nothing."""
-    from humanoid_reach_ros.reach.torso_regression import ReachWorkspace
+    from humanoid_reach_ros.dual_arm.torso_regression import ReachWorkspace
 
     model = RobotModel()
     cam = C.PinholeCamera.from_fov(640, 480, math.radians(60.0))

@@ -1,4 +1,4 @@
-"""The numerical limb IK (robot/numerical_ik.py, issue 23) on the Unitree G1's four limbs,
+"""The numerical limb IK (kinematics/numerical_ik.py, issue 23) on the Unitree G1's four limbs,
 which no closed form of the package solves (offsets between all their axes): poses from the
 FK of random joints are solved exactly within the limits, a reference next to the answer
 keeps it (6R: the same joints), poses beyond the reach bound and non-finite input are not
@@ -17,12 +17,13 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from humanoid_reach_ros.robot.general_ik import Chain6
-from humanoid_reach_ros.robot.general_ik_compiled import CompiledGeneralLimbIK, CompiledRedundantLimbIK
-from humanoid_reach_ros.robot.general_limb import GeneralLimb
-from humanoid_reach_ros.robot.limb_ik import LimbIK, LimbIKSet
+from humanoid_reach_ros.kinematics.general_ik import Chain6
+from humanoid_reach_ros.kinematics.general_ik_compiled import CompiledGeneralLimbIK, CompiledRedundantLimbIK
+from humanoid_reach_ros.kinematics.general_limb import GeneralLimb
+from humanoid_reach_ros.kinematics.hand_derived import LimbIK
+from humanoid_reach_ros.kinematics.registry import LimbIKSet
 from humanoid_reach_ros.robot.model import LimbSpec, RobotModel
-from humanoid_reach_ros.robot.numerical_ik import NumericalLimbIK, warm_up
+from humanoid_reach_ros.kinematics.numerical_ik import NumericalLimbIK, warm_up
 
 N_POSES = 500
 EXACT = 1e-9          # [m], [rad]: the answers reach their poses this well

@@ -105,7 +105,7 @@ def test_compiled_plan_projection_matches_numpy_reference(robot, projector, arm)
     same ok rows and failure counts, configurations within 1e-12 (1e-9 near a stretched
     knee, see test_limb_ik), trunk poses within 1e-12; also for NaN rows, arm joints
     outside their limits and trunk heights the legs cannot reach."""
-    from humanoid_reach_ros.robot.limb_ik import LimbIKSet
+    from humanoid_reach_ros.kinematics.registry import LimbIKSet
 
     ref = Projector(robot, ik=LimbIKSet(robot, compiled=False))
     assert projector.compiled and not ref.compiled

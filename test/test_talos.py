@@ -12,9 +12,10 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
-from humanoid_reach_ros.reach.balance import polygon_margin, support_polygon
-from humanoid_reach_ros.robot.general_limb import GeneralLimb
-from humanoid_reach_ros.robot.limb_ik import LimbIK, LimbIKSet
+from humanoid_reach_ros.dual_arm.balance import polygon_margin, support_polygon
+from humanoid_reach_ros.kinematics.general_limb import GeneralLimb
+from humanoid_reach_ros.kinematics.hand_derived import LimbIK
+from humanoid_reach_ros.kinematics.registry import LimbIKSet
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.shapes import load_collision_model, point_segment_distance
 from humanoid_reach_ros.robot.spec import load_robot_spec, resolve_package_uri

@@ -1,4 +1,4 @@
-"""The dual-arm whole-body reaching method (reach/) on the second robot, Talos: 7-DOF arms
+"""The dual-arm whole-body reaching method (dual_arm/) on the second robot, Talos: 7-DOF arms
 (RedundantLimbIK behind the limb protocol, RedundantArmTracker in the control steps), its own
 workspace file (config/robots/talos/dual_arm_workspace.yaml) and torso regression model."""
 from __future__ import annotations
@@ -8,10 +8,10 @@ import pytest
 import yaml
 
 from humanoid_reach_ros.paths import config_path
-from humanoid_reach_ros.reach.balance import com_projection, polygon_margin, support_polygon, zmp_trajectory
-from humanoid_reach_ros.reach.controller import DualArmReachController
-from humanoid_reach_ros.reach.kinematics import HandTargets
-from humanoid_reach_ros.reach.torso_regression import WORKSPACE_YAML, ReachWorkspace
+from humanoid_reach_ros.dual_arm.balance import com_projection, polygon_margin, support_polygon, zmp_trajectory
+from humanoid_reach_ros.dual_arm.controller import DualArmReachController
+from humanoid_reach_ros.dual_arm.targets import HandTargets
+from humanoid_reach_ros.dual_arm.torso_regression import WORKSPACE_YAML, ReachWorkspace
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 
 MARGIN_M = 0.02

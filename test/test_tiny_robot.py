@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 import yaml
 
-from humanoid_reach_ros.reach.balance import polygon_margin, support_polygon
-from humanoid_reach_ros.robot.general_limb import GeneralLimb
-from humanoid_reach_ros.robot.limb_ik import LimbIK, LimbIKSet
+from humanoid_reach_ros.dual_arm.balance import polygon_margin, support_polygon
+from humanoid_reach_ros.kinematics.general_limb import GeneralLimb
+from humanoid_reach_ros.kinematics.hand_derived import LimbIK
+from humanoid_reach_ros.kinematics.registry import LimbIKSet
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.shapes import load_collision_model
 from humanoid_reach_ros.robot.spec import robots

@@ -6,11 +6,11 @@ import pytest
 import yaml
 
 from humanoid_reach_ros.paths import config_path
-from humanoid_reach_ros.reach.torso_regression import (
+from humanoid_reach_ros.dual_arm.torso_regression import (
     ReachWorkspace, TorsoRegression, generate_dataset,
 )
-from humanoid_reach_ros.reach.upper_body_ik import UpperBodyIK
-from humanoid_reach_ros.reach.whole_body_ik import lowered_initial_posture
+from humanoid_reach_ros.dual_arm.upper_body_ik import UpperBodyIK
+from humanoid_reach_ros.dual_arm.whole_body_ik import lowered_initial_posture
 from humanoid_reach_ros.robot.model import RobotModel
 
 

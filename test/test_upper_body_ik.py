@@ -5,8 +5,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from humanoid_reach_ros.reach.kinematics import HandTargets, damped_pinv_apply
-from humanoid_reach_ros.reach.upper_body_ik import UpperBodyIK
+from humanoid_reach_ros.dual_arm.targets import HandTargets, damped_pinv_apply
+from humanoid_reach_ros.dual_arm.upper_body_ik import UpperBodyIK
 from humanoid_reach_ros.robot.model import N_BASE_Q
 
 
@@ -112,7 +112,7 @@ def test_bad_configuration_and_weight(robot, ik):
 
 
 def test_rodrigues_interpolation_endpoints():
-    from humanoid_reach_ros.reach.kinematics import rodrigues_interpolate
+    from humanoid_reach_ros.dual_arm.targets import rodrigues_interpolate
     R0 = pin.utils.rpyToMatrix(0.1, -0.2, 0.3)
     R1 = pin.utils.rpyToMatrix(-0.5, 0.4, 1.0)
     np.testing.assert_allclose(rodrigues_interpolate(R0, R1, 0.0), R0, atol=1e-12)

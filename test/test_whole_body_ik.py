@@ -5,8 +5,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from humanoid_reach_ros.reach.kinematics import HandTargets
-from humanoid_reach_ros.reach.whole_body_ik import (
+from humanoid_reach_ros.dual_arm.targets import HandTargets
+from humanoid_reach_ros.dual_arm.whole_body_ik import (
     FullBodyLMIK, LegTargets, LowerBodyIK, ProposedWholeBodyIK, lowered_initial_posture,
 )
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
@@ -100,7 +100,7 @@ def test_bad_arguments(robot):
 def test_closed_form_legs_equal_algorithm3(robot, q0):
     """ClosedFormLowerBodyIK (closed-form legs + Newton on the waist) returns Algorithm 3's
     solution: same configuration (to the LM tolerance), CoM, waist orientation and soles."""
-    from humanoid_reach_ros.reach.fast_legs import ClosedFormLowerBodyIK
+    from humanoid_reach_ros.dual_arm.fast_legs import ClosedFormLowerBodyIK
 
     ref = LowerBodyIK(robot, max_iter=100)
     fast = ClosedFormLowerBodyIK(robot, max_iter=100)
@@ -133,7 +133,7 @@ def test_closed_form_legs_equal_algorithm3(robot, q0):
 def test_closed_form_legs_fall_back_when_out_of_reach(robot, q0):
     """A CoM the legs cannot reach: the closed form fails and the numerical reference
     answers (not converged, finite angles) -- the same report as Algorithm 3."""
-    from humanoid_reach_ros.reach.fast_legs import ClosedFormLowerBodyIK
+    from humanoid_reach_ros.dual_arm.fast_legs import ClosedFormLowerBodyIK
 
     fast = ClosedFormLowerBodyIK(robot)
     r_sole, _ = robot.stance_soles
@@ -147,8 +147,8 @@ def test_compiled_arm_ik_equals_reference(robot, side):
     """fast_arms.arm_ik_pose == LimbIK.solve_reference: same reason code and, when solved,
     the same angles to 1e-12 -- random reachable, perturbed (unreachable), random-orientation
     (joint-limit) poses and exact singular ones (stretched arm, shoulder roll at +-90 deg)."""
-    from humanoid_reach_ros.reach.fast_arms import CompiledArmIK
-    from humanoid_reach_ros.robot.limb_ik import LimbIK
+    from humanoid_reach_ros.kinematics.hand_derived_compiled import CompiledArmIK
+    from humanoid_reach_ros.kinematics.hand_derived import LimbIK
 
     limb = LimbIK(robot, side)
     fast = CompiledArmIK(limb)

@@ -22,7 +22,7 @@ Approximations (this is an HRP-2-*class* model, not the manufacturer's data):
   axes intersect and both wrist axes intersect; the thigh, shank, upper arm and
   forearm carry no lateral offsets. The real HRP-2 has small offsets (and a
   cantilevered hip); dropping them is what makes the closed-form 6-DOF limb IK
-  of humanoid_reach_ros.robot.limb_ik exact for this model.
+  of humanoid_reach_ros.kinematics.hand_derived exact for this model.
 * Link lengths (thigh 0.30 m, shank 0.30 m, ankle height 0.105 m, upper arm
   0.25 m, forearm 0.25 m) are the published HRP-2 figures rounded; the hand
   end-effector point is 0.17 m past the wrist centre (middle of the grasp).

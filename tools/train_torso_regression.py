@@ -16,7 +16,7 @@ import sys
 import time
 
 from humanoid_reach_ros.paths import config_path
-from humanoid_reach_ros.reach.torso_regression import ReachWorkspace, TorsoRegression, generate_dataset
+from humanoid_reach_ros.dual_arm.torso_regression import ReachWorkspace, TorsoRegression, generate_dataset
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 

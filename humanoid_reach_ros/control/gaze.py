@@ -70,7 +70,7 @@ which carries the gaze). A chest leaning 38 deg moves the COG forward, the legs 
 back (25 mm) and the hand held at level 3 then pulls the posture away from the reference: the
 chest's yaw ended 3-4 deg off and the camera 2.2 deg (HRP-2) to 3.3 deg (Talos) off the hip
 point. So the executor's gaze is balanced beforehand: the lower-body IK of Algorithm 3
-(``reach/lower_body_ik.py``) puts the COG back over the same point with the feet and the
+(``dual_arm/lower_body_ik.py``) puts the COG back over the same point with the feet and the
 waist's orientation fixed, the gaze is aimed again from the moved waist, and so on until the
 legs stop moving (2-4 rounds); the reference is then consistent with every level and the
 executor follows it (hip point: 0.13 deg off at the end on HRP-2, test_gaze.py).
@@ -468,7 +468,7 @@ class GazeSolver:
     # ------------------------------------------------------------ balance
     def balanced(self, joints, point) -> Gaze:
         """:meth:`solve`, then the legs keep the exact COG where it is (module doc, *Balance*):
-        the lower-body IK (``reach/lower_body_ik.py``, Algorithm 3, right sole fixed) puts the
+        the lower-body IK (``dual_arm/lower_body_ik.py``, Algorithm 3, right sole fixed) puts the
         COG's xy back at that of ``joints`` (its height: the gaze's own), the waist's
         orientation and the left sole where they were; the gaze is solved again from the
         balanced posture, until the legs move less than ``balance_tol_rad``. Where the legs
@@ -478,7 +478,7 @@ class GazeSolver:
         if P.shape != (3,):
             raise ValueError(f"point must have shape (3,), got {P.shape}")
         P = self._points(P)[0]
-        from humanoid_reach_ros.reach.lower_body_ik import LegTargets, LowerBodyIK
+        from humanoid_reach_ros.dual_arm.lower_body_ik import LegTargets, LowerBodyIK
         if self._legs is None:
             self._legs = LowerBodyIK(self.robot, "right", max_iter=self.params.balance_max_iter)
         base = self._base(j)

@@ -3,7 +3,7 @@
 * :class:`TrajectoryEngine`: the prioritized whole-body IK of Kanehiro et al. Sec. IV
   (``control/executor.py``) tracking a planned joint trajectory with one hand;
 * :class:`DualArmEngine`: the real-time dual-arm whole-body reaching controller of the
-  dissertation (``reach/controller.py``: torso regression, eq. 6 CoM, Algorithm 3 legs +
+  dissertation (``dual_arm/controller.py``: torso regression, eq. 6 CoM, Algorithm 3 legs +
   closed-form arms) to two hand targets.
 
 Both answer ``start(q0, motion)``, ``step(t)`` -> :class:`StepOutcome`, ``stop()`` (the
@@ -25,7 +25,7 @@ import numpy as np
 import pinocchio as pin
 
 from humanoid_reach_ros.control.executor import StepMetrics, WholeBodyExecutor
-from humanoid_reach_ros.reach.controller import ControlStep, DualArmReachController
+from humanoid_reach_ros.dual_arm.controller import ControlStep, DualArmReachController
 from humanoid_reach_ros.robot.model import RobotModel
 
 

@@ -512,8 +512,8 @@ class ExecutionRequests:
         q0 = self.measured_start(joints, reason)
         with self._sampler_lock:
             if self._sampler is None:
-                from humanoid_reach_ros.reach.controller import ControllerConfig, DualArmReachController
-                from humanoid_reach_ros.reach.torso_regression import ReachWorkspace, TorsoRegression
+                from humanoid_reach_ros.dual_arm.controller import ControllerConfig, DualArmReachController
+                from humanoid_reach_ros.dual_arm.torso_regression import ReachWorkspace, TorsoRegression
                 self._sampler = DualArmReachController(
                     RobotModel(self.p["robot_config"]), TorsoRegression.load(self.dual_arm_model()),
                     ReachWorkspace.load(self.dual_arm_workspace()),

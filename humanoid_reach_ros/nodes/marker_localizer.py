@@ -117,7 +117,7 @@ def hand_marker_setup(ids, orientation: str, workspace_yaml: str, known) -> tupl
         raise ValueError(f"hand_marker_ids {unknown} are not among marker_ids {sorted(known)}")
     if orientation == "marker":
         return (ids[0], ids[1]), None
-    from humanoid_reach_ros.reach.torso_regression import ReachWorkspace
+    from humanoid_reach_ros.dual_arm.torso_regression import ReachWorkspace
     return (ids[0], ids[1]), ReachWorkspace.load(workspace_yaml)
 
 

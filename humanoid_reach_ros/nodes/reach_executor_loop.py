@@ -282,8 +282,8 @@ def _build(config: LoopConfig, out: queue.SimpleQueue):
     _warm_up_cluttered(WholeBodyExecutor(robot, cm, config.executor_params), robot)
     dual = None
     if config.dual_arm is not None:
-        from humanoid_reach_ros.reach.controller import ControllerConfig, DualArmReachController
-        from humanoid_reach_ros.reach.torso_regression import ReachWorkspace, TorsoRegression
+        from humanoid_reach_ros.dual_arm.controller import ControllerConfig, DualArmReachController
+        from humanoid_reach_ros.dual_arm.torso_regression import ReachWorkspace, TorsoRegression
         d = config.dual_arm
         ctl = DualArmReachController(RobotModel(config.robot_config), TorsoRegression.load(d["regression"]),
                                      ReachWorkspace.load(d["workspace"]),

@@ -24,7 +24,9 @@ gives the same answers with less work per configuration, in one numba kernel per
 
 The checks are the same as the unfused path's -- same capsules and padded radii, same
 sphere tree and self margin, same joint limits -- so the verdicts are the same (the
-tests compare them on random rows). No ROS here.
+tests compare them on random rows). The legs are solved in the kernel by the hand-derived
+compiled leg kernel (``kinematics/hand_derived.py``, ``leg_ik_pose``, through the projector's
+kernel): a planner whose legs have another solver runs the unfused path. No ROS here.
 """
 from __future__ import annotations
 

@@ -5,7 +5,7 @@ pose, trunk height and trunk orientation. The whole robot mass is assumed to be
 concentrated at one point ``COG_approx`` fixed to the trunk (``base_link``, the
 waist), so the trunk position that keeps ``COG_approx`` above its place is
 closed-form, and the four 6-DOF limbs then follow from their closed-form IK
-(:mod:`humanoid_reach_ros.robot.limb_ik`)::
+(:mod:`humanoid_reach_ros.kinematics.hand_derived`)::
 
     R_e = RPY(rpy_e);  R_t = RPY(rpy_t)                      (RPY = Rz Ry Rx)
     p_t = R_t v + COG_approx;  p_t[z] = z_t                  (lines 2-4)
@@ -44,7 +44,7 @@ import numpy as np
 
 from humanoid_reach_ros.codes import ARM_CODES, ARM_LEFT, ARM_NONE, ARM_RIGHT
 from humanoid_reach_ros.planning.wgr import matrix_rpy, rpy_matrix
-from humanoid_reach_ros.robot.limb_ik import LEG_WORK_SIZE, LimbIKSet, leg_ik_pose
+from humanoid_reach_ros.kinematics import LEG_WORK_SIZE, LimbIKSet, leg_ik_pose
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 
 ARMS = ("right_arm", "left_arm")
@@ -105,7 +105,7 @@ def _project_plan_kernel(q_plan, v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, leg
                          R0, t0, Re, te, l1, l2, leg_lo, leg_hi, Q, ok, trunk_p, trunk_R, fails):
     """:meth:`Projector.project_plan_config` for N rows in one compiled call (same
     steps as the numpy path: trunk pose by lines 2-4, arm joints set and limit-checked,
-    right then left leg by :func:`~humanoid_reach_ros.robot.limb_ik.leg_ik_pose` with the
+    right then left leg by :func:`~humanoid_reach_ros.kinematics.hand_derived.leg_ik_pose` with the
     limb's default reference). Rows ``(q_arm (na), z_t, rpy_t (3))``, ``na`` the arm's
     joints (``arm_cols``). ``fails``: (right_leg, left_leg, arm_limits) counts."""
     n = q_plan.shape[0]

@@ -59,7 +59,7 @@ from humanoid_reach_ros.codes import ARM_CODES, ARM_LEFT, ARM_NAMES, ARM_REQUEST
 from humanoid_reach_ros.planning.projector import LEGS, Projector, quat_xyzw_matrix
 from humanoid_reach_ros.geometry.trajectory import SplineTrajectory, TrajectoryOptions
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion, matrix_rpy
-from humanoid_reach_ros.robot.limb_ik import LimbIKSet
+from humanoid_reach_ros.kinematics import LimbIKSet
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 from humanoid_reach_ros.robot.shapes import load_collision_model
 from humanoid_reach_ros.scene.planning_scene import PlanningScene, SceneParams, SceneSnapshot, voxel_points
@@ -1213,9 +1213,9 @@ class ReachPlanner:
         search never compiles the path checker's kernels, which the first real request would
         then compile inside its own budget (seen: NO_PATH within 4 s on a loaded machine)."""
         from humanoid_reach_ros.planning.wgr import valve_region
-        from humanoid_reach_ros.robot import limb_ik
+        from humanoid_reach_ros import kinematics
 
-        limb_ik.warm_up()
+        kinematics.warm_up()
         saved, last, positions = self.scene, self._last_plan_end, self._last_positions
         try:   # a scene of its own: the shared one (fed by a node) is left alone
             self.scene = PlanningScene(self.robot, saved.params, self.collision_model)

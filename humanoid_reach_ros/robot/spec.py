@@ -37,7 +37,7 @@ from humanoid_reach_ros.paths import config_path
 DEFAULT_ROBOT = "hrp2"
 LIMB_NAMES = ("right_leg", "left_leg", "right_arm", "left_arm")
 #: joints per limb the description accepts (legs: the planner's compiled leg IK needs six;
-#: arms: six, or seven solved by robot/general_ik.py's RedundantLimbIK)
+#: arms: six, or seven solved by kinematics/general_ik.py's RedundantLimbIK)
 LIMB_JOINTS = {"right_leg": (6,), "left_leg": (6,), "right_arm": (6, 7), "left_arm": (6, 7)}
 PACKAGE_SCHEME = "package://"
 #: the dual-arm workspace file of a description that names none (config/; the first robot's,
@@ -96,7 +96,7 @@ class RobotSpec:
     #: description's ``torso_regression``, which names it relative to robot.yaml's directory
     torso_regression: str | None
     #: the dual-arm workspace YAML, absolute (robot.yaml names it relative to its directory;
-    #: reach/torso_regression.py's ReachWorkspace reads it)
+    #: dual_arm/torso_regression.py's ReachWorkspace reads it)
     dual_arm_workspace: str
     #: name -> FrameDef: fixed frames added to the URDF's by RobotModel
     frames: dict
@@ -240,7 +240,7 @@ def _dual_arm_workspace(doc, robot_dir: Path, where: str) -> str:
     (or absolute) that exists and holds a mapping with a ``workspace`` box; without the key,
     HRP-2's (``DEFAULT_DUAL_ARM_WORKSPACE``). Its full content is checked by
     ``ReachWorkspace.load`` when the dual-arm mode starts (the robot layer does not import
-    reach/); this catches a wrong or missing path when the description is read."""
+    dual_arm/); this catches a wrong or missing path when the description is read."""
     ws = doc.get("dual_arm_workspace")
     if ws is not None and (not isinstance(ws, str) or not ws.endswith((".yaml", ".yml"))):
         raise ValueError(f"{where}: dual_arm_workspace must be a YAML file beside robot.yaml (or absolute), "

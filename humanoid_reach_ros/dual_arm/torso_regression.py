@@ -32,9 +32,9 @@ import pinocchio as pin
 import yaml
 
 from humanoid_reach_ros.paths import config_path
-from humanoid_reach_ros.reach.kinematics import HandTargets
-from humanoid_reach_ros.reach.lower_body_ik import lowered_initial_posture
-from humanoid_reach_ros.reach.upper_body_ik import UpperBodyIK
+from humanoid_reach_ros.dual_arm.targets import HandTargets
+from humanoid_reach_ros.dual_arm.lower_body_ik import lowered_initial_posture
+from humanoid_reach_ros.dual_arm.upper_body_ik import UpperBodyIK
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 from humanoid_reach_ros.robot.spec import DEFAULT_DUAL_ARM_WORKSPACE
 

@@ -2,7 +2,7 @@
 
 The dissertation's arms have six joints: one closed-form solution per branch, and the branch
 nearest the previous step keeps the motion continuous. A 7-DOF arm (Talos) has a one-parameter
-self-motion. The limb protocol's solver (``robot/general_ik.py``, ``RedundantLimbIK``) samples
+self-motion. The limb protocol's solver (``kinematics/general_ik.py``, ``RedundantLimbIK``) samples
 the first joint on a grid over its whole range and returns the solution nearest the reference:
 right for "is there a configuration" (the controller's final-configuration check), wrong for a
 motion -- when the solution at the previous first-joint value leaves the joint limits (Talos's
@@ -30,7 +30,7 @@ controller's path check then refuses the pair rather than jump).
 
 Compiled: one step (the window's first-joint values, the closed form of joints 2..7 for each,
 the costs, the parabola's refinement) is one numba call, :func:`track_step`, whose inner solve
-is ``robot/general_ik_compiled.py``'s kernel. :meth:`RedundantArmTracker.solve_reference` is
+is ``kinematics/general_ik_compiled.py``'s kernel. :meth:`RedundantArmTracker.solve_reference` is
 the numpy reference it is tested against (test/test_talos_dual_arm.py: the same answers to
 1e-9). Why: the numpy form spent ~0.3 ms of Python overhead per arm and step, most of a Talos
 step; with the kernel Talos's step is ~6x HRP-2's rather than ~10x.
@@ -44,9 +44,9 @@ import math
 import numba as nb
 import numpy as np
 
-from humanoid_reach_ros.robot.general_ik import Chain6, rotations
-from humanoid_reach_ros.robot.general_ik_compiled import WORK6_SIZE, CompiledGeneralLimbIK, general_ik_pose
-from humanoid_reach_ros.robot.ik_types import IKReason
+from humanoid_reach_ros.kinematics.general_ik import Chain6, rotations
+from humanoid_reach_ros.kinematics.general_ik_compiled import WORK6_SIZE, CompiledGeneralLimbIK, general_ik_pose
+from humanoid_reach_ros.kinematics.ik_types import IKReason
 
 _JIT = dict(cache=True, nogil=False, fastmath=False)
 
@@ -219,7 +219,7 @@ class RedundantArmTracker:
 
 def warm_up() -> None:
     """Compile (or load from the numba cache) :func:`track_step` on a tiny arm."""
-    from humanoid_reach_ros.robot import general_ik_compiled
+    from humanoid_reach_ros.kinematics import general_ik_compiled
     general_ik_compiled.warm_up()
     ax = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0],
                    [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from humanoid_reach_ros.reach.kinematics import (
+from humanoid_reach_ros.dual_arm.targets import (
     LWA, HandTargets, as_joints, damped_pinv_apply, pose_error, spd_solve,
 )
 from humanoid_reach_ros.robot.model import N_BASE_Q, N_BASE_V, RobotModel

@@ -43,10 +43,10 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from humanoid_reach_ros.reach.com_target import ComTarget, ComTargetSelector
-from humanoid_reach_ros.reach.kinematics import HandTargets, rodrigues_interpolate
-from humanoid_reach_ros.reach.torso_regression import ReachWorkspace, TorsoRegression
-from humanoid_reach_ros.reach.whole_body_ik import LegTargets, ProposedWholeBodyIK
+from humanoid_reach_ros.dual_arm.com_target import ComTarget, ComTargetSelector
+from humanoid_reach_ros.dual_arm.targets import HandTargets, rodrigues_interpolate
+from humanoid_reach_ros.dual_arm.torso_regression import ReachWorkspace, TorsoRegression
+from humanoid_reach_ros.dual_arm.whole_body_ik import LegTargets, ProposedWholeBodyIK
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 
 

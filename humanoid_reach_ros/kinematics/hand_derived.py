@@ -100,14 +100,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Iterator, Mapping
 
 import numba as nb
 import numpy as np
 import pinocchio as pin
 
-from humanoid_reach_ros.robot.general_limb import GeneralLimb
-from humanoid_reach_ros.robot.ik_types import IKReason, IKResult
+from humanoid_reach_ros.kinematics.ik_types import IKReason, IKResult
 from humanoid_reach_ros.robot.model import RobotModel
 
 TWO_PI = 2.0 * np.pi
@@ -771,7 +769,7 @@ def redistribute_pair(q, i, j, coef, ref, lo, hi):
     ``redistribute_pair.py_func``; twin of :meth:`LimbIK._redistribute`): at a gimbal
     lock only ``q_i + coef q_j`` is fixed; move ``(q_i, q_j) += (d, sign(coef) d)`` (``q_j``
     also by whole turns) within the limits, closest to ``ref``. Legs and arms
-    (``reach/fast_arms.py``) alike."""
+    (``kinematics/hand_derived_compiled.py``) alike."""
     c = 1.0 if coef >= 0.0 else -1.0
     qi, qj = q[i], q[j]
     best = np.inf
@@ -992,67 +990,10 @@ def _kernel_arg(a: np.ndarray) -> np.ndarray:
 
 
 def warm_up() -> None:
-    """Compile (or load from the numba cache) the leg kernel on a tiny batch, the general
-    closed form's twins (robot/general_ik_compiled.py: Talos's arms, any 6R / 7R limb of its
-    class) and the numerical solver's kernels (robot/numerical_ik.py: any other 6R / 7R limb)."""
-    from humanoid_reach_ros.robot import general_ik_compiled, numerical_ik
-
+    """Compile (or load from the numba cache) the leg kernel on a tiny batch (every limb
+    solver's kernels: ``kinematics.registry.warm_up``)."""
     eye = np.eye(3)[None]
     z = np.zeros((1, 3))
     out = (np.empty((1, 6)), np.empty(1, np.bool_), np.empty(1, np.int8), np.empty(1, np.int64))
     _leg_ik_kernel(z, eye, z - [0.0, 0.0, 0.6], eye, np.zeros((1, 6)), eye[0], z[0], eye[0], z[0], 0.3, 0.3,
                    np.full(6, -3.0), np.full(6, 3.0), *out)
-    general_ik_compiled.warm_up()
-    numerical_ik.warm_up()
-
-
-def _limb_solver(model: RobotModel, name: str, compiled: bool):
-    """The limb's solver: :class:`LimbIK` (the two hand-derived patterns, legs compiled)
-    where the chain has them, else :class:`GeneralLimb` (``robot/general_limb.py``): the
-    general closed form of ``robot/general_ik.py`` (any axis directions and offsets with
-    three intersecting axes at one end and two at the other; its numba twin when
-    ``compiled``), and for any other 6R / 7R revolute chain the numerical solver of
-    ``robot/numerical_ik.py`` (a local method with restarts). LimbStructureError naming both
-    reasons only for a limb no solver takes: a joint that is not revolute about a fixed
-    axis, joints that are not one serial chain, or other than 6 or 7 joints."""
-    try:
-        return LimbIK(model, name, compiled)
-    except LimbStructureError as specific:
-        try:
-            return GeneralLimb(model, name, compiled)
-        except ValueError as general:
-            raise LimbStructureError(f"{specific}; and the general / numerical solvers (a serial chain of 6 or 7 "
-                                     f"revolute joints): {general}") from None
-
-
-@dataclass(frozen=True, eq=False)
-class LimbIKSet:
-    """The closed-form IK of every limb of ``model`` (``model.limbs``), by name: one protocol
-    (``solve`` / ``fk`` / ``maybe_reachable`` / ``reach_centres`` and the reach geometry ``t0``,
-    ``l1``, ``l2``, ``te``, ``Re``) whichever solver a limb gets (:func:`_limb_solver`)."""
-
-    model: RobotModel
-    compiled: bool = True
-    limbs: Mapping[str, LimbIK] = field(init=False)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "limbs", {n: _limb_solver(self.model, n, self.compiled) for n in self.model.limbs})
-
-    def __getitem__(self, limb: str) -> LimbIK:
-        return self.limbs[limb]
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self.limbs)
-
-    def __len__(self) -> int:
-        return len(self.limbs)
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return tuple(self.limbs)
-
-    def solve(self, limb: str, root_p, root_R, tip_p, tip_R, q_ref=None) -> IKResult:
-        return self.limbs[limb].solve(root_p, root_R, tip_p, tip_R, q_ref)
-
-    def fk(self, limb: str, root_p, root_R, q) -> tuple[np.ndarray, np.ndarray]:
-        return self.limbs[limb].fk(root_p, root_R, q)

@@ -1,11 +1,11 @@
-"""A limb solved by the general closed form (``robot/general_ik.py``) behind the limb protocol
-of ``robot/limb_ik.py`` (``solve`` / ``fk`` / ``maybe_reachable`` on world poses and the reach
+"""A limb solved by the general closed form (``kinematics/general_ik.py``) behind the limb protocol
+of ``kinematics/hand_derived.py`` (``solve`` / ``fk`` / ``maybe_reachable`` on world poses and the reach
 geometry the planner's bounds use): the limbs neither of ``LimbIK``'s hand-derived patterns
 covers -- Talos's 7-joint arms, any 6R chain of the solvable class. Its solver is the compiled
-twin (``robot/general_ik_compiled.py``) unless asked for the numpy reference.
+twin (``kinematics/general_ik_compiled.py``) unless asked for the numpy reference.
 
 Any other 6R or 7R revolute chain (issue 23: the Unitree G1's arms and legs, offsets between
-all their axes) gets the numerical solver of ``robot/numerical_ik.py`` (kind ``"numerical"``;
+all their axes) gets the numerical solver of ``kinematics/numerical_ik.py`` (kind ``"numerical"``;
 a named simplification: a local method with restarts, which can miss a solution a closed
 form would find) and a reach geometry that is a plain upper bound (:class:`GeneralLimb`).
 
@@ -17,11 +17,11 @@ import math
 
 import numpy as np
 
-from humanoid_reach_ros.robot.general_ik import (Chain6, GeneralLimbIK, RedundantLimbIK, _centre_distance_range,
+from humanoid_reach_ros.kinematics.general_ik import (Chain6, GeneralLimbIK, RedundantLimbIK, _centre_distance_range,
                                                  rotations)
-from humanoid_reach_ros.robot.general_ik_compiled import CompiledGeneralLimbIK, CompiledRedundantLimbIK
-from humanoid_reach_ros.robot.numerical_ik import NumericalLimbIK
-from humanoid_reach_ros.robot.ik_types import IKReason, IKResult
+from humanoid_reach_ros.kinematics.general_ik_compiled import CompiledGeneralLimbIK, CompiledRedundantLimbIK
+from humanoid_reach_ros.kinematics.numerical_ik import NumericalLimbIK
+from humanoid_reach_ros.kinematics.ik_types import IKReason, IKResult
 
 
 class GeneralLimb:
@@ -74,7 +74,7 @@ class GeneralLimb:
         """The closed form's solver and reach geometry (ValueError when the chain is outside
         its class)."""
         c = self.chain
-        # numba twins of the closed forms (robot/general_ik_compiled.py: the same answers, 16 us
+        # numba twins of the closed forms (kinematics/general_ik_compiled.py: the same answers, 16 us
         # instead of 51 ms a Talos arm pose), or the numpy references (``compiled_solver=False``)
         if self.n_joints == 7:
             ik = CompiledRedundantLimbIK(c, self.q_default) if compiled_solver \

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from humanoid_reach_ros.reach.kinematics import (
+from humanoid_reach_ros.dual_arm.targets import (
     LWA, base_for_support, damped_pinv_apply, pose_error, rot_error, support_elimination,
 )
 from humanoid_reach_ros.robot.model import N_BASE_Q, N_BASE_V, RobotModel

@@ -1,24 +1,24 @@
 """Whole-body IK of the dissertation (Sec. 4.3, Algorithm 3) and the full-body LM baseline.
 
-:class:`LowerBodyIK` -- Algorithm 3 (its own module, ``reach/lower_body_ik.py``; its
+:class:`LowerBodyIK` -- Algorithm 3 (its own module, ``dual_arm/lower_body_ik.py``; its
 names are re-exported here).
 
 :class:`ProposedWholeBodyIK` -- one control step of the proposed method (Fig. 8): chest
 angles set, Algorithm 3 for the legs, then the closed-form IK of both arms
 (``robot.limb_ik``) from the resulting ``CHEST_LINK1`` pose. By default both parts run
-compiled: the legs by :class:`~humanoid_reach_ros.reach.fast_legs.ClosedFormLowerBodyIK`
+compiled: the legs by :class:`~humanoid_reach_ros.dual_arm.fast_legs.ClosedFormLowerBodyIK`
 (Algorithm 3's 12 equations solved as closed-form legs + a 3-D Newton on the waist
 position -- a named reformulation with the same solution, falling back to
 :class:`LowerBodyIK` whenever it fails), the arms of the hand-derived 6-DOF arm pattern
 (``LimbIK`` of kind ``arm``, e.g. HRP-2's) by
-:class:`~humanoid_reach_ros.reach.fast_arms.CompiledArmIK` (numba twin of the closed-form
+:class:`~humanoid_reach_ros.kinematics.hand_derived_compiled.CompiledArmIK` (numba twin of the closed-form
 arm IK). Every other arm goes through the limb protocol (``LimbIKSet``, numpy; CompiledArmIK
 covers only the hand-derived pattern): a general 6R chain (``GeneralLimb`` of kind
 ``general``) through its ``solve``; a 7-DOF arm (kind ``redundant``, e.g. Talos's) through
 its ``solve`` (``RedundantLimbIK``: the first joint on a grid over its range) where a
 configuration is looked for from afar (``step(..., tracking=False)``: the controller's
 final-configuration check), and through
-:class:`~humanoid_reach_ros.reach.redundant_arms.RedundantArmTracker` (the first joint moved
+:class:`~humanoid_reach_ros.kinematics.redundant_tracker.RedundantArmTracker` (the first joint moved
 at most its velocity limit times ``period_s`` per step, away from the joint limits) in the
 steps of a motion, where the grid's jumps between first-joint values would be unbounded
 accelerations. ``closed_form_legs=False, compiled_arms=False`` gives the reference path; the
@@ -37,14 +37,14 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from humanoid_reach_ros.reach.fast_legs import ClosedFormLowerBodyIK
-from humanoid_reach_ros.reach.kinematics import (
+from humanoid_reach_ros.dual_arm.fast_legs import ClosedFormLowerBodyIK
+from humanoid_reach_ros.dual_arm.targets import (
     HandTargets, as_joints, as_position, as_rotation, pose_error, rot_error, spd_solve,
 )
-from humanoid_reach_ros.reach.lower_body_ik import (
+from humanoid_reach_ros.dual_arm.lower_body_ik import (
     LegTargets, LowerBodyIK, LowerBodyResult, _FloatingKinematics, lowered_initial_posture,
 )
-from humanoid_reach_ros.robot.limb_ik import IKReason, LimbIKSet
+from humanoid_reach_ros.kinematics import IKReason, LimbIKSet
 from humanoid_reach_ros.robot.model import N_BASE_Q, N_BASE_V, RobotModel
 
 
@@ -68,7 +68,7 @@ class ProposedWholeBodyIK:
                  compiled_arms: bool = True, period_s: float = 0.005, **lower_kw) -> None:
         self.robot = robot
         self.lower = LowerBodyIK(robot, support, **lower_kw)
-        if closed_form_legs:      # same solution, compiled (reach/fast_legs.py); falls back to LowerBodyIK
+        if closed_form_legs:      # same solution, compiled (dual_arm/fast_legs.py); falls back to LowerBodyIK
             self.lower = ClosedFormLowerBodyIK(robot, support, tol=self.lower.tol, max_iter=self.lower.max_iter,
                                                reference=self.lower)
         self.limb_ik = LimbIKSet(robot)
@@ -79,8 +79,8 @@ class ProposedWholeBodyIK:
         self.fid_hand = {s: robot.frame_id(robot.limbs[f"{s}_arm"].tip) for s in ("right", "left")}
         #: side -> CompiledArmIK, or None: the limb protocol's solve (module docstring)
         self.arm_ik = {"right": None, "left": None}
-        if compiled_arms:         # numba twin of the closed-form arm IK (reach/fast_arms.py)
-            from humanoid_reach_ros.reach.fast_arms import CompiledArmIK
+        if compiled_arms:         # numba twin of the closed-form arm IK (kinematics/hand_derived_compiled.py)
+            from humanoid_reach_ros.kinematics import CompiledArmIK
             for s in self.arm_ik:
                 if CompiledArmIK.supports(self.limb_ik[f"{s}_arm"]):
                     self.arm_ik[s] = CompiledArmIK(self.limb_ik[f"{s}_arm"])
@@ -89,7 +89,7 @@ class ProposedWholeBodyIK:
         for s in ("right", "left"):
             limb = self.limb_ik[f"{s}_arm"]
             if getattr(limb, "kind", "") == "redundant":
-                from humanoid_reach_ros.reach.redundant_arms import RedundantArmTracker
+                from humanoid_reach_ros.kinematics import RedundantArmTracker
                 first = N_BASE_V + robot.joint_index[limb.joint_names[0]]
                 self.arm_track[s] = RedundantArmTracker(limb, float(robot.model.velocityLimit[first]) * period_s)
         if closed_form_legs or compiled_arms:

@@ -7,7 +7,7 @@ Algorithm 3 solves, numerically on the 12 leg joints with the support sole fixed
 That is 12 equations in 12 unknowns. **Reformulation (named; same solution set, not the
 paper's iteration):** once the waist (torso link ``base_link``) pose ``(p_w, R*_torso)`` is
 given, both soles' poses are known (support: fixed; swing: its target), so each leg's six
-angles follow in closed form from :func:`humanoid_reach_ros.robot.limb_ik.leg_ik_pose`
+angles follow in closed form from :func:`humanoid_reach_ros.kinematics.hand_derived.leg_ik_pose`
 (the compiled Pieper solution, branch closest to the previous leg angles). The only
 remaining unknown is the waist position ``p_w`` (3), fixed by the CoM equation
 
@@ -24,7 +24,7 @@ reduces the residual by less than 10x), all in one numba kernel; the stopping te
 
 When the closed form has no in-limit solution (a leg out of reach or beyond its limits)
 or Newton does not converge within ``max_iter``, :class:`ClosedFormLowerBodyIK` falls back
-to the numerical :class:`~humanoid_reach_ros.reach.lower_body_ik.LowerBodyIK` (the
+to the numerical :class:`~humanoid_reach_ros.dual_arm.lower_body_ik.LowerBodyIK` (the
 reference), so results and failure reports stay those of Algorithm 3. Tests check both
 paths agree (test_whole_body_ik.py).
 
@@ -38,8 +38,8 @@ import numba as nb
 import numpy as np
 import pinocchio as pin
 
-from humanoid_reach_ros.reach.lower_body_ik import LowerBodyIK, LowerBodyResult
-from humanoid_reach_ros.robot.limb_ik import LEG_WORK_SIZE, LimbIK, leg_ik_pose
+from humanoid_reach_ros.dual_arm.lower_body_ik import LowerBodyIK, LowerBodyResult
+from humanoid_reach_ros.kinematics import LEG_WORK_SIZE, LimbIK, leg_ik_pose
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 
 _JIT = dict(cache=True, nogil=False, fastmath=False)

@@ -1,12 +1,12 @@
-"""Compiled general closed-form IK: a numba twin of ``robot/general_ik.py``'s
-:class:`~humanoid_reach_ros.robot.general_ik.GeneralLimbIK` (6R chains of the Pieper
+"""Compiled general closed-form IK: a numba twin of ``kinematics/general_ik.py``'s
+:class:`~humanoid_reach_ros.kinematics.general_ik.GeneralLimbIK` (6R chains of the Pieper
 class, direct and reversed form) and
-:class:`~humanoid_reach_ros.robot.general_ik.RedundantLimbIK` (7R arms, first joint
+:class:`~humanoid_reach_ros.kinematics.general_ik.RedundantLimbIK` (7R arms, first joint
 sampled), one pose at a time, no temporaries per pose.
 
 The numpy reference is batched: a single pose costs it hundreds of numpy calls on tiny
 arrays (milliseconds for a 7-DOF arm), where HRP-2's hand-derived kernels
-(``reach/fast_arms.py``, ``limb_ik._leg_ik_kernel``) take microseconds. The kernels here
+(``kinematics/hand_derived_compiled.py``, ``limb_ik._leg_ik_kernel``) take microseconds. The kernels here
 run the same algorithm -- the same formulas (Paden-Kahan subproblems 1-3, the elbow
 equation's ``K0, K1, K2``), the same 8 candidates in the same branch order, each angle
 wrapped into ``[lower, lower + 2 pi)``, the same limit tolerance, the FK check with
@@ -64,7 +64,7 @@ import math
 import numba as nb
 import numpy as np
 
-from humanoid_reach_ros.robot.general_ik import (
+from humanoid_reach_ros.kinematics.general_ik import (
     FK_TOL, LIMIT_TOL, TWO_PI, Chain6, GeneralIKResult, GeneralLimbIK, RedundantLimbIK, _elbow_terms,
 )
 
@@ -408,7 +408,7 @@ def _fk_reaches(K, q, P, Rt, work):
 
 @nb.njit(**_JIT)
 def general_ik_pose(P, Rt, ref, K, q_out, work):
-    """One pose of a :class:`~humanoid_reach_ros.robot.general_ik.GeneralLimbIK` chain
+    """One pose of a :class:`~humanoid_reach_ros.kinematics.general_ik.GeneralLimbIK` chain
     (constants ``K`` = :func:`pack_general`): writes ``q_out`` (6,) (NaN on failure), returns
     ok. ``P`` (3,), ``Rt`` (3, 3) relative to the chain's root, ``ref`` (6,); ``work``: float
     scratch of ``WORK6_SIZE``. For other numba kernels and :func:`general_ik_batch`."""
@@ -498,7 +498,7 @@ def general_ik_batch(P, Rt, ref, K, q_out, ok_out):
 # ---------------------------------------------------------------- 7R
 @nb.njit(**_JIT)
 def redundant_ik_pose(P, Rt, ref, K6, K7, q_out, work):
-    """One pose of a :class:`~humanoid_reach_ros.robot.general_ik.RedundantLimbIK` arm
+    """One pose of a :class:`~humanoid_reach_ros.kinematics.general_ik.RedundantLimbIK` arm
     (``K6`` = :func:`pack_general` of its subchain's solver, ``K7`` = :func:`pack_redundant`):
     writes ``q_out`` (7,) (NaN on failure), returns ok. ``ref`` (7,); ``work``: float scratch
     of ``W7_ORDER + K7[H_NG] + 1``."""
@@ -622,7 +622,7 @@ def _inputs(target_p, target_R, ref, n_joints):
 
 
 class CompiledGeneralLimbIK:
-    """:class:`~humanoid_reach_ros.robot.general_ik.GeneralLimbIK`'s answers from
+    """:class:`~humanoid_reach_ros.kinematics.general_ik.GeneralLimbIK`'s answers from
     :func:`general_ik_batch`: the same constructor (ValueError for a chain outside the
     class), ``solve`` and attributes (``chain``, ``q_default``, ``reversed``, ``_solver``)."""
 
@@ -651,7 +651,7 @@ class CompiledGeneralLimbIK:
 
 
 class CompiledRedundantLimbIK:
-    """:class:`~humanoid_reach_ros.robot.general_ik.RedundantLimbIK`'s answers from
+    """:class:`~humanoid_reach_ros.kinematics.general_ik.RedundantLimbIK`'s answers from
     :func:`redundant_ik_batch`: the same constructor, ``solve`` and attributes (``chain``,
     ``q_default``, ``samples``, ``sub`` -- a :class:`CompiledGeneralLimbIK` with ``reversed``
     and ``_solver``)."""

@@ -1,6 +1,6 @@
 """Numerical IK of any 6R or 7R chain (issue 23: the Unitree G1's limbs, which neither the
-hand-derived patterns of ``robot/limb_ik.py`` nor the general closed form of
-``robot/general_ik.py`` solve): damped least squares on the 6-D pose error, compiled with
+hand-derived patterns of ``kinematics/hand_derived.py`` nor the general closed form of
+``kinematics/general_ik.py`` solve): damped least squares on the 6-D pose error, compiled with
 numba, one pose per kernel call, no allocation per iteration.
 
 Simplification, named: this is a LOCAL method with restarts. It converges to a solution
@@ -11,7 +11,7 @@ reach from the starts tried). Where it answers, the answer is exact like the clo
 the tip reaches the pose within ``FK_TOL`` (in practice to 1e-12, after the Newton polish)
 and every joint is within its limits.
 
-Method, per start (the chain form of :class:`~humanoid_reach_ros.robot.general_ik.Chain6`,
+Method, per start (the chain form of :class:`~humanoid_reach_ros.kinematics.general_ik.Chain6`,
 ``T(q) = M1 R(a1, q1) ... Mn R(an, qn) Me``):
 
 * error ``e = (p* - p(q), log(R* R(q)^T))`` in the root frame (position [m], rotation
@@ -46,7 +46,7 @@ import math
 import numba as nb
 import numpy as np
 
-from humanoid_reach_ros.robot.general_ik import FK_TOL, Chain6, GeneralIKResult
+from humanoid_reach_ros.kinematics.general_ik import FK_TOL, Chain6, GeneralIKResult
 
 #: numba options of the house (general_ik_compiled.py): nogil=False, see geometry/distance.py
 _JIT = dict(cache=True, nogil=False, fastmath=False)
@@ -500,7 +500,7 @@ def quasi_random_starts(lower: np.ndarray, upper: np.ndarray, count: int = N_STA
 
 
 class NumericalLimbIK:
-    """Numerical IK of a :class:`~humanoid_reach_ros.robot.general_ik.Chain6` of 6 or 7
+    """Numerical IK of a :class:`~humanoid_reach_ros.kinematics.general_ik.Chain6` of 6 or 7
     revolute joints (module doc: a local method with restarts), with the compiled closed
     forms' API: ``solve(target_p (N, 3), target_R (N, 3, 3), q_ref=None) -> GeneralIKResult``
     (q within the limits, ok where the FK reaches the pose within FK_TOL) and ``solve_one``.

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from humanoid_reach_ros.reach.kinematics import HandTargets, as_position
-from humanoid_reach_ros.robot.limb_ik import LimbIKSet
+from humanoid_reach_ros.dual_arm.targets import HandTargets, as_position
+from humanoid_reach_ros.kinematics import LimbIKSet
 from humanoid_reach_ros.robot.model import RobotModel
 
 CANDIDATES = ("init", "up", "down")

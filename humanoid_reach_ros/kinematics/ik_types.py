@@ -1,4 +1,4 @@
-"""What every limb IK solver answers (``robot/limb_ik.py``, ``robot/general_ik.py``)."""
+"""What every limb IK solver answers (``kinematics/hand_derived.py``, ``kinematics/general_ik.py``)."""
 from __future__ import annotations
 
 import enum

@@ -1,6 +1,6 @@
 """Compiled closed-form arm IK: a numba twin of ``LimbIK``'s single-pose arm solver.
 
-``humanoid_reach_ros.robot.limb_ik`` compiles only the legs; its arms run the pure-Python
+``humanoid_reach_ros.kinematics.hand_derived`` compiles only the legs; its arms run the pure-Python
 single-pose path (``LimbIK._solve_one`` + ``_arm_one``), about 0.1 ms per arm and call,
 which dominated a control step of the proposed method (dissertation Sec. 4.4: closed-form
 IK of both arms from the torso pose). :func:`arm_ik_pose` is the same algorithm -- the
@@ -21,9 +21,9 @@ import math
 import numba as nb
 import numpy as np
 
-from humanoid_reach_ros.robot.limb_ik import (
-    GIMBAL_TOL, LIMIT_TOL, PSI_SNAP, REACH_TOL, STRETCH_TOL, IKReason, LimbIK, _leg_rot_ok,
-    redistribute_pair, wrap_angle,
+from humanoid_reach_ros.kinematics.hand_derived import (
+    GIMBAL_TOL, LIMIT_TOL, PSI_SNAP, REACH_TOL, STRETCH_TOL, IKReason, LimbIK,
+    _leg_rot_ok, redistribute_pair, wrap_angle,
 )
 
 _JIT = dict(cache=True, nogil=False, fastmath=False)

@@ -1,5 +1,5 @@
 """Closed-form IK of a 6R chain from its geometry alone, whatever the axis directions and
-link offsets, batched in numpy: the general counterpart of ``robot/limb_ik.py``'s two
+link offsets, batched in numpy: the general counterpart of ``kinematics/hand_derived.py``'s two
 hand-derived patterns (issue 13 part 2).
 
 Solvable class (Pieper): three consecutive intersecting axes at one end of the chain (a
