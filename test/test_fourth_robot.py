@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from humanoid_reach_ros.dual_arm.balance import polygon_margin, support_polygon
 from humanoid_reach_ros.kinematics import LimbIKSet, LimbSolver
@@ -43,16 +44,21 @@ def _forward(icub) -> np.ndarray:
     return icub.stance_soles[0].rotation[:, 0]
 
 
+def _urdf_entry(path: Path) -> str:
+    """The description's ``urdf`` entry as written."""
+    return yaml.safe_load(path.read_text())["urdf"]
+
+
 def test_the_icub_loads_from_the_packaged_urdf_and_passes_the_spec_checks(icub):
     spec = icub.spec
     assert icub.name == "icub" and "icub" not in robots()          # a fixture, not a robot of config/robots
-    assert yaml_urdf(ICUB) == URDF and spec.urdf_path.name == "icub_reduced.urdf"
+    assert _urdf_entry(ICUB) == URDF and spec.urdf_path.name == "icub_reduced.urdf"
     assert spec.urdf_path.is_file() and "example-robot-data" in str(spec.urdf_path)
     assert icub.n_joints == 29 and icub.model.nq == 36
     # no neck (the reduced URDF's neck joints are fixed), the chest's roll present, 7-joint arms
     assert not spec.has_neck and spec.neck_joints == ()
     with pytest.raises(ValueError, match="has no neck"):
-        spec.head_joints
+        spec.require_neck("a look at head angles")
     assert spec.chest_joints == ("torso_yaw", "torso_pitch")
     assert spec.torso_joints == ("torso_yaw", "torso_pitch", "torso_roll")
     assert [len(icub.limbs[n].joints) for n in ("right_leg", "left_leg", "right_arm", "left_arm")] == [6, 6, 7, 7]
@@ -70,12 +76,6 @@ def test_the_icub_loads_from_the_packaged_urdf_and_passes_the_spec_checks(icub):
     fwd = _forward(icub)
     right = icub.stance_soles[0].translation - icub.stance_soles[1].translation
     assert C[:, 2] @ fwd > 0.999 and C[:, 0] @ right / np.linalg.norm(right) > 0.999 and C[:, 1] @ [0, 0, -1] > 0.999
-
-
-def yaml_urdf(path: Path) -> str:
-    import yaml
-
-    return yaml.safe_load(path.read_text())["urdf"]
 
 
 def test_every_limb_gets_a_solver_answering_the_protocol(icub, ik):
