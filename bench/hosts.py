@@ -281,7 +281,7 @@ def hosts_up() -> bool:
     return subprocess.run(["ip", "link", "show", "hr_br0"], capture_output=True).returncode == 0
 
 
-class Bench:
+class HostsBench:
     def __init__(self, out: Path, timeout: float, log: Callable[[str], None]) -> None:
         from humanoid_reach_ros.graph import allocate_domain, graph_env
 
@@ -862,7 +862,7 @@ def main(argv: list[str] | None = None) -> int:
 
     session.stop_on_signals()      # SIGINT / SIGTERM: KeyboardInterrupt, the finally below cleans up
     load_start = os.getloadavg()
-    b = Bench(out, args.timeout, log)
+    b = HostsBench(out, args.timeout, log)
     placements: list[dict[str, Any]] = []
     errors: list[str] = []
     interrupted = False
