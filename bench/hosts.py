@@ -535,7 +535,7 @@ class ProbeData:
 
 
 # ---------------------------------------------------------------- a placement
-def run_placement(b: Bench, placement: str, args: argparse.Namespace, out: Path) -> dict[str, Any]:
+def run_placement(b: HostsBench, placement: str, args: argparse.Namespace, out: Path) -> dict[str, Any]:
     res: dict[str, Any] = {"placement": placement, "planner_on": f"hr_{placement}", "steps": [], "cuts": []}
     shutil.rmtree(out, ignore_errors=True)     # this run's logs, events and probe files only (they are appended to)
     out.mkdir(parents=True, exist_ok=True)
@@ -617,14 +617,14 @@ def link_mb(sampler: LinkSampler, host: str, t0: float, t1: float) -> float | No
     return round((s[-1][1] + s[-1][2] - s[0][1] - s[0][2]) / 1e6, 3) if len(s) >= 2 else None
 
 
-def idle_window(b: Bench, seconds: float) -> dict[str, Any]:
+def idle_window(b: HostsBench, seconds: float) -> dict[str, Any]:
     t0 = time.monotonic()
     time.sleep(seconds)
     t1 = time.monotonic()
     return {h: b.sampler.rate(h, t0, t1) for h in HOSTS}
 
 
-def map_ratio(b: Bench, t_scan_end: float) -> dict[str, Any]:
+def map_ratio(b: HostsBench, t_scan_end: float) -> dict[str, Any]:
     """The planner's map (its /diagnostics 'map' voxels) against the robot-side mapper's occupied
     voxels, both reported after the scan: until both have reported twice since it ended and the
     planner's count matches the mapper's published version (at most 15 s)."""
@@ -653,7 +653,7 @@ def executor_overruns(out: Path) -> dict[str, int]:
     return totals
 
 
-def run_cuts(b: Bench, args: argparse.Namespace, out: Path, durations: dict[str, float]) -> list[dict[str, Any]]:
+def run_cuts(b: HostsBench, args: argparse.Namespace, out: Path, durations: dict[str, float]) -> list[dict[str, Any]]:
     pdir = out / "pinger"
     pdir.mkdir(parents=True, exist_ok=True)
     pinger = b.spawn("operator", [sys.executable, str(Path(__file__).resolve()), "--pinger-child", str(pdir)],
