@@ -300,8 +300,8 @@ def test_the_g1_reaches_its_demo_valve_and_plans_the_way_home(g1):
 def test_a_look_without_a_neck_stops_short_of_the_map(g1):
     """The scan pattern on the G1 (directions, gazed at with the chest): in its demo scene the
     wide turns would swing a hand towards the passage pipe; those gazes stop where the body
-    keeps ``security_distance_m + look_clearance_m`` (``held_back`` says so, the point counts as
-    unseen), the shortened motion keeps it (to 3 mm: it is checked at 20 samples of the way,
+    keeps ``security_distance_m + look_clearance_m`` (``held_back`` says so; the point is
+    unseen unless the camera sees it from where the gaze stopped), the shortened motion keeps it (to 3 mm: it is checked at 20 samples of the way,
     and between two the body moves less than that here), and without a map every gaze goes all
     the way."""
     from humanoid_reach_ros.execution.requests import ExecutionRequests
@@ -323,7 +323,8 @@ def test_a_look_without_a_neck_stops_short_of_the_map(g1):
         assert not g_free.held_back
         if g.held_back:
             held += 1
-            assert not g.visible and g.unseen_reason.startswith("turned ") and "of the map" in g.held_back
+            assert g.held_back.startswith("turned ") and "of the map" in g.held_back
+            assert g.visible or g.unseen_reason == f"not in view ({g.held_back})"
             d0 = coll.min_distance(g1.config(j, g1.base_on_feet(j)))
             for s in np.linspace(0.0, 1.0, 11):
                 x = j + s * (g.joints - j)

@@ -437,3 +437,40 @@ def test_a_neckless_robots_look_requests(neckless) -> None:
     chest = [robot.joint_index[n] for n in robot.spec.chest_joints]
     assert req.head_targets(g.joints) == tuple(float(v) for v in g.joints[chest])
     assert not np.allclose(g.joints[chest], j0[chest])   # the chest turned to aim
+
+
+def test_a_look_from_a_start_near_the_map_may_come_nearer_by_the_margin_only() -> None:
+    """``ExecutionRequests.look_clearance`` from a start already nearer the map than
+    ``security_distance_m + look_clearance_m`` (a hand resting at the valve): the way may come
+    ``look_clearance_m`` nearer, never within 2 mm of ``security_distance_m``; a way that
+    leaves the map goes all the way."""
+    from humanoid_reach_ros.execution.requests import ExecutionRequests
+    from humanoid_reach_ros.nodes import reach_executor_params
+
+    robot = RobotModel("hrp2")
+    p = {k: spec.default for k, spec in reach_executor_params.PARAMETERS.items()}
+    p["scene_file"] = ""
+    req = ExecutionRequests(robot, p)
+    j0 = robot.half_sitting_joints
+    hand = robot.frame_pose(robot.config(j0, robot.base_on_feet(j0)), robot.hand_frames["right"]).translation
+    wall = np.array([[hand[0] + dx, hand[1] + dy, hand[2] + dz] for dx in (0.10, 0.12)
+                     for dy in np.arange(-0.1, 0.101, 0.02) for dz in np.arange(-0.1, 0.101, 0.02)])
+    coll = None
+    for shift in np.arange(0.0, 0.2, 0.002):   # the wall as near as gives a start 12-20 mm from it
+        req.scene_map(wall - [shift, 0.0, 0.0], "a wall before the right hand")
+        coll = req._look_collision()
+        d0 = coll.min_distance(robot.config(j0, robot.base_on_feet(j0)))
+        if d0 < 0.019:
+            break
+    need, d_s, margin = 0.02, p["security_distance_m"], p["look_clearance_m"]
+    assert d_s + 0.002 < d0 < need, d0
+    pitch = robot.joint_index[robot.limbs["right_arm"].joints[0]]
+    towards, away = j0.copy(), j0.copy()
+    towards[pitch] -= 0.6      # the shoulder's pitch swings the hand forward, into the wall
+    away[pitch] += 0.3
+    share, why = req.look_clearance(j0, towards)
+    assert 0.0 <= share < 1.0 and "of the map" in why, (share, why)
+    x = j0 + share * (towards - j0)
+    floor = max(d_s + 0.002, d0 - margin)
+    assert coll.min_distance(robot.config(x, robot.base_on_feet(x))) >= floor - 0.003
+    assert req.look_clearance(j0, away) == (1.0, "")

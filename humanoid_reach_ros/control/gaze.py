@@ -98,6 +98,7 @@ No ROS here.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Callable
@@ -194,10 +195,10 @@ class Gaze:
     @property
     def unseen_reason(self) -> str:
         """Why the camera does not see the point ("" when it does)."""
-        if self.held_back:
-            return self.held_back
         if self.visible:
             return ""
+        if self.held_back:
+            return f"not in view ({self.held_back})"
         if self.off_axis_rad > self.half_fov_rad:
             return (f"not in view ({self.off_axis_deg:.1f} deg off the camera axis, half field of view "
                     f"{math.degrees(self.half_fov_rad):.1f} deg)")
@@ -464,6 +465,15 @@ class GazeSolver:
         cam = self.camera
         return Gaze(joints, point.copy(), c, a, float(alpha[0]), float(rng[0]), bool(self._sees(alpha, rng)[0]),
                     cam.half_fov_rad, chest_moved, balanced, (cam.min_range_m, cam.max_range_m))
+
+    def stopped_short(self, gaze: Gaze, start, joints, why: str) -> Gaze:
+        """``gaze`` (from joints ``start``) stopped at ``joints`` on its way (the executor's look
+        keeps its clearance): the camera as it is there, whether it sees the point, and
+        ``held_back`` = ``why``."""
+        j, j0 = self._joints(joints), self._joints(start)
+        chest = self.index[:_N_CHEST]
+        g = self._gaze(j, self._base(j), gaze.point, float(np.linalg.norm(j[chest] - j0[chest])), gaze.balanced)
+        return dataclasses.replace(g, held_back=why)
 
     # ------------------------------------------------------------ balance
     def balanced(self, joints, point) -> Gaze:

@@ -404,12 +404,14 @@ class ExecutionRequests:
             raise RequestError(C.INVALID_GOAL, f"gaze point {point!r}: {exc}") from None
         share, why = self.look_clearance(start, g.joints)
         if share < 1.0:   # the body would come too near the map or itself: turn only part of the way
-            g = dataclasses.replace(g, joints=start + share * (g.joints - start), visible=False, held_back=(
-                f"turned {100 * share:.0f} % of the way to its gaze: {why}"))
+            with _GAZE_LOCK:
+                g = self.gaze_solver().stopped_short(g, start, start + share * (g.joints - start),
+                                                     f"turned {100 * share:.0f} % of the way to its gaze: {why}")
         yaw, pitch = self.head_targets(g.joints)
         note = (f"gaze at {np.round(g.point, 3).tolist()}: head yaw {math.degrees(yaw):.1f}, pitch "
                 f"{math.degrees(pitch):.1f} deg, chest moved {math.degrees(g.chest_moved_rad):.1f} deg, "
-                f"{g.off_axis_deg:.2f} deg off the camera axis" + ("" if g.visible else f"; {g.unseen_reason}"))
+                f"{g.off_axis_deg:.2f} deg off the camera axis" + ("" if g.visible else f"; {g.unseen_reason}")
+                + (f"; {g.held_back}" if g.held_back and g.visible else ""))
         return Motion(mid, label, "trajectory", spline=self._look_spline(start, g.joints), arm="right",
                       params=self._executor_params(), q_measured=q0, note=note), g
 
@@ -423,10 +425,14 @@ class ExecutionRequests:
         that turns the chest swings the arms with it (a robot without a neck turns its body to
         look); where that reference runs into the velocity dampers the hand stays off its
         reference and the look fails after the settle timeout (the G1's 33 deg turns, hands in
-        front of its thighs). ``samples`` points along the way, then ``bisections`` halvings
-        between the last clear and the first blocked one."""
+        front of its thighs). From a start already nearer than that clearance (a hand resting at
+        the valve) the motion may come ``look_clearance_m`` nearer, never within 2 mm of
+        ``security_distance_m`` nor, from nearer still, nearer than the start. ``samples``
+        points along the way, then ``bisections`` halvings between the last clear and the first
+        blocked one."""
         coll = self._look_collision()
-        need = float(self.p["security_distance_m"]) + float(self.p["look_clearance_m"])
+        d_s, margin = float(self.p["security_distance_m"]), float(self.p["look_clearance_m"])
+        need = d_s + margin
 
         def clearance(share: float) -> tuple[float, str]:
             j = start + share * (goal - start)
@@ -435,7 +441,10 @@ class ExecutionRequests:
             d_env, d_self = coll.min_distance(q), coll.self_min_distance(q)
             return (d_env, "the map") if d_env <= d_self else (d_self, "its own body")
 
-        need = min(need, clearance(0.0)[0])
+        d0 = clearance(0.0)[0]
+        if d0 < need:   # a start already nearer (a hand at the valve): it may come nearer by the margin,
+            # never within 2 mm of the dampers' d_s, never nearer than it is where it is nearer still
+            need = min(max(d_s + 0.002, d0 - margin), d0)
         last = 0.0
         for share in np.linspace(0.0, 1.0, samples + 1)[1:]:
             d, what = clearance(float(share))
