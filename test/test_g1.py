@@ -301,9 +301,9 @@ def test_a_look_without_a_neck_stops_short_of_the_map(g1):
     """The scan pattern on the G1 (directions, gazed at with the chest): in its demo scene the
     wide turns would swing a hand towards the passage pipe; those gazes stop where the body
     keeps ``security_distance_m + look_clearance_m`` (``held_back`` says so; the point is
-    unseen unless the camera sees it from where the gaze stopped), the shortened motion keeps it (to 3 mm: it is checked at 20 samples of the way,
-    and between two the body moves less than that here), and without a map every gaze goes all
-    the way."""
+    unseen unless the camera sees it from where the gaze stopped), the shortened motion keeps it
+    (to 3 mm: it is checked at 20 samples of the way, and between two the body moves less than
+    that here), and without a map every gaze goes all the way."""
     from humanoid_reach_ros.execution.requests import ExecutionRequests
     from humanoid_reach_ros.nodes import reach_executor_params
     from humanoid_reach_ros.sim.scene import load_scene
