@@ -4,8 +4,9 @@ Every case of the suite x both arms x ``--seeds`` seeds is planned through the l
 API (``ReachPlanner.plan``, the node's parameters from config/reach_planner.yaml, the
 half-sitting start, a ``--budget-s`` budget): a case whose expectation for the arm is
 ``reachable`` must succeed, ``out_of_reach`` must be answered TARGET_OUT_OF_REACH (the
-geometric bound, no sampling), ``no_goal`` NO_GOAL_FOUND and ``blocked`` NO_GOAL_FOUND or
-NO_PATH (config/scenes/suite.yaml; expectations per robot). Then one case of each class
+geometric bound, no sampling), ``no_goal`` NO_GOAL_FOUND, and ``marginal`` (zero clearance in
+the model) SUCCESS, NO_GOAL_FOUND or NO_PATH, counted apart from both (config/scenes/suite.yaml;
+expectations per robot). Then one case of each class
 goes through ``/plan_reach``: ``joint_driver`` and ``reach_planner`` as real processes
 (isolated domain), the planner started on the case's scene (``scene_file``,
 ``scene_exclude_groups:=[target]``); the request is sent until the planner has joint
@@ -93,10 +94,13 @@ def library_runs(cases, seeds: int, budget_s: float, robot: str) -> list[dict]:
 
 def summarize(runs: list[dict]) -> dict:
     feas = [r for r in runs if r["expect"] == "reachable"]
-    infeas = [r for r in runs if r["expect"] != "reachable"]
+    infeas = [r for r in runs if r["expect"] not in ("reachable", "marginal")]
+    marginal = [r for r in runs if r["expect"] == "marginal"]
     geo = [r for r in infeas if r["expect"] == "out_of_reach"]
     out = {
-        "feasible_runs": len(feas), "infeasible_runs": len(infeas),
+        "feasible_runs": len(feas), "infeasible_runs": len(infeas), "marginal_runs": len(marginal),
+        "marginal_correct_code_rate": sum(r["correct"] for r in marginal) / len(marginal) if marginal else None,
+        "marginal_successes": sum(r["code"] == "SUCCESS" for r in marginal),
         "feasible_success_rate": sum(r["correct"] for r in feas) / len(feas) if feas else None,
         "feasible_ms_p50": float(np.median([r["ms"] for r in feas])) if feas else None,
         "feasible_ms_p95": float(np.percentile([r["ms"] for r in feas], 95)) if feas else None,
