@@ -1,6 +1,7 @@
 """The control loop: a tick thread at absolute deadlines and a solver thread.
 
-* The **tick thread** wakes at ``t_0 + k period_s`` (no drift) and calls
+* The **tick thread** runs a :class:`~humanoid_reach_ros.execution.periodic.PeriodicLoop`:
+  it wakes at ``t_0 + k period_s`` (no drift, ``time.sleep`` for the finest wake-up) and calls
   :meth:`ExecutionSupervisor.tick` (publish the finished step or the last safe command).
   When it falls more than one period behind, the missed deadlines are skipped and counted
   (:meth:`ExecutionSupervisor.missed`), never burst. While the supervisor is idle (nothing
@@ -19,6 +20,7 @@ import threading
 import time
 from typing import Callable
 
+from humanoid_reach_ros.execution.periodic import PeriodicLoop
 from humanoid_reach_ros.execution.realtime import make_thread_realtime
 from humanoid_reach_ros.execution.supervisor import ExecutionSupervisor
 
@@ -31,7 +33,9 @@ class ControlLoop:
         self.rt_priority = int(rt_priority)
         self.on_error = on_error or (lambda text: None)
         self.realtime: dict[str, str] = {}
-        self._stop = False
+        self._ticks = PeriodicLoop(self.period_s, supervisor.tick, on_error=self._tick_failed,
+                                   on_missed=supervisor.missed, idle=lambda: supervisor.sleep_while_idle(0.5),
+                                   sleep=time.sleep)
         self._tick_thread = threading.Thread(target=self._run_ticks, name="executor_ticks", daemon=True)
         self._solver_thread = threading.Thread(target=self._run_solver, name="executor_solver", daemon=True)
         self._rt_ready = threading.Barrier(3)
@@ -44,7 +48,7 @@ class ControlLoop:
         return dict(self.realtime)
 
     def stop(self, timeout: float = 2.0) -> None:
-        self._stop = True
+        self._ticks.stop()
         self.sup.wake()
         for t in (self._tick_thread, self._solver_thread):
             if t.is_alive():
@@ -60,35 +64,16 @@ class ControlLoop:
 
     def _run_solver(self) -> None:
         self._set_priority("solver", self.rt_priority - 1 if self.rt_priority > 1 else self.rt_priority)
-        while not self._stop:
+        while not self._ticks.stopped:
             if self.sup.wait_for_work(0.1):
                 self.sup.work()
 
     def _run_ticks(self) -> None:
         self._set_priority("tick", self.rt_priority)
-        period = self.period_s
-        t0 = time.monotonic()
-        k = 0
-        while not self._stop:
-            if self.sup.sleep_while_idle(0.5):     # nothing to publish: no wake-up per period
-                t0, k = time.monotonic(), 0
-                continue
-            deadline = t0 + k * period
-            delay = deadline - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            try:
-                self.sup.tick(t0 + (k + 1) * period)
-            except Exception as exc:  # e.g. publishing while the process shuts down
-                if self._stop:
-                    return
-                self.on_error(f"tick failed: {type(exc).__name__}: {exc}")
-            k += 1
-            behind = time.monotonic() - (t0 + k * period)
-            if behind > period:  # more than a whole period late: skip the missed deadlines
-                skipped = int(behind // period)
-                k += skipped
-                self.sup.missed(skipped)
+        self._ticks.run()
+
+    def _tick_failed(self, exc: Exception) -> None:
+        self.on_error(f"tick failed: {type(exc).__name__}: {exc}")
 
 
 __all__ = ["ControlLoop"]

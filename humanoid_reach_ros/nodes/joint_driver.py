@@ -37,6 +37,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
+from humanoid_reach_ros.execution.periodic import PeriodicLoop
 from humanoid_reach_ros.execution.realtime import (REALTIME_SWITCH_INTERVAL_S, make_feeder_thread_realtime,
                                                    make_thread_realtime)
 from humanoid_reach_ros.io import msgs
@@ -160,6 +161,8 @@ class JointDriver(Node):
         # (wait set, callback dispatch) cost more than the tick itself
         self._lock = threading.Lock()        # the simulator: command callback vs loop thread
         self._stop = threading.Event()
+        self._periodic = PeriodicLoop(self.period_s, lambda _due: self._tick(), on_error=self._tick_failed,
+                                      stop_event=self._stop, first_tick_now=False)
         self._loop = threading.Thread(target=self._run_loop, name="joint_driver_loop", daemon=True)
         self._loop.start()
         # the thread that spins (command callbacks) shares the interpreter lock with the loop: at
@@ -187,21 +190,13 @@ class JointDriver(Node):
         ok, text = make_thread_realtime(self._p["rt_priority"])
         if self._p["rt_priority"] > 0 and not ok:
             self.get_logger().warning(f"joint loop without real-time priority: {text}")
-        t0, k = time.monotonic(), 0
-        while not self._stop.is_set():
-            k += 1
-            delay = t0 + k * self.period_s - time.monotonic()
-            if delay > 0:
-                self._stop.wait(delay)
-            elif -delay > self.period_s:       # more than a period late: skip, never burst
-                k += int(-delay // self.period_s)
-            try:
-                self._tick()
-            except Exception as exc:  # publishing while Ctrl-C shuts the context down
-                if self._stop.is_set() or not self.context.ok():
-                    return
-                self.get_logger().error(f"tick failed: {type(exc).__name__}: {exc}",
-                                        throttle_duration_sec=self.warn_throttle_s)
+        self._periodic.run()
+
+    def _tick_failed(self, exc: Exception) -> None:
+        if not self.context.ok():       # publishing while Ctrl-C shuts the context down
+            self._stop.set()
+            return
+        self.get_logger().error(f"tick failed: {type(exc).__name__}: {exc}", throttle_duration_sec=self.warn_throttle_s)
 
     def destroy_node(self) -> None:
         self._stop.set()
