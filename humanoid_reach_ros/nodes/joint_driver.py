@@ -23,7 +23,6 @@ config/joint_driver.yaml`` (``ros2 run humanoid_reach_ros joint_driver`` on an i
 """
 from __future__ import annotations
 
-import math
 import sys
 import threading
 import time
@@ -46,10 +45,10 @@ from humanoid_reach_ros.io.host_local import HostLocalSubscription
 from humanoid_reach_ros.nodes.common import LATCHED, ParamSpec, declare_parameters, run_node
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
-from humanoid_reach_ros.sim.joint_sim import MAX_BUFFERED_COMMANDS, JointSimulator
+from humanoid_reach_ros.sim.driver import POSTURES, SimulatedDriver
+from humanoid_reach_ros.sim.joint_sim import MAX_BUFFERED_COMMANDS
 
 NODE_NAME = "joint_driver"
-POSTURES = ("half_sitting", "zero")
 COMMAND_SOURCES = ("host", "any")
 
 
@@ -88,27 +87,25 @@ PARAMETERS: dict[str, ParamSpec] = {
 
 
 class JointDriver(Node):
-    """Thin node around ``JointSimulator``: conversions, timing and diagnostics only."""
+    """Thin node around ``SimulatedDriver`` (sim/driver.py): messages, parameters, the loop thread."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
         p = declare_parameters(self, PARAMETERS)
         self.period_s: float = p["period_s"]
-        self.command_timeout_s: float = p["command_timeout_s"]
         self.warn_throttle_s: float = p["warn_throttle_s"]
         self.world_frame_id: str = p["world_frame_id"]
-        self.overrun_factor: float = p["overrun_factor"]
         self._p = p
 
         self.model = RobotModel(p["robot_config"])
         posture = p["initial_posture"]
-        if posture == "half_sitting":
-            initial = self.model.half_sitting_joints
-        elif posture == "zero":
-            initial = [0.0] * self.model.n_joints
-        else:
-            raise ValueError(f"initial_posture must be one of {POSTURES}, got {posture!r}")
-        self.sim = JointSimulator(self.model, initial, p["velocity_scale"], p["tracking_time_constant_s"])
+        self.core = SimulatedDriver(
+            self.model, posture, period_s=self.period_s, velocity_scale=p["velocity_scale"],
+            time_constant_s=p["tracking_time_constant_s"], command_timeout_s=p["command_timeout_s"],
+            stopped_short_warn_rad=p["stopped_short_warn_rad"], overrun_factor=p["overrun_factor"],
+            min_rate_fraction=p["min_rate_fraction"], max_overrun_fraction=p["max_overrun_fraction"],
+            left_foot_slip_warn_m=p["left_foot_slip_warn_m"])
+        self.sim = self.core.sim
         self.hardware_id = self.model.name
 
         reliable10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -143,15 +140,6 @@ class JointDriver(Node):
         # Pre-built outgoing message: only arrays and stamp change per tick.
         self._joint_state = msgs.joint_state(self.sim.joint_names, self.sim.q, self.sim.dq)
 
-        # loop statistics: totals and the current diagnostics window
-        self._last_tick: float | None = None
-        self.ticks = 0
-        self.overruns = 0
-        self._window = self._new_window()
-        self._stale = False
-        self._stopped_short_rad = 0.0  # how far from its target the joint furthest off was when going stale
-        self._rejected_reported = 0
-        self._clip_events_reported = 0
         self._pose_msg: PoseStamped | None = None
         self._pose_key = b""
 
@@ -159,7 +147,6 @@ class JointDriver(Node):
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         # the 200 Hz loop runs in a thread of its own at absolute deadlines: an executor wake-up per tick
         # (wait set, callback dispatch) cost more than the tick itself
-        self._lock = threading.Lock()        # the simulator: command callback vs loop thread
         self._stop = threading.Event()
         self._periodic = PeriodicLoop(self.period_s, lambda _due: self._tick(), on_error=self._tick_failed,
                                       stop_event=self._stop, first_tick_now=False)
@@ -178,7 +165,7 @@ class JointDriver(Node):
             f"simulated {self.hardware_id}: {self.model.n_joints} joints at {1.0 / self.period_s:.0f} Hz "
             f"(period {self.period_s * 1e3:.1f} ms), initial posture {posture!r}, velocity scale "
             f"{self.sim.velocity_scale:g}, tracking tau {self.sim.time_constant_s * 1e3:.1f} ms, "
-            f"command timeout {self.command_timeout_s:g} s; publishing joint_states, base_pose, "
+            f"command timeout {self.core.command_timeout_s:g} s; publishing joint_states, base_pose, "
             f"robot_description, /diagnostics (the loop's writes {self._joint_states_out.mode}); listening on "
             f"{self.command_sub.topic_name} ("
             + ("publishers on this host only" if self._host_local else "any publisher: command_source any") + ")"
@@ -208,8 +195,7 @@ class JointDriver(Node):
 
     def _on_command(self, msg: JointState) -> None:
         cmd = msgs.parse_joint_state(msg)
-        with self._lock:
-            result = self.sim.set_command(cmd.names, cmd.positions, cmd.velocities, now=time.monotonic())
+        result, resumed = self.core.command(cmd.names, cmd.positions, cmd.velocities)
         if not result.accepted:
             self.get_logger().warning(
                 f"rejected joint_command ({self.sim.rejected_count} so far): {result.reason}; "
@@ -217,9 +203,8 @@ class JointDriver(Node):
                 throttle_duration_sec=self.warn_throttle_s,
             )
             return
-        if self._stale:
+        if resumed:
             self.get_logger().info("joint_command resumed")
-            self._stale = False
         if result.clipped:
             self.get_logger().warning(
                 f"clipped targets into position limits: {', '.join(result.clipped)}",
@@ -227,32 +212,12 @@ class JointDriver(Node):
             )
 
     def _tick(self) -> None:
-        t = time.monotonic()
-        if self._last_tick is None:
-            dt = self.period_s
-        else:
-            dt = t - self._last_tick
-            w = self._window
-            w["periods"] += 1
-            w["max_period_s"] = max(w["max_period_s"], dt)
-            if dt > self.overrun_factor * self.period_s:
-                self.overruns += 1
-                w["overruns"] += 1
-        self._last_tick = t
-        self.ticks += 1
-
-        if not self._stale and math.isfinite(age := self.sim.command_age(t)) and age > self.command_timeout_s:
-            self._stale = True
-            self._stopped_short_rad = float(abs(self.sim.target - self.sim.q).max())
-            self.sim.hold()
-            if self._stopped_short_rad > self._p["stopped_short_warn_rad"]:
-                self.get_logger().warning(
-                    f"joint_command stale (nothing for {self.command_timeout_s:g} s) while moving: holding "
-                    f"position {self._stopped_short_rad:.3f} rad short of the target")
-            else:
-                self.get_logger().info(f"joint_command idle for {self.command_timeout_s:g} s: holding position")
-
-        with self._lock:
+        core = self.core
+        t, dt, notice = core.begin_tick()
+        if notice is not None:
+            warn, text = notice
+            (self.get_logger().warning if warn else self.get_logger().info)(text)
+        with core.lock:
             self.sim.step(dt)
             stamp = self.get_clock().now().to_msg()
             js = msgs.fill_joint_state(self._joint_state, self.sim.q, self.sim.dq, stamp)
@@ -263,12 +228,7 @@ class JointDriver(Node):
             self._pose_key = odom.base.translation.tobytes() + odom.base.rotation.tobytes()
         self._pose_msg.header.stamp = stamp
         self._base_pose_out.publish(self._pose_msg)
-        self._window["max_tick_s"] = max(self._window["max_tick_s"], time.monotonic() - t)
-
-    def _new_window(self) -> dict[str, float]:
-        """Statistics of one diagnostics period (the loop's totals live on the node)."""
-        return {"start": time.monotonic(), "ticks_at_start": self.ticks, "periods": 0, "overruns": 0,
-                "max_period_s": 0.0, "max_tick_s": 0.0}
+        core.end_tick(t)
 
     def _publish_diagnostics(self) -> None:
         now = time.monotonic()
@@ -276,80 +236,11 @@ class JointDriver(Node):
                                                            self.get_clock().now().to_msg()))
 
     def diagnostic_statuses(self, now: float) -> list:
-        """The statuses of one /diagnostics message; resets the timing window."""
-        p, sim, name = self._p, self.sim, self.get_name()
-        w, self._window = self._window, self._new_window()
-        statuses = []
-
-        # commands
-        rejected_recent = sim.rejected_count - self._rejected_reported
-        self._rejected_reported = sim.rejected_count
-        age = sim.command_age(now)
-        values = {
-            "accepted_total": sim.accepted_count,
-            "rejected_total": sim.rejected_count,
-            "rejected_recent": rejected_recent,
-            "last_rejection_reason": sim.last_rejection,
-            "command_age_s": age if math.isfinite(age) else "never",
-            "command_timeout_s": self.command_timeout_s,
-            "stale": self._stale,
-            "stopped_short_rad": self._stopped_short_rad if self._stale else 0.0,
-        }
-        level, message = msgs.LEVEL_OK, "tracking joint_command"
-        if sim.last_command_time is None:
-            message = "no joint_command yet: holding the initial posture"
-        if self._stale:
-            message = f"joint_command idle ({age:.1f} s): holding position"
-            if self._stopped_short_rad > self._p["stopped_short_warn_rad"]:
-                level = msgs.LEVEL_WARN
-                message = (f"joint_command stale ({age:.1f} s > {self.command_timeout_s:g} s) while moving: "
-                           f"held position {self._stopped_short_rad:.3f} rad short of the target")
-        if rejected_recent:
-            level = msgs.LEVEL_WARN
-            message = f"rejected {rejected_recent} joint_command(s), last: {sim.last_rejection}"
-        statuses.append(msgs.diagnostic_status(f"{name}: commands", level, message, values, self.hardware_id))
-
-        # limits
-        clip_recent = sim.clip_events - self._clip_events_reported
-        self._clip_events_reported = sim.clip_events
-        per_joint = {f"clipped_targets.{j}": int(c) for j, c in zip(sim.joint_names, sim.clip_count) if c}
-        values = {"clip_events_total": sim.clip_events, "clip_events_recent": clip_recent,
-                  "clipped_targets_total": int(sim.clip_count.sum()),
-                  "velocity_scale": sim.velocity_scale, **per_joint}
-        level, message = msgs.LEVEL_OK, "targets within position limits"
-        if clip_recent:
-            level = msgs.LEVEL_WARN
-            message = f"{clip_recent} command(s) had targets clipped into position limits"
-        statuses.append(msgs.diagnostic_status(f"{name}: limits", level, message, values, self.hardware_id))
-
-        # loop timing
-        elapsed = max(now - w["start"], 1e-9)
-        ticks = self.ticks - w["ticks_at_start"]
-        rate = ticks / elapsed
-        nominal = 1.0 / self.period_s
-        overrun_frac = w["overruns"] / w["periods"] if w["periods"] else 0.0
-        values = {"nominal_rate_hz": nominal, "achieved_rate_hz": rate, "overruns_total": self.overruns,
-                  "overruns_recent": w["overruns"], "overrun_threshold_ms": self.overrun_factor * self.period_s * 1e3,
-                  "max_period_ms": w["max_period_s"] * 1e3, "max_tick_ms": w["max_tick_s"] * 1e3,
-                  "ticks_total": self.ticks}
-        level, message = msgs.LEVEL_OK, f"{rate:.1f} Hz"
-        if rate < p["min_rate_fraction"] * nominal or overrun_frac > p["max_overrun_fraction"]:
-            level = msgs.LEVEL_WARN
-            message = f"{rate:.1f} Hz of {nominal:.0f} Hz, {w['overruns']} overrun(s) in {w['periods']} periods"
-        statuses.append(msgs.diagnostic_status(f"{name}: loop", level, message, values, self.hardware_id))
-
-        # odometry
-        with self._lock:
-            odom = sim.odometry()
-        x, y, z = (float(v) for v in odom.base.translation)
-        values = {"base_x_m": x, "base_y_m": y, "base_z_m": z, "left_foot_slip_m": odom.left_foot_slip_m,
-                  "frame_id": self.world_frame_id, "child_frame_id": p["base_frame_id"]}
-        level, message = msgs.LEVEL_OK, "right foot fixed, left foot on its stance pose"
-        if odom.left_foot_slip_m > p["left_foot_slip_warn_m"]:
-            level = msgs.LEVEL_WARN
-            message = f"left foot {odom.left_foot_slip_m * 1e3:.1f} mm from its stance pose (feet-fixed odometry)"
-        statuses.append(msgs.diagnostic_status(f"{name}: odometry", level, message, values, self.hardware_id))
-        return statuses
+        """The statuses of one /diagnostics message (``SimulatedDriver.statuses``); resets the timing window."""
+        name = self.get_name()
+        return [msgs.diagnostic_status(f"{name}: {suffix}", level, message, values, self.hardware_id)
+                for suffix, level, message, values in self.core.statuses(now, self.world_frame_id,
+                                                                         self._p["base_frame_id"])]
 
     # ------------------------------------------------------------ parameters
     def _apply_parameters(self, params: list[Parameter]) -> None:
@@ -360,7 +251,7 @@ class JointDriver(Node):
             elif prm.name == "tracking_time_constant_s":
                 self.sim.time_constant_s = prm.value
             elif prm.name == "command_timeout_s":
-                self.command_timeout_s = prm.value
+                self.core.command_timeout_s = prm.value
             self._p[prm.name] = prm.value
 
 
