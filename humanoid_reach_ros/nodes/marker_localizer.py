@@ -1,6 +1,7 @@
 """``marker_localizer``: the target object's pose from an ArUco marker, R_T_O = R_T_C C_T_M M_T_O.
 
-A thin node around ``humanoid_reach_ros.perception.markers`` (dissertation 004, eq. 1):
+A thin node around ``humanoid_reach_ros.perception.localizing`` (the per-image pipeline, over
+``perception/markers.py``; dissertation 004, eq. 1):
 
 * subscribes ``/head_camera/image_raw`` (sensor_msgs/Image: mono8, rgb8, bgr8, rgba8, bgra8),
   ``/head_camera/camera_info`` (K and the distortion coefficients; the latest one is used)
@@ -36,12 +37,10 @@ config/marker_localizer.yaml`` (``ros2 run humanoid_reach_ros marker_localizer``
 """
 from __future__ import annotations
 
-import math
 import sys
 import time
-from collections import Counter
+from typing import Iterator
 
-import numpy as np
 import pinocchio as pin
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray, PoseStamped
@@ -50,11 +49,10 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, JointState
 
-from humanoid_reach_ros.geometry.camera import CameraCalibration
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes.common import LatestOnDemand, ParamSpec, declare_parameters, run_node
-from humanoid_reach_ros.perception.markers import (JointStateBuffer, MarkerDetector, camera_pose, same_camera_pose,
-                                                   marker_table, object_pose)
+from humanoid_reach_ros.perception.localizing import JointSample, MarkerLocalizing
+from humanoid_reach_ros.perception.markers import MarkerDetector, marker_table
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 
@@ -99,7 +97,7 @@ PARAMETERS: dict[str, ParamSpec] = {
 }
 
 
-# ---------------------------------------------------------------- message parsers
+# ---------------------------------------------------------------- parameters of the hand markers
 def hand_marker_setup(ids, orientation: str, workspace_yaml: str, known) -> tuple[tuple[int, int] | None, object]:
     """Checks the dual-arm hand marker parameters: ``(None, None)`` when off (``[-1, -1]``),
     else ``((right_id, left_id), ReachWorkspace or None)``; ``ValueError`` with the reason."""
@@ -121,19 +119,8 @@ def hand_marker_setup(ids, orientation: str, workspace_yaml: str, known) -> tupl
     return (ids[0], ids[1]), ReachWorkspace.load(workspace_yaml)
 
 
-def hand_target_poses(R_T_O: list[np.ndarray], workspace) -> list[pin.SE3]:
-    """[right, left] hand targets from the two objects' 4x4 poses: their positions, and
-    the workspace rule's orientations (``workspace`` given) or the objects' own."""
-    out = []
-    for side, T in zip(("right", "left"), R_T_O):
-        p = np.asarray(T[:3, 3], float)
-        R = T[:3, :3] if workspace is None else workspace.hand_rotation(side, p)
-        out.append(pin.SE3(np.asarray(R, float), p))
-    return out
-
-
 class MarkerLocalizer(Node):
-    """Thin node around ``MarkerDetector``: input checks, eq. 1, publishing and diagnostics."""
+    """Thin node around ``MarkerLocalizing`` (perception/localizing.py): messages, parameters, publishing."""
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
@@ -154,18 +141,12 @@ class MarkerLocalizer(Node):
         p["camera_frame_id"] = p["camera_frame_id"] or self.model.camera_frame
         self.model.frame_id(p["camera_frame_id"])  # KeyError for a frame the URDF lacks
         self.hardware_id = self.model.name + " head camera"
-        self.joints = JointStateBuffer(p["joint_buffer_s"])
-        self.intrinsics: CameraCalibration | None = None
-        self._info_stamp_s = -math.inf
-        self.counts: Counter[str] = Counter()   # images, localized, no_marker, skipped, rejected, ...
-        self.last_skip_reason = ""
-        self.last_rejection = ""
-        self.last_error_px = math.nan
-        self.last_target: np.ndarray | None = None
-        self.last_hands: np.ndarray | None = None
-        self._skipped_reported = 0
-        self._window = {"start": time.monotonic(), "images": 0, "localized": 0, "max_process_s": 0.0}
-        self._last_detection: tuple[np.ndarray, float] | None = None   # camera pose and time of the last detection
+        self.core = MarkerLocalizing(
+            self.model, self.table, self.detector, camera_frame_id=p["camera_frame_id"],
+            target_marker_id=p["target_marker_id"], hand_ids=self.hand_ids, workspace=self.workspace,
+            joint_buffer_s=p["joint_buffer_s"], max_stamp_gap_s=p["max_stamp_gap_s"],
+            camera_info_timeout_s=p["camera_info_timeout_s"], still_period_s=p["still_period_s"],
+            on_skip=self._warn_skip, on_rejection=self._warn_rejection)
 
         sensor = qos_profile_sensor_data
         self.target_pub = self.create_publisher(PoseStamped, "target_pose", sensor)
@@ -177,8 +158,6 @@ class MarkerLocalizer(Node):
         self.joint_queue = LatestOnDemand(self, JointState, "joint_states",
                                           QoSProfile(depth=400, history=HistoryPolicy.KEEP_LAST,
                                                      reliability=ReliabilityPolicy.BEST_EFFORT))
-        self._js_gap_ms = self._js_gap_ms_total = 0.0
-        self._js_newest = 0.0
         self.create_subscription(CameraInfo, "head_camera/camera_info", self._on_camera_info, sensor)
         self.create_subscription(Image, "head_camera/image_raw", self._on_image, sensor)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
@@ -189,164 +168,51 @@ class MarkerLocalizer(Node):
             + ("" if self.hand_ids is None else f", dual_arm/targets from ids {list(self.hand_ids)} (right, left; "
                f"{p['hand_orientation']} orientations)"))
 
-    # ------------------------------------------------------------ helpers
-    def _skip(self, what: str, reason: str) -> None:
-        self.counts[what] += 1
-        self.last_skip_reason = f"{what}: {reason}"
-        self.get_logger().warning(f"skipping {what} ({self.counts[what]} so far): {reason}",
+    # ------------------------------------------------------------ warnings (two call sites: two throttles)
+    def _warn_skip(self, what: str, count: int, reason: str) -> None:
+        self.get_logger().warning(f"skipping {what} ({count} so far): {reason}",
                                   throttle_duration_sec=self._p["warn_throttle_s"])
 
-    # ------------------------------------------------------------ callbacks
-    def _on_joint_states(self, msg: JointState) -> None:
-        joints, reason = msgs.model_joints(msg, self.model)
-        if joints is None:
-            self._skip("joint_states", reason)
-            return
-        stamp = msgs.seconds_from_time(msg.header.stamp)
-        if self._js_newest > 0.0 and stamp > self._js_newest:
-            gap = (stamp - self._js_newest) * 1e3
-            self._js_gap_ms, self._js_gap_ms_total = max(self._js_gap_ms, gap), max(self._js_gap_ms_total, gap)
-        self._js_newest = max(self._js_newest, stamp)
-        self.joints.push(stamp, joints)
+    def _warn_rejection(self, text: str) -> None:
+        self.get_logger().warning(f"rejected marker {text}", throttle_duration_sec=self._p["warn_throttle_s"])
 
-    def _absorb_joint_states(self) -> None:
+    # ------------------------------------------------------------ callbacks
+    def _joint_samples(self) -> Iterator[JointSample]:
+        """The queued /joint_states as ``(stamp, joints or None, reason)``."""
         for msg in self.joint_queue.take_all():
-            self._on_joint_states(msg)
+            joints, reason = msgs.model_joints(msg, self.model)
+            yield (msgs.seconds_from_time(msg.header.stamp) if joints is not None else 0.0), joints, reason
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         try:
-            self.intrinsics = msgs.camera_calibration(msg)
-            self._info_stamp_s = msgs.seconds_from_time(msg.header.stamp)
+            self.core.set_intrinsics(msgs.camera_calibration(msg), msgs.seconds_from_time(msg.header.stamp))
         except ValueError as exc:
-            self._skip("camera_info", str(exc))
+            self.core.skip("camera_info", str(exc))
 
     def _on_image(self, msg: Image) -> None:
         t0 = time.perf_counter()
-        self.counts["images"] += 1
-        self._window["images"] += 1
-        p = self._p
-        cam = self.intrinsics
-        if cam is None:
-            self._skip("image", "no valid camera_info received yet")
+        out = self.core.localize(msgs.seconds_from_time(msg.header.stamp), lambda: msgs.check_image(msg)[:2],
+                                 lambda: msgs.gray_from_image(msg), self._joint_samples)
+        if out is None:
             return
-        stamp_s = msgs.seconds_from_time(msg.header.stamp)
-        if abs(stamp_s - self._info_stamp_s) > p["camera_info_timeout_s"]:
-            self._skip("image", f"the last valid camera_info is {abs(stamp_s - self._info_stamp_s):.1f} s away "
-                                f"from the image stamp (> {p['camera_info_timeout_s']:g} s)")
-            return
-        try:
-            height, width = msgs.check_image(msg)[:2]
-        except ValueError as exc:
-            self._skip("image", str(exc))
-            return
-        if (height, width) != (cam.height, cam.width):
-            self._skip("image", f"image is {width} x {height} but camera_info says {cam.width} x {cam.height}")
-            return
-        self._absorb_joint_states()
-        joints, reason = self.joints.at(stamp_s, p["max_stamp_gap_s"])
-        if joints is None:
-            self._skip("image", f"no camera pose at the image stamp: {reason}")
-            return
-        R_T_C = camera_pose(self.model, joints, p["camera_frame_id"])
-        if self._still(R_T_C):
-            self.counts["skipped_still"] += 1
-            return
-        result = self.detector.detect(msgs.gray_from_image(msg), cam.K, cam.D)
-        for mid, why in result.rejected:
-            self.counts["rejected"] += 1
-            self.last_rejection = f"id {mid}: {why}"
-            self.get_logger().warning(f"rejected marker {self.last_rejection}",
-                                      throttle_duration_sec=p["warn_throttle_s"])
-        if not result.detections:
-            self.counts["no_marker"] += 1
-            return
-        world, stamp = p["world_frame_id"], msg.header.stamp
+        world, stamp = self._p["world_frame_id"], msg.header.stamp
+        for R_T_O in out.targets:
+            self.target_pub.publish(msgs.pose_stamped(pin.SE3(R_T_O[:3, :3], R_T_O[:3, 3]), world, stamp))
         poses = PoseArray(header=msgs.header(world, stamp))
-        hands: dict[int, np.ndarray] = {}
-        for det in result.detections:
-            R_T_M = R_T_C @ det.C_T_M
-            poses.poses.append(msgs.pose_from_se3(pin.SE3(R_T_M[:3, :3], R_T_M[:3, 3])))
-            self.last_error_px = det.reprojection_error_px
-            if self.hand_ids is not None and det.marker_id in self.hand_ids:
-                hands[det.marker_id] = object_pose(R_T_C, det.C_T_M, self.table.markers[det.marker_id].M_T_O)
-            if det.marker_id == p["target_marker_id"]:
-                R_T_O = object_pose(R_T_C, det.C_T_M, self.table.markers[det.marker_id].M_T_O)
-                self.target_pub.publish(msgs.pose_stamped(pin.SE3(R_T_O[:3, :3], R_T_O[:3, 3]), world, stamp))
-                self.last_target = R_T_O[:3, 3].copy()
-                self.counts["localized"] += 1
-                self._window["localized"] += 1
+        poses.poses = [msgs.pose_from_se3(pin.SE3(T[:3, :3], T[:3, 3])) for T in out.markers]
         self.markers_pub.publish(poses)
-        if self.hand_ids is not None:
-            self._publish_hands(hands, world, stamp)
-        self._window["max_process_s"] = max(self._window["max_process_s"], time.perf_counter() - t0)
-
-    def _still(self, R_T_C: np.ndarray) -> bool:
-        """The camera is where it was at the last detection (1 mm, 1 mrad) and that was less than
-        ``still_period_s`` ago: this image is skipped (else this pose becomes the last detection's)."""
-        period, now, last = self._p["still_period_s"], time.monotonic(), self._last_detection
-        if period > 0 and self.hand_ids is None and last is not None and now - last[1] < period \
-                and same_camera_pose(R_T_C, last[0]):
-            return True
-        self._last_detection = (R_T_C.copy(), now)
-        return False
-
-    def _publish_hands(self, hands: dict[int, np.ndarray], world: str, stamp) -> None:
-        """``/dual_arm/targets`` [right, left] when both hand markers are in this image."""
-        if not all(i in hands for i in self.hand_ids):
-            self.counts["hand_pair_incomplete"] += 1
-            return
-        try:
-            out = hand_target_poses([hands[i] for i in self.hand_ids], self.workspace)
-        except ValueError as exc:       # e.g. a marker at the shoulder: no orientation rule
-            self._skip("hand targets", str(exc))
-            return
-        msg = PoseArray(header=msgs.header(world, stamp))
-        msg.poses = [msgs.pose_from_se3(M) for M in out]
-        self.hands_pub.publish(msg)
-        self.counts["hand_pairs"] += 1
-        self.last_hands = np.array([M.translation for M in out])
+        if out.hands is not None:
+            hands = PoseArray(header=msgs.header(world, stamp))
+            hands.poses = [msgs.pose_from_se3(M) for M in out.hands]
+            self.hands_pub.publish(hands)
+        self.core.processed(time.perf_counter() - t0)
 
     # ------------------------------------------------------------ diagnostics
     def _publish_diagnostics(self) -> None:
-        self._absorb_joint_states()
-        now = time.monotonic()
-        w, self._window = self._window, {"start": now, "images": 0, "localized": 0, "max_process_s": 0.0}
-        dt = max(now - w["start"], 1e-9)
-        c = self.counts
-        skipped = c["image"] + c["camera_info"] + c["joint_states"]
-        values = {"images_total": c["images"], "localized_total": c["localized"], "no_marker_total": c["no_marker"],
-                  "rejected_total": c["rejected"], "skipped_images_total": c["image"],
-                  "still_skipped_images_total": c["skipped_still"],
-                  "bad_camera_info_total": c["camera_info"], "bad_joint_states_total": c["joint_states"],
-                  "image_rate_hz": w["images"] / dt, "localization_rate_hz": w["localized"] / dt,
-                  "max_process_ms": 1e3 * w["max_process_s"], "last_reprojection_error_px": self.last_error_px,
-                  "last_skip_reason": self.last_skip_reason, "last_rejection": self.last_rejection,
-                  "joint_states_buffered": len(self.joints), "joint_states_max_gap_ms": self._js_gap_ms,
-                  "joint_states_max_gap_ms_since_start": self._js_gap_ms_total}
-        self._js_gap_ms = 0.0
-        if self.hand_ids is not None:
-            values.update({"hand_pairs_total": c["hand_pairs"], "hand_pair_incomplete_total": c["hand_pair_incomplete"],
-                           "skipped_hand_targets_total": c["hand targets"]})
-        if self.last_target is not None:
-            values.update({"target_x_m": self.last_target[0], "target_y_m": self.last_target[1],
-                           "target_z_m": self.last_target[2]})
-        level, message = msgs.LEVEL_OK, f"localizing at {w['localized'] / dt:.1f} Hz"
-        if self._window_skips(skipped):
-            level, message = msgs.LEVEL_WARN, f"skipping input: {self.last_skip_reason}"
-        elif w["images"] == 0:
-            level, message = msgs.LEVEL_WARN, "no images received"
-        elif w["localized"] == 0:
-            level, message = msgs.LEVEL_WARN, (f"target marker {self._p['target_marker_id']} not seen"
-                                               + (f" (last rejection: {self.last_rejection})"
-                                                  if self.last_rejection else ""))
+        self.core.add_joint_states(self._joint_samples())
+        level, message, values = self.core.diagnostics()
         status = msgs.diagnostic_status(f"{self.get_name()}: localization", level, message, values, self.hardware_id)
         self.diagnostics_pub.publish(msgs.diagnostic_array([status], self.get_clock().now().to_msg()))
-
-    def _window_skips(self, skipped_total: int) -> bool:
-        """Whether input was skipped since the previous diagnostics message."""
-        new = skipped_total != self._skipped_reported
-        self._skipped_reported = skipped_total
-        return new
 
 
 def main(args: list[str] | None = None) -> int:
