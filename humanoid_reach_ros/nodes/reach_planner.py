@@ -57,8 +57,8 @@ from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from humanoid_reach_ros.io import msgs
-from humanoid_reach_ros.nodes.common import LATCHED, RELIABLE_LATEST, LatestOnDemand, ParamSpec, declare_parameters, \
-    run_node
+from humanoid_reach_ros.nodes.common import (LATCHED, RELIABLE_LATEST, LatestOnDemand, ParamSpec, declare_parameters,
+                                             run_node)
 from humanoid_reach_ros.planning.reach import PlannerParams
 from humanoid_reach_ros.planning.service import ERROR_NAMES, PlanningService, PlanningServiceConfig, PlanReply
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
@@ -129,7 +129,7 @@ class ReachPlannerNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         self._p = declare_parameters(self, PARAMETERS)
         self.service = PlanningService(PlanningServiceConfig.from_parameters(self._p), log=self._log)
-        self.model, self.planner, self.scene = self.service.model, self.service.planner, self.service.scene
+        self.model, self.planner = self.service.model, self.service.planner
         self.map_frame, self.hardware_id = self.service.config.map_frame, self.model.name
         self.service.warm_up()
         self.service.load_scene_file()

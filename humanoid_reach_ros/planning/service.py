@@ -126,7 +126,8 @@ class PlanReply:
     def __post_init__(self) -> None:
         self.code = int(self.code)
 
-    def failed(self, code: int, message: str) -> PlanReply:
+    def answer(self, code: int, message: str) -> PlanReply:
+        """This reply with its code and message (the request ends here)."""
         self.code, self.message = int(code), message
         return self
 
@@ -253,7 +254,8 @@ class PlanningService:
         self.scene.set_unobserved(**{layer: cloud.points})
 
     # ------------------------------------------------------------ inputs
-    def fresh_joints(self, converted: tuple[np.ndarray | None, str] | None, age_s: float):
+    def fresh_joints(self, converted: tuple[np.ndarray | None, str] | None,
+                     age_s: float) -> tuple[np.ndarray | None, str]:
         """The start joints of the newest joint state (``converted``: its joint angles or None and why;
         None: none received) if not older than ``joint_states_timeout_s``, else None and the reason."""
         if converted is None:
@@ -321,21 +323,21 @@ class PlanningService:
             to_world, age_s = read_marker()
             reason = self.target_staleness(to_world is not None, age_s)
             if reason:
-                return reply.failed(PlanError.NO_TARGET, reason)
+                return reply.answer(PlanError.NO_TARGET, reason)
         if joints is None:
-            return reply.failed(PlanError.NO_JOINT_STATES, joints_reason)
+            return reply.answer(PlanError.NO_JOINT_STATES, joints_reason)
         if to_world is not None:
             try:
                 reply.region = WorkspaceGoalRegion.from_pose(to_world(waist), rr.region.lower, rr.region.upper)
             except RequestError as exc:
-                return reply.failed(exc.code, str(exc))
+                return reply.answer(exc.code, str(exc))
         if not self.planner.has_map:
-            return reply.failed(PlanError.NO_MAP, "no environment map: no /voxel_map received and no scene_file")
+            return reply.answer(PlanError.NO_MAP, "no environment map: no /voxel_map received and no scene_file")
         outcome = self.planner.plan(joints, PlanRequest(
             region=reply.region, arm=rr.arm, goal_count=rr.goal_count, planner=rr.planner,
             time_budget_s=rr.time_budget_s, seed=rr.seed, home=rr.home))
         reply.outcome, reply.stats = outcome, dict(outcome.stats or {})
-        return reply.failed(int(outcome.error), str(outcome.message))
+        return reply.answer(int(outcome.error), str(outcome.message))
 
     def statistics(self, reply: PlanReply, total_s: float) -> dict[str, Any]:
         """The response's statistics (``PlanningStatistics`` fields): the planner's, the map's, the total time."""
