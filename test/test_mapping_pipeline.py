@@ -11,7 +11,9 @@ import pytest
 import yaml
 
 from humanoid_reach_ros.perception.mapping import DepthJob, MapLayers, MappingConfig, MappingPipeline
+from humanoid_reach_ros.geometry.camera import CameraCalibration
 from humanoid_reach_ros.perception.markers import camera_pose
+from humanoid_reach_ros.perception.stereo import render_textured_pair
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.shapes import load_collision_model
 from nodetools import REPO_ROOT
@@ -215,6 +217,20 @@ def test_robot_body_is_swept_into_observed_free_space(rig) -> None:
     rig.pending.append((T0 + 1, rig.joints() + 1e-4))      # the same posture: no new mark
     assert p.layers_to_publish() is None and p.map.swept_count == swept
     assert p.clear() == 0 and p.counters.clears == 1 and p.map.swept_count == 0
+
+
+def test_stereo_pair_becomes_points_in_the_left_optical_frame(rig) -> None:
+    pair = render_textured_pair(320, 240, focal_px=277.0, baseline_m=0.07, plane_depth_m=1.0)
+    c = pair.calibration
+    left = CameraCalibration(c.size[0], c.size[1], c.K1, np.zeros(5), np.eye(3), c.P1)
+    right = CameraCalibration(c.size[0], c.size[1], c.K2, np.zeros(5), np.eye(3), c.P2)
+    points = rig.pipeline.stereo_points(left, right, pair.left, pair.right)
+    assert len(points) > 1000 and np.median(np.abs(points[:, 2] - 1.0)) < 0.01
+    assert rig.counter("stereo_pairs") == 1
+    small = CameraCalibration(160, 120, c.K2, np.zeros(5), np.eye(3), c.P2)
+    with pytest.raises(ValueError):
+        rig.pipeline.stereo_points(left, small, pair.left, pair.right)
+    assert rig.counter("stereo_pairs") == 1
 
 
 # ---------------------------------------------------------------- mailbox and worker

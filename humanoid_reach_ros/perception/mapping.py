@@ -63,6 +63,7 @@ from humanoid_reach_ros.geometry.camera import CameraCalibration
 from humanoid_reach_ros.perception.markers import JointStateBuffer, camera_pose, same_camera_pose
 from humanoid_reach_ros.perception.stereo import StereoCalibration, StereoMatcher, StereoParams
 from humanoid_reach_ros.perception.voxel_map import FusionParams, VoxelMap
+from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.shapes import load_collision_model
 
 Vec3 = tuple[float, float, float]
@@ -172,16 +173,17 @@ class MappingStatus:
 
 class MappingPipeline:
     """Frame routing, the still-camera skip, fusion, the robot sweep, the publish policy, the
-    mailbox and its worker, the counters (see the module docstring). Thread-safe: inputs may be
-    posted, joint states fed and layers taken from any thread while the worker integrates.
+    mailbox and its worker, the counters (see the module docstring). Inputs may be posted and
+    problems reported from any thread while the worker integrates; :meth:`layers_to_publish`,
+    :meth:`clear` and :meth:`status` are called from one thread (the node's output callbacks).
 
     ``joint_states``: called before every look-up, returns the (stamp [s], joints) received
     since the last call (the adapter reports the rejected ones by :meth:`problem`). ``warn``:
     where throttled warnings go. ``clock``: monotonic time [s] (tests pass their own).
     """
 
-    def __init__(self, config: MappingConfig, model: Any, collision_model: Any = None,
-                 joint_states: Callable[[], Iterable[tuple[float, np.ndarray]]] = tuple,
+    def __init__(self, config: MappingConfig, model: RobotModel, collision_model: Any = None,
+                 joint_states: Callable[[], Iterable[tuple[float, np.ndarray]]] = lambda: (),
                  warn: Callable[[str], None] = lambda text: None, clock: Callable[[], float] = time.monotonic) -> None:
         self.map = VoxelMap(config.fusion)   # ValueError for bad fusion parameters
         self.model = model
