@@ -91,7 +91,7 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "marker_look_deg": ParamSpec([2.0, 40.0], "where the head looks for the target's marker: yaw, pitch [deg] "
                                  "(reach_operator --marker turns it there when /target_pose is stale and no marker "
                                  "position is known; the plant's valve from half-sitting, the demo's aim)"),
-    "look_clearance_m": ParamSpec(0.01, "a gaze's reference keeps this much more than security_distance_m to the "
+    "look_clearance_m": ParamSpec(0.002, "a gaze's reference keeps this much more than security_distance_m to the "
                                   "map and between the robot's shapes; it stops short where it would not [m]",
                                   (0.0, 0.5)),
     "look_distance_m": ParamSpec(1.0, "a robot without a neck looks in a direction (the scan pattern, a look at "
