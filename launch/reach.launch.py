@@ -12,6 +12,11 @@ Arguments:
                        ROS_SECURITY_ENCLAVE_OVERRIDE; empty (default): none. The ROS_SECURITY_*
                        variables of the shell (ENABLE, STRATEGY, KEYSTORE) pass through untouched
                        (docs/deployment.md)
+    robot              the robot of every node (robot_config: a name of config/robots, e.g. talos or
+                       g1, or a robot.yaml path); empty (default): the parameter files' (hrp2). A
+                       robot too small for the plant names its own scene (robot.yaml demo_scene):
+                       give it as scene:=, e.g. robot:=g1 scene:=<share>/config/robots/g1/plant.yaml
+                       (hr_graph --robot g1 picks it by itself)
     host               all (default), robot (driver, sensors, mapper, localizer, executor) or compute
                        (the planner): the graph across hosts (docs/deployment.md), e.g.
                        ros2 launch humanoid_reach_ros reach.launch.py host:=robot   # on the robot
@@ -59,6 +64,9 @@ def generate_launch_description() -> LaunchDescription:
                               description="scene file (primitives, valve, marker)"),
         DeclareLaunchArgument("use_sim_sensors", default_value="true",
                               description="start the simulated joint driver and head sensors"),
+        DeclareLaunchArgument("robot", default_value="",
+                              description="robot_config of every node (a name of config/robots or a robot.yaml "
+                                          "path); empty: the parameter files'"),
         DeclareLaunchArgument("host", default_value="all", choices=list(HOSTS),
                               description="the nodes of one host: robot, compute (the planner) or all"),
         DeclareLaunchArgument("enclave", default_value="",
@@ -71,20 +79,23 @@ def generate_launch_description() -> LaunchDescription:
             FASTDDS_PROFILES_ENV, default_value=os.path.join(config, "fastdds.xml"))),
     ]
     host = LaunchConfiguration("host")
+    robot = LaunchConfiguration("robot")
     for exe, sim_only, hosts in NODES:
         # started when host:= names one of its hosts (or all), and, for a simulated node, with use_sim_sensors
         here = ["'", host, f"' in {('all', *hosts)!r}"]
-        condition = IfCondition(PythonExpression(
-            here + [" and '", sim, "'.lower() in ('true', '1')"] if sim_only else here))
+        started = here + [" and '", sim, "'.lower() in ('true', '1')"] if sim_only else here
         params = [os.path.join(config, f"{exe}.yaml")]
         if exe in ("scene_sim", "reach_planner", "reach_executor"):
             params.append({"scene_file": scene})
-        actions.append(Node(
-            package=PACKAGE,
-            executable=exe,
-            name=exe,
-            parameters=params,
-            output="screen",
-            condition=condition,
-        ))
+        # one of two: with robot:= its robot_config overrides the parameter file's, without it the file's holds
+        for named in (False, True):
+            actions.append(Node(
+                package=PACKAGE,
+                executable=exe,
+                name=exe,
+                parameters=params + [{"robot_config": robot}] if named else params,
+                output="screen",
+                condition=IfCondition(PythonExpression(
+                    started + [" and '", robot, "' " + ("!=" if named else "==") + " ''"])),
+            ))
     return LaunchDescription(actions)

@@ -120,3 +120,108 @@ def test_the_launch_file_takes_an_enclave_as_hr_graph_does() -> None:
     assert 'DeclareLaunchArgument("enclave", default_value=""' in text
     assert "SetEnvironmentVariable(ENCLAVE_ENV" in text and "' != ''\"" in text
     assert "ROS_SECURITY_ENABLE" not in text.split('"""', 2)[2]   # not set anywhere below the docstring
+
+
+def _evaluate_reach_launch(args: dict[str, str]) -> list[tuple[str, list]]:
+    """reach.launch.py run against a minimal stand-in of ``launch`` / ``launch_ros`` (not
+    installable here): the (executable, parameters) of every Node whose condition holds for
+    the launch arguments ``args`` (the declared defaults for the others), substitutions
+    resolved. What ``ros2 launch`` would start, short of starting it."""
+    import importlib.util
+    import sys
+    import types
+
+    declared: dict[str, str] = {}
+
+    class LaunchConfiguration:
+        def __init__(self, name):
+            self.name = name
+
+    class EnvironmentVariable:
+        def __init__(self, name, default_value=""):
+            self.name, self.default_value = name, default_value
+
+    def resolve(v):
+        if isinstance(v, LaunchConfiguration):
+            return args.get(v.name, declared.get(v.name, ""))
+        if isinstance(v, PythonExpression):
+            return str(eval("".join(str(resolve(x)) for x in v.parts)))   # noqa: S307 (our own launch file)
+        if isinstance(v, dict):
+            return {k: resolve(x) for k, x in v.items()}
+        return v
+
+    class PythonExpression:
+        def __init__(self, parts):
+            self.parts = parts
+
+    class IfCondition:
+        def __init__(self, expr):
+            self.expr = expr
+
+        def holds(self) -> bool:
+            return str(resolve(self.expr)).lower() in ("true", "1")
+
+    class DeclareLaunchArgument:
+        def __init__(self, name, default_value="", **_kw):
+            declared[name] = default_value
+
+    class SetEnvironmentVariable:
+        def __init__(self, *a, **kw):
+            pass
+
+    class Node:
+        def __init__(self, executable, parameters, condition=None, **_kw):
+            self.executable, self.parameters, self.condition = executable, parameters, condition
+
+    class LaunchDescription(list):
+        pass
+
+    fakes = {
+        "launch": types.SimpleNamespace(LaunchDescription=LaunchDescription),
+        "launch.actions": types.SimpleNamespace(DeclareLaunchArgument=DeclareLaunchArgument,
+                                                SetEnvironmentVariable=SetEnvironmentVariable),
+        "launch.conditions": types.SimpleNamespace(IfCondition=IfCondition),
+        "launch.substitutions": types.SimpleNamespace(EnvironmentVariable=EnvironmentVariable,
+                                                      LaunchConfiguration=LaunchConfiguration,
+                                                      PythonExpression=PythonExpression),
+        "launch_ros": types.SimpleNamespace(),
+        "launch_ros.actions": types.SimpleNamespace(Node=Node),
+        "ament_index_python": types.SimpleNamespace(),
+        "ament_index_python.packages": types.SimpleNamespace(
+            get_package_share_directory=lambda _p: str(REPO_ROOT)),
+    }
+    saved = {k: sys.modules.get(k) for k in fakes}
+    sys.modules.update(fakes)
+    try:
+        spec = importlib.util.spec_from_file_location("reach_launch", REPO_ROOT / "launch" / "reach.launch.py")
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        actions = mod.generate_launch_description()
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                sys.modules.pop(k, None)
+            else:
+                sys.modules[k] = v
+    return [(a.executable, [resolve(p) for p in a.parameters]) for a in actions
+            if isinstance(a, Node) and (a.condition is None or a.condition.holds())]
+
+
+@pytest.mark.parametrize("robot", ["", "g1"])
+@pytest.mark.parametrize("host, sim", [("all", "true"), ("robot", "true"), ("compute", "true"), ("all", "false")])
+def test_the_launch_file_starts_each_node_once_with_the_robot_asked_for(robot, host, sim) -> None:
+    """reach.launch.py evaluated (a stand-in for ``launch``): each node of the host once; with
+    ``robot:=`` every node gets that ``robot_config`` on top of its parameter file, without it
+    the file's holds (as hr_graph --robot); the scene reaches the nodes that take one."""
+    from humanoid_reach_ros.graph import host_nodes
+
+    started = _evaluate_reach_launch({"robot": robot, "host": host, "use_sim_sensors": sim})
+    names = [exe for exe, _ in started]
+    assert sorted(names) == sorted(host_nodes(host, sim_sensors=sim == "true")), (host, sim, names)
+    for exe, params in started:
+        files = [p for p in params if isinstance(p, str)]
+        assert files == [str(REPO_ROOT / "config" / f"{exe}.yaml")] and Path(files[0]).is_file(), exe
+        overrides = {k: v for p in params if isinstance(p, dict) for k, v in p.items()}
+        assert overrides.get("robot_config") == (robot or None), (exe, overrides)
+        if exe in ("scene_sim", "reach_planner", "reach_executor"):
+            assert overrides["scene_file"].endswith("plant.yaml"), overrides
