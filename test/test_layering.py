@@ -33,6 +33,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("control",),                        # the HQP, tasks, limits, the whole-body executor
     ("planning",),                       # smooth reshaping solves with control's HQP
     ("execution",),                      # supervisor and engines around control / reach / planning
+    ("operator",),                       # the operator CLI's flow, arguments and reports (no rclpy, io/, nodes/)
     ("io",),                             # numpy <-> ROS messages, MCAP
     ("graph",),                          # process orchestration (the demo's and hr_graph's)
     ("nodes",),                          # thin rclpy nodes (and the executor's loop process)
