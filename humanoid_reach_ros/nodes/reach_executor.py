@@ -50,8 +50,8 @@ from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 from humanoid_reach_ros.codes import ARM_AUTO, ExecuteCode as C, RequestError
+from humanoid_reach_ros.execution.messages import SetMap, StopMotion
 from humanoid_reach_ros.execution.requests import ExecutionRequests
-from humanoid_reach_ros.execution.supervisor import IDLE
 from humanoid_reach_ros.io import exec_msgs, msgs
 from humanoid_reach_ros.nodes.common import (LATCHED, RELIABLE_LATEST, LatestOnDemand, current_joints,
                                              declare_parameters, run_node, scene_file_voxels)
@@ -89,7 +89,6 @@ class ReachExecutorNode(Node):
         self._window = LoopWindow()
         self.tracker = MotionTracker(lambda command: self.loop.send(command), self.get_logger(), self.counters, p,
                                      lambda: self.context.ok())
-        self.tracker.status = {"mode": IDLE}
 
         t0 = time.perf_counter()
         self.loop = LoopProcess(LoopConfig(
@@ -103,20 +102,19 @@ class ReachExecutorNode(Node):
             lock_memory=p["lock_memory"], status_period_s=min(p["feedback_period_s"], 0.1),
             domain_id=self.context.get_domain_id()), self.tracker.on_event)
         info = self.loop.wait_ready(p["loop_start_timeout_s"])
-        rt = "; ".join(f"{k}: {v}" for k, v in info.items() if k != "warm_up_s")
+        rt = "; ".join(f"{k}: {v}" for k, v in info.realtime())
         self.get_logger().info(f"control loop process ready in {time.perf_counter() - t0:.1f} s (kernels warmed "
-                               f"up in {info.get('warm_up_s', 0.0):.1f} s); {rt}")
-        if p["rt_priority"] > 0 and not all(str(v).startswith("SCHED_FIFO") for k, v in info.items()
-                                            if k in ("tick", "solver")):
-            self.get_logger().warning(f"the control loop runs WITHOUT real-time priority: {info.get('tick')}")
-        self.requests.send_map = lambda tree: self.loop.send(("map", tree))
+                               f"up in {info.warm_up_s:.1f} s); {rt}")
+        if p["rt_priority"] > 0 and not all(v.startswith("SCHED_FIFO") for v in (info.tick, info.solver)):
+            self.get_logger().warning(f"the control loop runs WITHOUT real-time priority: {info.tick}")
+        self.requests.send_map = lambda tree: self.loop.send(SetMap(tree))
         scene_voxels = None
         if p["scene_file"]:
             scene_path = config_path(p["scene_file"])
             scene_voxels = scene_file_voxels(str(scene_path), p["resolution_m"], tuple(p["scene_exclude_groups"]))
         tree, note = self.requests.scene_map(scene_voxels, str(scene_path) if scene_voxels is not None else "")
         if tree is not None:
-            self.loop.send(("map", tree))
+            self.loop.send(SetMap(tree))
         self.get_logger().info(note)
 
         state, inputs, actions = (MutuallyExclusiveCallbackGroup(), MutuallyExclusiveCallbackGroup(),
@@ -160,13 +158,12 @@ class ReachExecutorNode(Node):
 
     def _watch_joint_states(self) -> None:
         """A running motion whose /joint_states went stale is aborted (the loop holds)."""
-        st = self.tracker.status
-        mid = st.get("motion_id")
+        mid = self.tracker.status.motion_id
         age = self.joint_states.age_s()
         if mid is not None and mid != self._aborted_id and age > self.p["joint_states_abort_s"]:
             self._aborted_id = mid
-            self.loop.send(("stop", mid, int(C.ABORTED), f"stopped: /joint_states stale ({age:.2f} s > "
-                                                           f"{self.p['joint_states_abort_s']:g} s)"))
+            self.loop.send(StopMotion(mid, int(C.ABORTED), f"stopped: /joint_states stale ({age:.2f} s > "
+                                                          f"{self.p['joint_states_abort_s']:g} s)"))
 
     def _on_map(self, msg: PointCloud2) -> None:
         try:
@@ -177,7 +174,7 @@ class ReachExecutorNode(Node):
                                       f"the previous map ({self.counters.map_source})",
                                       throttle_duration_sec=self.p["warn_throttle_s"])
             return
-        self.loop.send(("map", tree))
+        self.loop.send(SetMap(tree))
         if changed:   # state changes at INFO, repetition at DEBUG
             self.get_logger().info(line)
         else:
@@ -211,7 +208,7 @@ class ReachExecutorNode(Node):
         except Exception as exc:
             reject(self, "target_messages_rejected", label, exc)
             return
-        if self.requests.unchanged(motion.targets, self.tracker.status.get("dual_targets")):
+        if self.requests.unchanged(motion.targets, self.tracker.status.dual_targets):
             c.target_messages_unchanged += 1
             return
         self.get_logger().info(f"{label}: accepted: {self.requests.describe(motion)}",

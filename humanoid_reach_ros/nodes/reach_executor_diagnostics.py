@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 
+from humanoid_reach_ros.execution.messages import LoopStatus
 from humanoid_reach_ros.execution.supervisor import IDLE
 from humanoid_reach_ros.io import msgs
 
@@ -19,22 +20,20 @@ class LoopWindow:
         self.steps = self.overruns = self.ticks = 0
         self.t = time.monotonic()
 
-    def advance(self, status: dict) -> tuple[int, int, int, float]:
+    def advance(self, status: LoopStatus) -> tuple[int, int, int, float]:
         """(steps, overruns, ticks, elapsed s) since the previous call."""
         now = time.monotonic()
-        out = (status.get("steps", 0) - self.steps, status.get("overruns", 0) - self.overruns,
-               status.get("ticks", 0) - self.ticks, max(now - self.t, 1e-9))
-        self.steps, self.overruns = status.get("steps", 0), status.get("overruns", 0)
-        self.ticks, self.t = status.get("ticks", 0), now
+        out = (status.steps - self.steps, status.overruns - self.overruns, status.ticks - self.ticks,
+               max(now - self.t, 1e-9))
+        self.steps, self.overruns, self.ticks, self.t = status.steps, status.overruns, status.ticks, now
         return out
 
 
 def executor_statuses(node, window: LoopWindow) -> list:
     """The node's three DiagnosticStatus entries (module doc)."""
-    st, c = dict(node.tracker.status), node.counters
+    st, c = node.tracker.status, node.counters          # one status (frozen): consistent values
     name, hw = node.get_name(), node.hardware_id
-    values = {"state": st.get("mode", IDLE), "motion": st.get("motion_label", ""),
-              "progress": st.get("progress", 0.0), "engine": st.get("engine", ""),
+    values = {"state": st.mode, "motion": st.motion_label, "progress": st.progress, "engine": st.engine,
               "dual_arm_follow": bool(node.p["dual_arm_follow"]),
               **{k: v for k, v in dataclasses.asdict(c).items() if not k.startswith("map")}}
     message = f"{values['state']}" + (f": {values['motion']}" if values["motion"] else "")
@@ -43,14 +42,14 @@ def executor_statuses(node, window: LoopWindow) -> list:
     out = [msgs.diagnostic_status(f"{name}: execution", msgs.LEVEL_OK, message, values, hw)]
     steps, overruns, ticks, elapsed = window.advance(st)
     values = {"nominal_rate_hz": 1.0 / node.period_s, "tick_rate_hz": ticks / elapsed, "steps_recent": steps,
-              "overruns_recent": overruns, "overruns_total": st.get("overruns", 0),
-              "missed_deadlines_total": st.get("missed_deadlines", 0), "published_total": st.get("published", 0),
-              "step_p50_ms": st.get("step_p50_ms", 0.0), "step_p99_ms": st.get("step_p99_ms", 0.0),
-              "max_step_ms": st.get("step_max_ms", 0.0), "hold_step_p99_ms": st.get("hold_step_p99_ms", 0.0),
-              "slow_publishes_total": st.get("slow_publishes", 0), "max_publish_ms": st.get("max_publish_ms", 0.0),
+              "overruns_recent": overruns, "overruns_total": st.overruns,
+              "missed_deadlines_total": st.missed_deadlines, "published_total": st.published,
+              "step_p50_ms": st.step_p50_ms, "step_p99_ms": st.step_p99_ms,
+              "max_step_ms": st.step_max_ms, "hold_step_p99_ms": st.hold_step_p99_ms,
+              "slow_publishes_total": st.slow_publishes, "max_publish_ms": st.max_publish_ms,
               "loop_process_alive": node.loop.alive()}
     level, message = msgs.LEVEL_OK, f"{ticks / elapsed:.0f} Hz ticks, {steps} steps, {overruns} overruns"
-    if st.get("mode", IDLE) == IDLE and not steps:
+    if st.mode == IDLE and not steps:
         message = "idle: the loop sleeps until the next motion (nothing to publish)"
     if not node.loop.alive():
         level, message = msgs.LEVEL_ERROR, "the control loop process is not running"
@@ -58,7 +57,7 @@ def executor_statuses(node, window: LoopWindow) -> list:
         level, message = msgs.LEVEL_WARN, f"{overruns} of {steps + overruns} periods overran (last command held)"
     out.append(msgs.diagnostic_status(f"{name}: loop", level, message, values, hw))
     joints, reason = node.current_joints()
-    last = st.get("last_joints")
+    last = st.last_joints
     values = {"joint_states_age_s": node.joint_states.age_s() if node.joint_states.latest() is not None
               else "never", "tracking_error_rad": float(np.max(np.abs(joints - last)))
               if joints is not None and last is not None else 0.0,

@@ -1,7 +1,8 @@
 """The ``reach_executor`` node's side of its motions (``nodes/reach_executor.py``).
 
 * :class:`MotionTracker`: the motions handed to the control loop process and their ends
-  (the loop's ``started`` / ``finished`` / ``status`` / ``log`` / ``exited`` events), and
+  (the loop's events, ``execution/messages.py``: ``MotionStarted``, ``MotionFinished``,
+  ``LoopStatus``, ``LogLine``, ``LoopExited``), and
   :meth:`MotionTracker.follow`, which waits for a motion while forwarding feedback and a
   client's cancel;
 * :func:`execute_goal` and :func:`look_goal`: the ``/execute_reach`` and ``/look`` actions
@@ -21,6 +22,8 @@ import numpy as np
 from humanoid_reach_interfaces.action import ExecuteReach, Look
 
 from humanoid_reach_ros.codes import ExecuteCode as C, RequestError
+from humanoid_reach_ros.execution.messages import (LogLine, LoopEvent, LoopExited, LoopStatus, MotionFinished,
+                                                   MotionStarted, StartMotion, StopMotion)
 from humanoid_reach_ros.execution.supervisor import Motion
 from humanoid_reach_ros.io import exec_msgs
 
@@ -52,7 +55,7 @@ class MotionTracker:
 
     def __init__(self, send: Callable, logger, counters, params: dict, ok: Callable[[], bool]) -> None:
         self.send, self.log, self.counters, self.p, self.ok = send, logger, counters, params, ok
-        self.status: dict = {}
+        self.status = LoopStatus()            # the loop's latest (idle before the first)
         self.last_result: Pending | None = None
         self._pending: dict[int, Pending] = {}
         self._lock = threading.Lock()
@@ -61,45 +64,50 @@ class MotionTracker:
         pend = Pending(motion.label)
         with self._lock:
             self._pending[motion.id] = pend
-        self.send(("start", motion))
+        self.send(StartMotion(motion))
         return pend
 
-    def on_event(self, event: tuple) -> None:
-        kind, log = event[0], self.log
-        if kind == "status":
-            self.status = event[1]
-        elif kind == "started":
-            _, mid, note, source = event
-            with self._lock:
-                pend = self._pending.get(mid)
-            line = f"{pend.label}: started from {source}" + (f": {note}" if note else "") if pend else ""
-            if pend is not None and pend.label.startswith("/dual_arm"):   # followed targets: throttled
-                log.info(line, throttle_duration_sec=self.p["warn_throttle_s"])
-            elif pend is not None:
-                log.info(line)
-        elif kind == "finished":
-            self._finished(*event[1:5])
-        elif kind == "log" and event[1] == "error":
-            log.error(event[2])
-        elif kind == "log" and event[1] == "warning":
-            log.warning(event[2])
-        elif kind == "log":
-            log.info(event[2])
-        elif kind == "exited":
-            if self.ok():
-                log.error(f"the control loop process exited ({event[1]}): no more commands")
-            with self._lock:
-                pending, self._pending = list(self._pending.values()), {}
-            for pend in pending:
-                pend.code, pend.message = C.ABORTED, "the control loop process exited"
-                pend.finished.set()
+    def on_event(self, event: LoopEvent) -> None:
+        log = self.log
+        match event:
+            case LoopStatus():
+                self.status = event
+            case MotionStarted(motion_id=mid, note=note, source=source):
+                with self._lock:
+                    pend = self._pending.get(mid)
+                line = f"{pend.label}: started from {source}" + (f": {note}" if note else "") if pend else ""
+                if pend is not None and pend.label.startswith("/dual_arm"):   # followed targets: throttled
+                    log.info(line, throttle_duration_sec=self.p["warn_throttle_s"])
+                elif pend is not None:
+                    log.info(line)
+            case MotionFinished():
+                self._finished(event)
+            case LogLine(level="error", text=text):
+                log.error(text)
+            case LogLine(level="warning", text=text):
+                log.warning(text)
+            case LogLine(text=text):
+                log.info(text)
+            case LoopExited(returncode=returncode):
+                self._exited(returncode)
 
-    def _finished(self, mid: int, code: int, message: str, summary: dict) -> None:
+    def _exited(self, returncode: int | None) -> None:
+        """The loop process is gone: every motion still pending ends ABORTED."""
+        if self.ok():
+            self.log.error(f"the control loop process exited ({returncode}): no more commands")
         with self._lock:
-            pend = self._pending.pop(mid, None)
+            pending, self._pending = list(self._pending.values()), {}
+        for pend in pending:
+            pend.code, pend.message = C.ABORTED, "the control loop process exited"
+            pend.finished.set()
+
+    def _finished(self, event: MotionFinished) -> None:
+        with self._lock:
+            pend = self._pending.pop(event.motion_id, None)
         if pend is None:
             return
-        pend.code, pend.message, pend.summary = code, message, summary
+        code, message, s = event.code, event.message, event.summary
+        pend.code, pend.message, pend.summary = code, message, s.as_dict()
         self.last_result = pend
         c = self.counters
         c.last_result = f"{pend.label}: {RESULT_NAMES.get(code, code)}"
@@ -107,11 +115,11 @@ class MotionTracker:
         if code == C.INVALID_GOAL and message.startswith("infeasible"):
             c.dual_arm_infeasible += 1
             c.last_infeasible = f"{pend.label}: {message}"
-        line = (f"{pend.label}: {RESULT_NAMES.get(code, code)} at progress {summary.pop('progress', 0.0):.2f}: "
-                f"{message} [{summary['duration_s']:.2f} s, "
-                f"{summary['steps']} steps, {summary['overruns']} overruns, max COG error "
-                f"{summary['max_com_error_m'] * 1e3:.2f} mm, min distance {summary['min_distance_m']:.4f} m, "
-                f"final hand error {summary['final_hand_error_m'] * 1e3:.2f} mm]")
+        line = (f"{pend.label}: {RESULT_NAMES.get(code, code)} at progress {event.progress:.2f}: "
+                f"{message} [{s.duration_s:.2f} s, "
+                f"{s.steps} steps, {s.overruns} overruns, max COG error "
+                f"{s.max_com_error_m * 1e3:.2f} mm, min distance {s.min_distance_m:.4f} m, "
+                f"final hand error {s.final_hand_error_m * 1e3:.2f} mm]")
         if code in (C.SUCCESS, C.PREEMPTED, C.CANCELED):
             self.log.info(line)
         else:
@@ -128,9 +136,9 @@ class MotionTracker:
                 break
             if goal_handle.is_cancel_requested and not cancel_sent:
                 cancel_sent = True
-                self.send(("stop", motion.id, int(C.CANCELED), "canceled by the client"))
+                self.send(StopMotion(motion.id, int(C.CANCELED), "canceled by the client"))
             st = self.status
-            if st.get("motion_id") == motion.id and st.get("last") is not None and goal_handle.is_active:
+            if st.motion_id == motion.id and st.last is not None and goal_handle.is_active:
                 feedback(st)
         if pend.code is None:
             pend.code, pend.message = C.ABORTED, "the reach_executor node is shutting down"
@@ -194,7 +202,7 @@ def execute_goal(node, goal_handle) -> ExecuteReach.Result:
         return exec_msgs.result_message(C.CANCELED, "canceled before execution started")
     node.get_logger().info(f"{label}: accepted: {node.requests.describe(motion)}")
     pend = node.tracker.follow(goal_handle, motion, lambda st: goal_handle.publish_feedback(
-        exec_msgs.execute_feedback(st["last"])))
+        exec_msgs.execute_feedback(st.last)))
     result = exec_msgs.result_message(pend.code, pend.message, pend.summary)
     close_goal(goal_handle, pend.code)
     return result

@@ -9,14 +9,23 @@ nothing else: no subscriptions, no executor spinning.
 It publishes ``/joint_command`` and ``/executor/metrics`` itself through a publish-only
 rclpy node (``<node>_loop``), so a command never crosses the parent's interpreter.
 
-The parent (the ``reach_executor`` node) talks to it through a pipe:
+The parent (the ``reach_executor`` node) talks to it through a pipe, in the typed messages
+of :mod:`humanoid_reach_ros.execution.messages` (frozen dataclasses, pickled):
 
-* parent -> child: ``("start", Motion)``, ``("stop", motion_id | None, code, message)``,
-  ``("map", SphereTree | None)``, ``("close",)``;
-* child -> parent: ``("ready", info)``, ``("started", id, note, source)``,
-  ``("finished", id, code, message, summary, note)``, ``("status", dict)`` every
+* parent -> child: the :class:`LoopConfig` first, then ``StartMotion(motion)``,
+  ``StopMotion(motion_id | None, code, message)``, ``SetMap(tree | None)``, ``Close()``;
+  the child dispatches on the class (``match``);
+* child -> parent: ``LoopReady(warm_up_s, publishing, tick, solver, memory)`` or
+  ``LoopFailed(text)`` (set-up error) once, then ``MotionStarted(motion_id, note, source)``,
+  ``MotionFinished(motion_id, code, message, summary, progress, note)``, ``LogLine(level,
+  text)`` and ``LoopStatus(...)`` (the supervisor's state and counters, named fields) every
   ``status_period_s`` while a motion runs or settles (every second while holding or idle,
-  and after each event), ``("log", level, text)``, ``("failed", text)`` (set-up error).
+  and after each event); the parent's reader adds ``LoopExited(returncode)`` when the pipe
+  closes.
+
+The loop's threads (the supervisor's ``on_start`` / ``on_finish`` / ``log`` run on the tick
+and solver threads) only queue a tuple ``(message class, *fields)``; the sender thread builds
+the message and pickles it, so typing the messages adds nothing to a deadline's work.
 
 The child asks for ``SCHED_FIFO`` for its loop threads and locks its memory where the OS
 allows (:mod:`humanoid_reach_ros.execution.realtime`; the parent logs the outcome once),
@@ -38,6 +47,10 @@ import traceback
 from multiprocessing.connection import Connection
 from dataclasses import dataclass, field
 from typing import Any, Callable
+
+from humanoid_reach_ros.execution.messages import (Close, LogLine, LoopCommand, LoopEvent, LoopExited, LoopFailed,
+                                                   LoopReady, LoopStatus, MotionFinished, MotionStarted,
+                                                   MotionSummary, SetMap, StartMotion, StopMotion)
 
 PR_SET_PDEATHSIG = 1
 IDLE_STATUS_PERIOD_S = 1.0     # status to the node while nothing moves
@@ -70,7 +83,7 @@ class LoopConfig:
 class LoopProcess:
     """Start the loop process and exchange commands and events with it."""
 
-    def __init__(self, config: LoopConfig, on_event: Callable[[tuple], None]) -> None:
+    def __init__(self, config: LoopConfig, on_event: Callable[[LoopEvent], None]) -> None:
         # a fresh interpreter (not multiprocessing's spawn, which re-imports the caller's __main__),
         # one end of a socket pair as a multiprocessing Connection; stdout/stderr shared with the node
         ours, theirs = socket.socketpair()
@@ -83,23 +96,25 @@ class LoopProcess:
         self.on_event = on_event
         self.send(config)
         self._ready = threading.Event()
-        self.info: dict[str, Any] = {}
+        self.info: LoopReady | None = None
         self.failure = ""
         self._reader = threading.Thread(target=self._read, name="executor_loop_events", daemon=True)
         self._reader.start()
 
-    def wait_ready(self, timeout: float) -> dict[str, Any]:
+    def wait_ready(self, timeout: float) -> LoopReady:
         """Block until the child reports ready (its info) or failed (RuntimeError)."""
         if not self._ready.wait(timeout):
             raise RuntimeError(f"the control loop process did not start within {timeout:g} s")
         if self.failure:
             raise RuntimeError(f"the control loop process failed to start: {self.failure}")
+        if self.info is None:
+            raise RuntimeError(f"the control loop process exited before it was ready ({self.proc.poll()})")
         return self.info
 
     def alive(self) -> bool:
         return self.proc.poll() is None
 
-    def send(self, command: tuple) -> None:
+    def send(self, command: LoopCommand) -> None:
         with self._send_lock:
             self._conn.send(command)
 
@@ -107,7 +122,7 @@ class LoopProcess:
         """Ask the child to stop (it aborts a motion, tears its node down and exits); returns at
         once, so the parent can tear its own node down meanwhile (:meth:`close` waits)."""
         try:
-            self.send(("close",))
+            self.send(Close())
         except (OSError, EOFError, BrokenPipeError):
             pass
 
@@ -129,14 +144,14 @@ class LoopProcess:
             try:
                 event = self._conn.recv()
             except (EOFError, OSError):
-                self.on_event(("exited", self.proc.poll()))
+                self.on_event(LoopExited(self.proc.poll()))
                 self._ready.set()
                 return
-            if event[0] == "ready":
-                self.info = event[1]
+            if isinstance(event, LoopReady):
+                self.info = event
                 self._ready.set()
-            elif event[0] == "failed":
-                self.failure = event[1]
+            elif isinstance(event, LoopFailed):
+                self.failure = event.text
                 self._ready.set()
             try:
                 self.on_event(event)
@@ -161,7 +176,7 @@ def child_main(conn, config: LoopConfig) -> None:
     try:
         loop, sup, node, rt, slow = _build(config, out)
     except Exception as exc:
-        conn.send(("failed", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"))
+        conn.send(LoopFailed(f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"))
         conn.close()
         return
     stop = threading.Event()
@@ -198,13 +213,12 @@ def child_main(conn, config: LoopConfig) -> None:
                 continue
             try:
                 if event is not None:
-                    conn.send(event)
+                    conn.send(event[0](*event[1:]))
                 now = time.monotonic()
                 if event is not None or now >= last_status + period():
                     last_status = now
-                    st = sup.status()
-                    st.update(slow_publishes=slow["count"], max_publish_ms=slow["max_s"] * 1e3)
-                    conn.send(("status", st))
+                    conn.send(LoopStatus(**sup.status(), slow_publishes=slow["count"],
+                                         max_publish_ms=slow["max_s"] * 1e3))
             except (OSError, EOFError, BrokenPipeError):
                 stop.set()
 
@@ -214,7 +228,7 @@ def child_main(conn, config: LoopConfig) -> None:
     gc.collect()
     gc.freeze()
     gc.set_threshold(100_000, 50, 1000)
-    conn.send(("ready", rt))
+    conn.send(rt)
     send_thread = threading.Thread(target=sender, name="executor_loop_sender", daemon=True)
     send_thread.start()
     make_feeder_thread_realtime(config.rt_priority)
@@ -224,15 +238,15 @@ def child_main(conn, config: LoopConfig) -> None:
                 cmd = conn.recv()
             except (EOFError, OSError):
                 break
-            kind = cmd[0]
-            if kind == "close":
-                break
-            if kind == "start":
-                sup.submit(cmd[1])
-            elif kind == "stop":
-                sup.stop(cmd[1], cmd[2], cmd[3])
-            elif kind == "map":
-                sup.set_map(cmd[1])
+            match cmd:
+                case Close():
+                    break
+                case StartMotion(motion=motion):
+                    sup.submit(motion)
+                case StopMotion(motion_id=motion_id, code=code, message=message):
+                    sup.stop(motion_id, code, message)
+                case SetMap(tree=tree):
+                    sup.set_map(tree)
     finally:
         sup.close()
         loop.stop()
@@ -244,7 +258,7 @@ def child_main(conn, config: LoopConfig) -> None:
             try:
                 event = out.get_nowait()
                 if event is not _WAKE:
-                    conn.send(event)
+                    conn.send(event[0](*event[1:]))
             except (queue.Empty, OSError, EOFError, BrokenPipeError):
                 break
         try:
@@ -256,8 +270,9 @@ def child_main(conn, config: LoopConfig) -> None:
 
 
 def _build(config: LoopConfig, out: queue.SimpleQueue):
-    """Engines, supervisor, publish-only node and the running loop; returns (loop, sup, node, rt
-    info, slow-publish counters)."""
+    """Engines, supervisor, publish-only node and the running loop; returns (loop, sup, node,
+    :class:`LoopReady`, slow-publish counters). What the supervisor reports is queued on ``out``
+    as ``(message class, *fields)`` (built by the sender thread, off the deadlines)."""
     import numpy as np
     import rclpy
     from humanoid_reach_interfaces.msg import ExecutorMetrics
@@ -328,26 +343,30 @@ def _build(config: LoopConfig, out: queue.SimpleQueue):
                 log("warning", f"publishing one command took {took * 1e3:.1f} ms: the DDS write blocked the tick "
                                f"thread (deadlines missed meanwhile; the solver went on); {slow['count']} so far")
 
-    def on_finish(m) -> None:
-        summary = m.summary(time.monotonic())
-        summary["progress"] = float(m.last.progress) if m.last is not None else 0.0
-        out.put(("finished", m.id, int(m.code), m.message, summary, m.note))
+    def on_finish(m) -> None:   # the tick or solver thread: a tuple only, the sender builds the message
+        out.put((_finished, m.id, int(m.code), m.message, m.summary(time.monotonic()),
+                 float(m.last.progress) if m.last is not None else 0.0, m.note))
 
     def on_start(m) -> None:
-        out.put(("started", m.id, m.note, m.source))
+        out.put((MotionStarted, m.id, m.note, m.source))
 
     def log(level: str, text: str) -> None:
-        out.put(("log", level, text))
+        out.put((LogLine, level, text))
 
     sup = ExecutionSupervisor(TrajectoryEngine(executor), dual, config.supervisor, time.monotonic, sink,
                               on_finish, on_start, log)
     loop = ControlLoop(sup, config.supervisor.period_s, config.rt_priority,
                        on_error=lambda text: log("error", text))
-    rt = {"warm_up_s": warm_s, "publishing": command_pub.mode}
-    if config.lock_memory and config.rt_priority > 0:
-        rt["memory"] = lock_memory()[1]
-    rt.update(loop.start())
+    memory = lock_memory()[1] if config.lock_memory and config.rt_priority > 0 else ""
+    threads = loop.start()
+    rt = LoopReady(warm_up_s=warm_s, publishing=command_pub.mode, tick=threads.get("tick", ""),
+                   solver=threads.get("solver", ""), memory=memory)
     return loop, sup, node, rt, slow
+
+
+def _finished(motion_id: int, code: int, message: str, summary: dict, progress: float, note: str) -> MotionFinished:
+    """The :class:`MotionFinished` of what ``on_finish`` queued (the sender thread builds it)."""
+    return MotionFinished(motion_id, code, message, MotionSummary(**summary), progress, note)
 
 
 def _warm_up_cluttered(executor, robot) -> None:
