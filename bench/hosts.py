@@ -47,7 +47,7 @@ root / bad arguments. Ctrl-C, SIGTERM or an exception: every process started is 
 ``tools/hosts.sh down`` runs.
 
 Usage: ``sudo python bench/hosts.py [--out out/bench_hosts] [--placements compute robot]
-[--no-cuts] [--cuts reach scan plan start] [--no-flow] [--plans 6] [--timeout 30] [--idle 10]``; the test suite's
+[--no-cuts] [--cuts reach scan plan start] [--no-flow] [--plans 6] [--timeout 30] [--idle 10]``; a
 reduced run: ``--placements compute --no-flow --cuts scan --idle 3`` (~60 s; the suite's short version of
 the cuts is test/test_hosts.py).
 """
