@@ -47,6 +47,7 @@ import numba as nb
 import numpy as np
 
 from humanoid_reach_ros.kinematics.general_ik import FK_TOL, Chain6, GeneralIKResult
+from humanoid_reach_ros.kinematics.general_ik_compiled import _mm, _one, _rot, _rows
 
 #: numba options of the house (general_ik_compiled.py): nogil=False, see geometry/distance.py
 _JIT = dict(cache=True, nogil=False, fastmath=False)
@@ -102,31 +103,6 @@ def _offsets(n):
     o_qd = o_hi + n
     o_st = o_qd + n
     return o_R, o_t, o_a, o_Re, o_te, o_lo, o_hi, o_qd, o_st
-
-
-@nb.njit(**_JIT)
-def _rot(a, q, out):
-    """out = R(a, q) (general_ik.rotations)."""
-    c, s = math.cos(q), math.sin(q)
-    x, y, z = a[0], a[1], a[2]
-    C = 1.0 - c
-    out[0, 0] = c + x * x * C
-    out[0, 1] = x * y * C - z * s
-    out[0, 2] = x * z * C + y * s
-    out[1, 0] = y * x * C + z * s
-    out[1, 1] = c + y * y * C
-    out[1, 2] = y * z * C - x * s
-    out[2, 0] = z * x * C - y * s
-    out[2, 1] = z * y * C + x * s
-    out[2, 2] = c + z * z * C
-
-
-@nb.njit(**_JIT)
-def _mm(A, B, out):
-    """out = A B (out distinct from A, B)."""
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
 
 
 @nb.njit(**_JIT)
@@ -465,29 +441,6 @@ def numerical_ik_batch(P, Rt, ref, K, q_out, ok_out):
     for i in range(P.shape[0]):
         ok_out[i] = numerical_ik_pose(P[i], Rt[i if Rt.shape[0] > 1 else 0], ref[i if ref.shape[0] > 1 else 0],
                                       K, q_out[i], work)
-
-
-
-
-def _rows(a, ndim: int) -> np.ndarray:
-    """``a`` as a stack of float rows (general_ik_compiled._rows)."""
-    a = np.asarray(a, dtype=np.float64)
-    if a.ndim == ndim:
-        a = a[None]
-    flags = a.flags
-    if not (flags.c_contiguous and flags.writeable):
-        a = np.array(a, dtype=np.float64, order="C")
-    return a
-
-
-def _one(a, shape: tuple) -> np.ndarray:
-    a = np.asarray(a, dtype=np.float64)
-    if a.shape != shape:
-        raise ValueError(f"expected shape {shape}, got {a.shape}")
-    flags = a.flags
-    if not (flags.c_contiguous and flags.writeable):
-        a = np.array(a, dtype=np.float64, order="C")
-    return a
 
 
 def quasi_random_starts(lower: np.ndarray, upper: np.ndarray, count: int = N_STARTS, seed: int = SEED) -> np.ndarray:

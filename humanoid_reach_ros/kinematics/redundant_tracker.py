@@ -39,13 +39,13 @@ No rclpy here.
 """
 from __future__ import annotations
 
-import math
 
 import numba as nb
 import numpy as np
 
 from humanoid_reach_ros.kinematics.general_ik import Chain6, rotations
-from humanoid_reach_ros.kinematics.general_ik_compiled import WORK6_SIZE, CompiledGeneralLimbIK, general_ik_pose
+from humanoid_reach_ros.kinematics.general_ik_compiled import (WORK6_SIZE, CompiledGeneralLimbIK, _mm, _rot,
+                                                                 general_ik_pose)
 from humanoid_reach_ros.kinematics.ik_types import IKReason
 
 _JIT = dict(cache=True, nogil=False, fastmath=False)
@@ -53,23 +53,14 @@ _JIT = dict(cache=True, nogil=False, fastmath=False)
 
 @nb.njit(**_JIT)
 def _joint1_frame_T(R0, axis, q1, out):
-    """``out = (R0 R(axis, q1))^T`` (the rows of rotations()'s matrix, the same formulas)."""
-    c, s = math.cos(q1), math.sin(q1)
-    x, y, z = axis[0], axis[1], axis[2]
-    C = 1.0 - c
+    """``out = (R0 R(axis, q1))^T`` (``rotations()``'s matrix: general_ik_compiled's ``_rot``)."""
     Ra = np.empty((3, 3))
-    Ra[0, 0] = c + x * x * C
-    Ra[0, 1] = x * y * C - z * s
-    Ra[0, 2] = x * z * C + y * s
-    Ra[1, 0] = y * x * C + z * s
-    Ra[1, 1] = c + y * y * C
-    Ra[1, 2] = y * z * C - x * s
-    Ra[2, 0] = z * x * C - y * s
-    Ra[2, 1] = z * y * C + x * s
-    Ra[2, 2] = c + z * z * C
+    M = np.empty((3, 3))
+    _rot(axis, q1, Ra)
+    _mm(R0, Ra, M)
     for i in range(3):
         for j in range(3):
-            out[j, i] = R0[i, 0] * Ra[0, j] + R0[i, 1] * Ra[1, j] + R0[i, 2] * Ra[2, j]
+            out[j, i] = M[i, j]
 
 
 @nb.njit(**_JIT)
