@@ -158,6 +158,8 @@ class ExecutionRequests:
         self._target_p: np.ndarray | None = None
         self._tree_cache: SphereTree | None = None
         self._reshaper = None
+        self._look_cm = None      # the collision model and checker of look_clearance, made on first use
+        self._look_coll = None
         self._reshape_lock = threading.Lock()
         self._sampler = None
         self._sampler_lock = threading.Lock()
@@ -468,13 +470,11 @@ class ExecutionRequests:
         from humanoid_reach_ros.robot.shapes import load_collision_model
         with self._map_lock:
             tree = self._tree_cache if self._tree_cache is not None else self._tree(None)
-        cached = getattr(self, "_look_coll", None)
-        if cached is None or cached.tree is not tree:
-            cm = getattr(self, "_look_cm", None)
-            if cm is None:
-                cm = self._look_cm = load_collision_model(None, self.robot)
-            cached = self._look_coll = RobotCollision(self.robot, cm, tree)
-        return cached
+        if self._look_cm is None:
+            self._look_cm = load_collision_model(None, self.robot)
+        if self._look_coll is None or self._look_coll.tree is not tree:
+            self._look_coll = RobotCollision(self.robot, self._look_cm, tree)
+        return self._look_coll
 
     def head_targets(self, joints: np.ndarray) -> tuple[float, float]:
         """Head yaw and pitch [rad] of a joint vector (the ``Look`` feedback's fields); without a
