@@ -120,3 +120,22 @@ def test_behind_the_robot_is_unobserved_and_no_gaze_sees_it(scene) -> None:
     # beside the hip, where the body has been (body-swept space counts as observed): planned
     hip = dataclasses.replace(valve_region(), target_p=np.array([0.25, -0.29, 0.66]))
     assert pl.plan(j0, PlanRequest(hip, seed=0)).success
+
+
+def test_a_crossing_between_samples_still_names_a_point_to_look_at() -> None:
+    """CI once answered UNOBSERVED_SPACE with no point (the permissive plan crossed a thin frontier
+    between its trajectory samples), and the operator could not look. Samples that never touch the
+    frontier still name the frontier voxel nearest the swept shapes."""
+    planner = ReachPlanner()                   # no body-swept space from earlier plans
+    j0 = planner.robot.half_sitting_joints
+    P0, P1 = planner.collision_model.world_shapes(planner.start_config(j0))[:2]
+    front = np.vstack([P0, P1])
+    beside = np.array([front[:, 0].max() + 0.2, 0.0, 0.9])               # 20 cm in front of the robot
+    far = beside + np.array([3.0, 0.0, 0.0])
+    planner.set_map(np.empty((0, 3)), np.array([beside, far]))
+    snap = planner.scene.snapshot()
+    full, known, _ = planner._scene_collision(snap, None)
+    assert full.check(planner.start_config(j0))                           # no sample meets it
+    points, where = planner._unobserved_entries(np.array([j0, j0]), full, known, snap.frontier)
+    assert points.shape == (1, 3) and np.allclose(points[0], beside, atol=0.03), (points, where)
+    assert "passes" in where and "mm from it around" in where, where

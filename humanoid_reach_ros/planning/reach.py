@@ -61,7 +61,7 @@ from humanoid_reach_ros.geometry.trajectory import SplineTrajectory, TrajectoryO
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion, matrix_rpy
 from humanoid_reach_ros.kinematics import LimbIKSet
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
-from humanoid_reach_ros.robot.shapes import load_collision_model
+from humanoid_reach_ros.robot.shapes import load_collision_model, point_segment_distance
 from humanoid_reach_ros.scene.planning_scene import PlanningScene, SceneParams, SceneSnapshot, voxel_points
 
 STAT_KEYS = (
@@ -752,28 +752,62 @@ class ReachPlanner:
             return outcome
         if not other.success:
             return outcome
-        names = list(self.collision_model.names)
-        points, where = [], "somewhere along it"
-        for j in other.positions:
-            q = self.start_config(j)
-            if full.check(q):
-                continue
-            occupied = set(self.colliding_shapes(q, known))
-            shapes = [n for n in self.colliding_shapes(q, full) if n not in occupied and n in names]
-            if not shapes:
-                continue
-            P0, P1 = full.world_shapes(q)
-            mid = np.mean([(P0[names.index(n)] + P1[names.index(n)]) / 2 for n in shapes], axis=0)
-            if not points:
-                where = f"the {', '.join(shapes)} would enter it around {np.round(mid, 2).tolist()} m"
-            if all(np.linalg.norm(mid - p) > 0.1 for p in points):
-                points.append(mid)
-        pts = np.array(points).reshape(-1, 3)
+        pts, where = self._unobserved_entries(np.asarray(other.positions, float), full, known, snap.frontier)
         what = "the way home" if request.home else f"a {other.arm}-arm plan"
         return self._unobserved_failure(
             joints, pts, f"{outcome.error.name} while avoiding unobserved space ({len(snap.frontier)} frontier "
                          f"voxels), but {what} exists through it: {where}", outcome.message,
             dict(outcome.stats or {}), t0)
+
+    def _unobserved_entries(self, positions: np.ndarray, full: RobotCollision, known: RobotCollision,
+                            frontier: np.ndarray) -> tuple[np.ndarray, str]:
+        """Where a plan made on the occupied voxels alone enters unobserved space: the centres of
+        the robot shapes that meet the frontier (and no occupied voxel) at the trajectory's samples,
+        then, when none does, 4x finer between them; points closer than 0.1 m merge. A plan can cross a
+        thin frontier between even those: then the frontier voxel nearest the swept shapes is named, so that
+        ``UNOBSERVED_SPACE`` always carries a point to look at (CI once answered it with none, and
+        the operator could not look). ``(points (K, 3), words)``."""
+        names = list(self.collision_model.names)
+        points: list[np.ndarray] = []
+        where = ""
+        Q = positions
+        for refine in (False, True):
+            if refine:
+                if points or len(Q) < 2:
+                    break
+                s = np.linspace(0.0, 1.0, 4, endpoint=False)[1:, None, None]
+                Q = (Q[:-1] + s * (Q[1:] - Q[:-1])).reshape(-1, Q.shape[1])
+            for j in Q:
+                q = self.start_config(j)
+                if full.check(q):
+                    continue
+                occupied = set(self.colliding_shapes(q, known))
+                shapes = [n for n in self.colliding_shapes(q, full) if n not in occupied and n in names]
+                if not shapes:
+                    continue
+                P0, P1 = full.world_shapes(q)
+                mid = np.mean([(P0[names.index(n)] + P1[names.index(n)]) / 2 for n in shapes], axis=0)
+                if not points:
+                    where = f"the {', '.join(shapes)} would enter it around {np.round(mid, 2).tolist()} m"
+                if all(np.linalg.norm(mid - p) > 0.1 for p in points):
+                    points.append(mid)
+        if not points and len(frontier):
+            Q = positions[::max(1, len(positions) // 60)]
+            P0, P1 = full.world_shapes_batch(np.array([self.start_config(j) for j in Q]))   # (N, S, 3)
+            F = np.asarray(frontier, float)
+            near = np.all((F >= np.minimum(P0, P1).min(axis=(0, 1)) - 0.3)
+                          & (F <= np.maximum(P0, P1).max(axis=(0, 1)) + 0.3), axis=1)
+            F = F[near] if near.any() else F
+            best, at, who = math.inf, F[0], names[0]
+            for a, b in zip(P0, P1):
+                d = point_segment_distance(F[:, None, :], a[None], b[None])[0] - full.radii[None]   # (K, S)
+                k, i = np.unravel_index(int(np.argmin(d)), d.shape)
+                if d[k, i] < best:
+                    best, at, who = float(d[k, i]), F[k], names[i]
+            points = [at]
+            where = (f"the {who} passes {max(best, 0.0) * 1e3:.0f} mm from it around "
+                     f"{np.round(at, 2).tolist()} m")
+        return np.array(points, float).reshape(-1, 3), where or "somewhere along it"
 
     def _unobserved_failure(self, joints: np.ndarray, points: np.ndarray, what: str, was: str, stats: dict,
                             t0: float) -> PlanOutcome:
