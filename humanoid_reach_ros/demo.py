@@ -16,7 +16,8 @@ plus the MCAP recorder. The demo then acts as the operator:
    motion and the MCAP recording of the run into ``--out``, and stops every process (also on Ctrl-C).
 
 Options: ``--arm left``, ``--target X Y Z [--rpy R P Y]`` (a manual target in the world frame
-instead of the marker), ``--scene FILE``, ``--out DIR``, ``--no-record``.
+instead of the marker), ``--scene FILE``, ``--out DIR``, ``--no-record``, ``--no-scan`` (no step 1:
+the plan's automatic looks, ``--max-looks``, see what it needs).
 """
 from __future__ import annotations
 
@@ -195,10 +196,10 @@ def wait_marker(op: DemoClient, look_at: tuple[float, float] | None, timeout: fl
     return op.targets[-1]
 
 
-def plan(op: DemoClient, args: argparse.Namespace, home: bool = False, max_looks: int = 3):
+def plan(op: DemoClient, args: argparse.Namespace, home: bool = False):
     """``/plan_reach`` as ``reach_operator`` asks it: while the answer is UNOBSERVED_SPACE with the
     points to look at, a whole-body gaze there (``/look``), then plan again (at most
-    ``max_looks``). ``(response, operator wait [s] without the looks, region, looks)``."""
+    ``--max-looks``). ``(response, operator wait [s] without the looks, region, looks)``."""
     from humanoid_reach_ros.io import msgs
     from humanoid_reach_ros.planning.wgr import valve_region
 
@@ -212,7 +213,7 @@ def plan(op: DemoClient, args: argparse.Namespace, home: bool = False, max_looks
                                   use_marker_target=args.target is None and not home, time_budget_s=args.budget,
                                   seed=args.seed, home=home)
     op.spin_until(lambda: op.plan_client.service_is_ready(), 30.0, "/plan_reach")
-    wait_s, looks = 0.0, 0
+    wait_s, looks, max_looks = 0.0, 0, args.max_looks
     while True:
         t0 = time.monotonic()
         future = op.plan_client.call_async(req)
@@ -379,7 +380,10 @@ def run(args: argparse.Namespace) -> dict:
         op.spin_until(lambda: names <= set(op.node.get_node_names()) and op.joint_states is not None, 90.0,
                       f"the nodes {sorted(names)} in the graph")
         print(f"[demo] {len(names)} nodes up in {time.monotonic() - t_start:.1f} s")
-        voxels = scan_plant(op, args.settle)
+        if args.no_scan:
+            print("[demo] no head scan (--no-scan): the planner's UNOBSERVED_SPACE answers are looked at instead")
+        else:
+            scan_plant(op, args.settle)
         target = None
         if args.target is None:
             look, gaze = args.look, None
@@ -427,7 +431,7 @@ def run(args: argparse.Namespace) -> dict:
         measured = measured_balance(op.samples, args.robot)
         report = {
             "arm": arm,
-            "map_voxels": int(voxels),
+            "map_voxels": int(op.maps[-1][1]) if op.maps else 0,
             "operator_wait_s": round(wait_s, 3),
             "goal_sampling_s": round(s.goal_sampling_time_s, 3),
             "path_planning_s": round(s.path_planning_time_s, 3),
@@ -499,6 +503,10 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"robot of config/robots (default {DEFAULT_ROBOT})")
     ap.add_argument("--out", default="out/demo", help="directory for logs, report, plots and the MCAP file")
     ap.add_argument("--no-record", action="store_true", help="do not record an MCAP file")
+    ap.add_argument("--no-scan", action="store_true",
+                    help="skip the head scan: plan on what the head has seen and look where the planner answers "
+                         "UNOBSERVED_SPACE (up to --max-looks times)")
+    ap.add_argument("--max-looks", type=int, default=3, help="automatic looks per plan request (0: none)")
     args = ap.parse_args(argv)
     if args.target is not None and not all(math.isfinite(v) for v in args.target):
         ap.error("--target must be finite")
@@ -514,6 +522,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--scene {args.scene}: no such file")
     if not 0.1 <= args.budget <= 60.0:
         ap.error("--budget must be within [0.1, 60] s")
+    if not 0 <= args.max_looks <= 20:
+        ap.error("--max-looks must be within [0, 20]")
 
     def on_sigterm(*_) -> None:
         raise KeyboardInterrupt  # stop like Ctrl-C: every child process is shut down

@@ -119,7 +119,7 @@ def test_a_session_of_reaches_ends_at_half_sitting(start_node, ros_env, ros_prob
     code, out, err = operator(ros_env, "--target", "0.71", "0.03", "0.90", "--no-auto-look")
     assert code == 6 and out["plan"]["error_name"] == "UNOBSERVED_SPACE" and "scan (--scan)" in err, (code, out, err)
 
-    out = step("scan", "--scan")
+    out = step("scan", "--scan", "--dwell", "0.5")   # five clouds at 10 Hz per pose (the default 1 s: 5 s more)
     look = out["look"]
     assert look["success"] and look["poses_done"] >= 5 and look["max_com_error_m"] < 1e-3, look
     assert out["plan"] is None and out["execution"] is None

@@ -411,3 +411,30 @@ def test_the_whole_body_executor_runs_a_talos_reach_unchanged(talos, cm):
         for f, s0 in zip(talos.sole_frames, soles0):
             assert np.linalg.norm(talos.frame_pose(r.q, f).translation - s0) < 1e-4
     assert results[-1].done and m[-1].hand_error_m < 1e-3 and m[-1].progress == 1.0
+
+
+# ------------------------------------------------------------------ a start off the planning manifold
+# Where the executor left Talos after a left-arm reach to the valve (`make demo ROBOT=talos --no-scan`):
+# the waist turned 20 deg; the trunk placed by COG_approx with the other limbs at the reference leaves
+# the right foot out of the leg's reach, so the start did not project and the way home failed for both
+# arms (START_IN_COLLISION: "start_projection").
+AFTER_LEFT_REACH = [0.3504, -0.0939, -0.5588, 0.899, -0.4187, 0.0578, 0.3491, -0.1108, -0.632, 0.8563, -0.3028,
+                    0.0748, -0.1194, 0.0933, -1.1942, 1.5028, -0.8776, -0.935, -1.232, -0.767, -0.5478, 0.0, -0.295,
+                    -0.1979, -0.0048, -0.5062, 0.0001, -0.0017, 0.1032, 0.0, -0.0042, 0.0001]
+
+
+def test_a_start_off_the_manifold_still_goes_home(talos):
+    from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner
+    planner = ReachPlanner(talos, params=PlannerParams(time_budget_s=3.0))
+    planner.set_map(np.empty((0, 3)))
+    j = np.array(AFTER_LEFT_REACH)
+    proj, q = planner.projector, planner.start_config(j)
+    for arm in ("left", "right"):   # as it is, the start does not project (what failed)
+        assert not proj.project_plan_config(proj.plan_config_of(q, arm), arm).ok[0]
+    q_proj, start_plan = planner._projected_start(q, "left")
+    assert q_proj is not None
+    assert np.allclose(start_plan[:7], proj.plan_config_of(q, "left")[0][:7])   # the arm's joints kept
+    out = planner.plan(j, PlanRequest(None, arm="auto", home=True, seed=0))
+    assert out.success, out.message
+    assert np.allclose(out.positions[0], j, atol=1e-3)   # (rounded above: one joint 4e-5 rad past its limit)
+    assert np.max(np.abs(out.positions[-1] - talos.half_sitting_joints)) < 1e-6

@@ -1198,9 +1198,23 @@ class ReachPlanner:
         return pre, start_plan
 
     def _projected_start(self, q_start: np.ndarray, arm: str) -> tuple[np.ndarray | None, np.ndarray]:
-        start_plan = self.projector.plan_config_of(q_start, arm)[0]
-        res = self.projector.project_plan_config(start_plan[None], arm)
-        return (res.q[0] if res.ok[0] else None), start_plan
+        """The start on ``arm``'s planning manifold and its q_plan. The manifold sets the trunk's
+        horizontal position from COG_approx and the other limbs at the reference, so a start the
+        executor left off it (after a Talos reach whose waist turned 20 deg, the right leg could
+        not reach its foot from the trunk so placed) may not project as it is: then the trunk's
+        height and orientation are blended toward the reference's (1/4, 1/2, 3/4, all of the way),
+        the arm's joints kept, and the first that projects is the start (the pre-segment to it is
+        checked like any other)."""
+        proj = self.projector
+        start_plan = proj.plan_config_of(q_start, arm)[0]
+        na = proj.arm_dof[arm]
+        ref = proj.plan_config_of(proj.q_ref, arm)[0]
+        a = np.array([0.0, 0.25, 0.5, 0.75, 1.0])[:, None]
+        C = np.repeat(start_plan[None], len(a), axis=0)
+        C[:, na:] = (1.0 - a) * start_plan[na:] + a * ref[na:]
+        res = proj.project_plan_config(C, arm)
+        k = int(np.argmax(res.ok))
+        return (res.q[k] if res.ok[k] else None), C[k]
 
     def _planner_options(self, planner: str, remaining_s: float):
         p = self.params
