@@ -35,7 +35,7 @@ import numpy as np
 from humanoid_reach_ros.codes import ARM_REQUESTS
 from humanoid_reach_ros.graph import (  # noqa: F401  (Graph, GRAPH_NODES: also for benches and tools)
     GRAPH_NODES, STOP_DEADLINE_S, Graph, allocate_domain, graph_env, wait_for)
-from humanoid_reach_ros.nodes.reach_executor_params import PARAMETERS
+from humanoid_reach_ros.execution.config import PARAMETERS
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT, robots
 
 # the topics the MCAP recording keeps (camera images are left out: 10 Hz of 640x480 RGB is 9 MB/s)

@@ -20,7 +20,7 @@ from humanoid_reach_ros.execution.messages import (Close, LogLine, LoopExited, L
                                                    StopMotion)
 from humanoid_reach_ros.execution.supervisor import IDLE, RUN, ExecutionSupervisor, Motion
 
-#: the status fields the node reads (reach_executor.py, reach_executor_goals.py, reach_executor_diagnostics.py)
+#: the status fields the manager reads (execution/manager.py: the tracker, the feedback, the diagnostics)
 PARENT_READS = {"mode": str, "engine": str, "motion_id": (int, type(None)), "motion_label": str, "progress": float,
                 "last": object, "dual_targets": object, "ticks": int, "published": int, "steps": int,
                 "overruns": int, "missed_deadlines": int, "last_joints": (np.ndarray, type(None)),

@@ -412,7 +412,7 @@ from humanoid_reach_ros.control.executor import ExecutorParams, WholeBodyExecuto
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree
 from humanoid_reach_ros.geometry.trajectory import SplineTrajectory, TrajectoryOptions
 from humanoid_reach_ros.nodes.common import scene_file_voxels
-from humanoid_reach_ros.nodes.reach_executor_loop import _warm_up_cluttered
+from humanoid_reach_ros.execution.process import _warm_up_cluttered
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.shapes import load_collision_model

@@ -305,7 +305,7 @@ def test_a_look_without_a_neck_stops_short_of_the_map(g1):
     (to 3 mm: it is checked at 20 samples of the way, and between two the body moves less than
     that here), and without a map every gaze goes all the way."""
     from humanoid_reach_ros.execution.requests import ExecutionRequests
-    from humanoid_reach_ros.nodes import reach_executor_params
+    from humanoid_reach_ros.execution import config as reach_executor_params
     from humanoid_reach_ros.sim.scene import load_scene
 
     p = {k: spec.default for k, spec in reach_executor_params.PARAMETERS.items()}

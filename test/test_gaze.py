@@ -221,7 +221,7 @@ def test_gaze_motion_through_the_executor(solver) -> None:
     within 1 mm, the joints in their limits, and the camera on the point at the end (< 2 deg)."""
     from humanoid_reach_ros.control.executor import WholeBodyExecutor
     from humanoid_reach_ros.execution.requests import ExecutionRequests
-    from humanoid_reach_ros.nodes import reach_executor_params
+    from humanoid_reach_ros.execution import config as reach_executor_params
     from humanoid_reach_ros.robot.shapes import load_collision_model
 
     robot = solver.robot
@@ -400,7 +400,7 @@ def test_a_neckless_robots_look_requests(neckless) -> None:
     from humanoid_reach_ros.codes import ExecuteCode as C
     from humanoid_reach_ros.codes import RequestError
     from humanoid_reach_ros.execution.requests import ExecutionRequests
-    from humanoid_reach_ros.nodes import reach_executor_params
+    from humanoid_reach_ros.execution import config as reach_executor_params
 
     robot = neckless.robot
     p = {k: spec.default for k, spec in reach_executor_params.PARAMETERS.items()}
@@ -445,7 +445,7 @@ def test_a_look_from_a_start_near_the_map_may_come_nearer_by_the_margin_only() -
     ``look_clearance_m`` nearer, never within 2 mm of ``security_distance_m``; a way that
     leaves the map goes all the way."""
     from humanoid_reach_ros.execution.requests import ExecutionRequests
-    from humanoid_reach_ros.nodes import reach_executor_params
+    from humanoid_reach_ros.execution import config as reach_executor_params
 
     robot = RobotModel("hrp2")
     p = {k: spec.default for k, spec in reach_executor_params.PARAMETERS.items()}

@@ -24,7 +24,7 @@ PKG_DIR = Path(__file__).resolve().parents[1] / PKG
 
 #: lowest first; units of one layer do not import each other
 LAYERS: list[tuple[str, ...]] = [
-    ("", "codes", "paths", "yaml_checks"),  # "" is the package itself (__init__: __version__)
+    ("", "codes", "paths", "yaml_checks", "params"),  # "" is the package itself (__init__: __version__)
     ("robot",),
     ("kinematics",),                     # limb IK: the solver protocol, registry and solvers
     ("geometry",),

@@ -27,7 +27,7 @@ from trajectory_msgs.msg import JointTrajectory
 from humanoid_reach_ros.io import exec_msgs, msgs
 from humanoid_reach_ros.io.exec_msgs import ExecInputError
 from humanoid_reach_ros.nodes import reach_executor
-from humanoid_reach_ros.nodes import reach_executor_params
+from humanoid_reach_ros.execution import config as reach_executor_params
 from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner
 from humanoid_reach_ros.planning.wgr import valve_region
 from humanoid_reach_ros.robot.model import RobotModel
@@ -145,11 +145,11 @@ def test_look_requests_in_process(model) -> None:
     # pose asked for in a goal is refused
     idx = [model.joint_index[n] for n in model.spec.head_joints]
     hi_deg = np.degrees(model.upper[idx])
-    p["scan_poses_deg"] = [0.0, 10.0, 0.0, float(hi_deg[1]) + 20.0]
+    req.config = req.config.changed({"scan_poses_deg": [0.0, 10.0, 0.0, float(hi_deg[1]) + 20.0]})   # at run time
     np.testing.assert_allclose(np.degrees(req.head_poses([], []))[1], [0.0, hi_deg[1]])
     with pytest.raises(RequestError, match="limits"):
         req.head_poses([0.0], [math.radians(hi_deg[1] + 20.0)])
-    p["scan_poses_deg"] = [0.0, 10.0, 5.0]
+    req.config = req.config.changed({"scan_poses_deg": [0.0, 10.0, 5.0]})
     with pytest.raises(RequestError, match="yaw, pitch pairs"):
         req.head_poses([], [])
     joints = model.half_sitting_joints

@@ -491,7 +491,7 @@ def test_readme_demo_and_executor_look_for_the_marker_in_one_place() -> None:
     """The README's ``--look``, the demo's aim at the plant's valve and the executor's
     ``marker_look_deg`` (where reach_operator --marker looks when no marker position is known)."""
     from humanoid_reach_ros.demo import aim_head_deg
-    from humanoid_reach_ros.nodes.reach_executor_params import PARAMETERS
+    from humanoid_reach_ros.execution.config import PARAMETERS
     from humanoid_reach_ros.paths import config_path
     from humanoid_reach_ros.sim.scene import load_scene
 

@@ -19,7 +19,7 @@ import pytest
 
 from humanoid_reach_ros.geometry.camera import PinholeCamera
 from humanoid_reach_ros.geometry.voxels import without_target
-from humanoid_reach_ros.nodes.reach_executor_params import PARAMETERS as EXECUTOR_PARAMETERS
+from humanoid_reach_ros.execution.config import PARAMETERS as EXECUTOR_PARAMETERS
 from humanoid_reach_ros.nodes.reach_planner import PARAMETERS as PLANNER_PARAMETERS
 from humanoid_reach_ros.nodes.voxel_mapper import PARAMETERS as MAPPER_PARAMETERS
 from humanoid_reach_ros.perception.markers import camera_pose

@@ -32,6 +32,7 @@ from typing import Any, Callable
 import numpy as np
 import pinocchio as pin
 
+from humanoid_reach_ros.execution.config import ExecutionConfig
 from humanoid_reach_ros.codes import ARM_AUTO, ARM_NAMES, ExecuteCode as C, RequestError
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree
 from humanoid_reach_ros.robot.model import RobotModel
@@ -146,11 +147,12 @@ class RequestCounters:
 class ExecutionRequests:
     """Builds motions from validated inputs; owns the map the loop gets (see the module doc).
 
-    ``p``: the node's parameter values (a live dict: run-time changes apply)."""
+    ``config``: an :class:`~humanoid_reach_ros.execution.config.ExecutionConfig` (or parameter
+    values to make one of); the manager replaces it on a run-time change."""
 
-    def __init__(self, robot: RobotModel, p: dict[str, Any]) -> None:
+    def __init__(self, robot: RobotModel, config: ExecutionConfig | dict[str, Any]) -> None:
         self.robot = robot
-        self.p = p
+        self.config = config if isinstance(config, ExecutionConfig) else ExecutionConfig.from_values(config)
         self.counters = RequestCounters()
         self._fk_lock = threading.Lock()
         # the executor avoids occupied voxels only: unobserved space is the planner's concern
@@ -170,8 +172,8 @@ class ExecutionRequests:
 
     # ------------------------------------------------------------ map
     def _scene_params(self) -> SceneParams:
-        return SceneParams(resolution_m=self.p["resolution_m"], safety_margin_m=self.p["safety_margin_m"],
-                           target_exclusion_radius_m=float(self.p["target_exclusion_radius_m"]),
+        return SceneParams(resolution_m=self.config.resolution_m, safety_margin_m=self.config.safety_margin_m,
+                           target_exclusion_radius_m=float(self.config.target_exclusion_radius_m),
                            unobserved_space="free")
 
     def _tree(self, exclude: np.ndarray | None) -> SphereTree:
@@ -197,13 +199,13 @@ class ExecutionRequests:
         tree = self._tree(None)
         self.counters.map_source = f"scene file {path}"
         return tree, (f"map source: scene file {path} ({len(voxels)} voxels without groups "
-                      f"{list(self.p['scene_exclude_groups'])}, sphere tree built in "
+                      f"{list(self.config.scene_exclude_groups)}, sphere tree built in "
                       f"{self.counters.map_build_ms:.1f} ms); a /voxel_map replaces it")
 
     def measured_map(self, cloud) -> tuple[SphereTree, str, bool]:
         """A parsed /voxel_map (``msgs.points_from_cloud``) -> (tree, log line, source changed)."""
-        if cloud.frame_id not in ("", self.p["map_frame"]):
-            raise ValueError(f"frame_id {cloud.frame_id!r} is not the map frame {self.p['map_frame']!r}")
+        if cloud.frame_id not in ("", self.config.map_frame):
+            raise ValueError(f"frame_id {cloud.frame_id!r} is not the map frame {self.config.map_frame!r}")
         with self._map_lock:
             self.scene.set_occupied(cloud.points, source="/voxel_map")
             tree = self._tree(self._target_p)
@@ -239,7 +241,7 @@ class ExecutionRequests:
         kept, total = tree.n_spheres, len(snap.occupied)
         if kept < total and log is not None:
             log(f"/voxel_map: {total - kept} of {total} voxels within "
-                f"{self.p['target_exclusion_radius_m']:g} m of the hand's start {np.round(target[0], 3).tolist()} "
+                f"{self.config.target_exclusion_radius_m:g} m of the hand's start {np.round(target[0], 3).tolist()} "
                 f"or final position {np.round(target[1], 3).tolist()} left out (the object reached or left)")
 
     # ------------------------------------------------------------ motions
@@ -254,9 +256,9 @@ class ExecutionRequests:
                    log: Callable[[str], None] | None = None):
         """A whole-body executor motion along ``ref`` (an ``exec_msgs.Reference``)."""
         from humanoid_reach_ros.execution.supervisor import Motion
-        if frame_id not in ("", self.p["map_frame"]):
+        if frame_id not in ("", self.config.map_frame):
             raise RequestError(C.INVALID_GOAL, f"trajectory frame_id {frame_id!r} is not the map frame "
-                                               f"{self.p['map_frame']!r}")
+                                               f"{self.config.map_frame!r}")
         with self._fk_lock:
             arm = resolve_arm(int(arm_code), arm_motion(self.robot, ref.positions))
         q0 = self.measured_start(joints, reason)
@@ -287,7 +289,7 @@ class ExecutionRequests:
             raise RequestError(bad, f"{len(yaw)} yaw angles but {len(pitch)} pitch angles: give one pitch per yaw")
         scan = len(yaw) == 0
         if scan:
-            flat = np.radians(np.asarray(self.p["scan_poses_deg"], dtype=float))
+            flat = np.radians(np.asarray(self.config.scan_poses_deg, dtype=float))
             if len(flat) < 2 or len(flat) % 2:
                 raise RequestError(bad, f"parameter scan_poses_deg must hold yaw, pitch pairs, got {len(flat)} values")
             poses, what = flat.reshape(-1, 2), "scan_poses_deg"
@@ -341,7 +343,7 @@ class ExecutionRequests:
                                            self.robot.camera_frame).translation.copy()
         y, p = poses[:, 0], poses[:, 1]
         d = np.column_stack([np.cos(p) * np.cos(y), np.cos(p) * np.sin(y), -np.sin(p)])
-        return camera + float(self.p["look_distance_m"]) * d
+        return camera + float(self.config.look_distance_m) * d
 
     @property
     def head_joints(self) -> list[str]:
@@ -371,7 +373,8 @@ class ExecutionRequests:
         commanded) lagged a 1 rad/s reference by 7-14 deg, and the motion ended (hand converged)
         before the head arrived."""
         from humanoid_reach_ros.geometry.trajectory import SplineTrajectory, TrajectoryOptions
-        v = np.minimum(float(self.p["head_speed_rad_s"]), float(self.p["velocity_scale"]) * self.robot.velocity_limit)
+        v = np.minimum(float(self.config.head_speed_rad_s),
+                       float(self.config.executor.velocity_scale) * self.robot.velocity_limit)
         return SplineTrajectory.from_path(np.stack([start, goal]), TrajectoryOptions(
             joint_velocity=v, min_segment_duration_s=0.1, respect_velocity_limit=True))
 
@@ -433,7 +436,7 @@ class ExecutionRequests:
         points along the way, then ``bisections`` halvings between the last clear and the first
         blocked one."""
         coll = self._look_collision()
-        d_s, margin = float(self.p["security_distance_m"]), float(self.p["look_clearance_m"])
+        d_s, margin = float(self.config.executor.security_distance_m), float(self.config.look_clearance_m)
         need = d_s + margin
 
         def clearance(share: float) -> tuple[float, str]:
@@ -483,17 +486,15 @@ class ExecutionRequests:
         return yaw, pitch
 
     def _executor_params(self):
-        from humanoid_reach_ros.control.executor import ExecutorParams
-        known = {f.name for f in dataclasses.fields(ExecutorParams)}
-        return ExecutorParams(**{k: v for k, v in self.p.items() if k in known})
+        return self.config.executor
 
     def dual_arm_model(self) -> str | None:
         """The torso regression model of the dual-arm mode: the parameter, else the robot's."""
-        return self.p["dual_arm_regression"] or self.robot.spec.torso_regression
+        return self.config.dual_arm_regression or self.robot.spec.torso_regression
 
     def dual_arm_workspace(self) -> str:
         """The dual-arm workspace file: the parameter, else the robot's (the one its model was trained on)."""
-        return self.p["dual_arm_workspace"] or self.robot.spec.dual_arm_workspace
+        return self.config.dual_arm_workspace or self.robot.spec.dual_arm_workspace
 
     def _need_dual_arm(self) -> None:
         if not self.dual_arm_model():
@@ -524,9 +525,10 @@ class ExecutionRequests:
                 from humanoid_reach_ros.dual_arm.controller import ControllerConfig, DualArmReachController
                 from humanoid_reach_ros.dual_arm.torso_regression import ReachWorkspace, TorsoRegression
                 self._sampler = DualArmReachController(
-                    RobotModel(self.p["robot_config"]), TorsoRegression.load(self.dual_arm_model()),
+                    RobotModel(self.config.robot_config), TorsoRegression.load(self.dual_arm_model()),
                     ReachWorkspace.load(self.dual_arm_workspace()),
-                    ControllerConfig(period_s=self.p["period_s"], max_speed_mps=self.p["dual_arm_max_speed_mps"]))
+                    ControllerConfig(period_s=self.config.executor.period_s,
+                                     max_speed_mps=self.config.dual_arm_max_speed_mps))
             pairs = self._sampler.sample_reachable(np.random.default_rng(seed), count)
         return Motion(mid, label, "sequential", arm="both", sequential=(count, seed, pairs), q_measured=q0)
 
@@ -534,7 +536,7 @@ class ExecutionRequests:
         """The dual-arm controller already runs to / holds at (nearly) these targets."""
         if current is None:
             return False
-        p_tol, r_tol = self.p["dual_arm_retarget_threshold_m"], self.p["dual_arm_retarget_threshold_rad"]
+        p_tol, r_tol = self.config.dual_arm_retarget_threshold_m, self.config.dual_arm_retarget_threshold_rad
         return all(np.linalg.norm(a.translation - b.translation) <= p_tol
                    and np.linalg.norm(pin.log3(a.rotation.T @ b.rotation)) <= r_tol
                    for a, b in zip(targets, current))
@@ -552,7 +554,7 @@ class ExecutionRequests:
         try:
             if self._reshaper is None:
                 from humanoid_reach_ros.planning.reshape import SmoothReshaper
-                robot = RobotModel(self.p["robot_config"])   # its own pinocchio data: thread safety
+                robot = RobotModel(self.config.robot_config)   # its own pinocchio data: thread safety
                 self._reshaper = SmoothReshaper(robot, load_collision_model(None, robot))
             out = self._reshaper.reshape(spline, tree, arm)
         except Exception as exc:

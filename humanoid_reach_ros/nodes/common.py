@@ -1,6 +1,6 @@
 """What every node of the package shares: declared parameters and a clean ``main``.
 
-* ``ParamSpec`` / ``declare_parameters``: a table of parameters with defaults, descriptions,
+* ``declare_parameters`` (of ``params.ParamSpec`` tables): a table of parameters with defaults, descriptions,
   ranges and read-only flags, declared with ROS parameter descriptors (so ``ros2 param
   describe`` shows them and out-of-range values are refused by rclpy).
 * ``run_node``: ``rclpy.init``, construct, spin, and stop cleanly on Ctrl-C / SIGTERM
@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
 import rclpy
@@ -21,37 +20,30 @@ from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
+from humanoid_reach_ros.params import ParamSpec  # noqa: F401  (the nodes' parameter tables)
+
 
 # Latched topics (robot description, maps, planning markers): the last message reaches late joiners.
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # One message at a time that must not be lost once matched (trajectories).
 RELIABLE_LATEST = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 
-@dataclass(frozen=True)
-class ParamSpec:
-    """A declared parameter: default (its type is the parameter's type), description,
-    optional inclusive float range, read-only (fixed after start-up) or not."""
-
-    default: Any
-    description: str
-    range: tuple[float, float] | None = None
-    read_only: bool = True
-    constraints: str = ""
-
-    def descriptor(self) -> ParameterDescriptor:
-        d = ParameterDescriptor(description=self.description, read_only=self.read_only,
-                                additional_constraints=self.constraints)
-        if self.range is not None and isinstance(self.default, int) and not isinstance(self.default, bool):
-            d.integer_range = [IntegerRange(from_value=int(self.range[0]), to_value=int(self.range[1]), step=1)]
-        elif self.range is not None:
-            d.floating_point_range = [FloatingPointRange(from_value=self.range[0], to_value=self.range[1], step=0.0)]
-        return d
+def descriptor(spec: ParamSpec) -> ParameterDescriptor:
+    """The ROS parameter descriptor of ``spec`` (``ros2 param describe``; rclpy refuses a value
+    out of its range)."""
+    d = ParameterDescriptor(description=spec.description, read_only=spec.read_only,
+                            additional_constraints=spec.constraints)
+    if spec.range is not None and isinstance(spec.default, int) and not isinstance(spec.default, bool):
+        d.integer_range = [IntegerRange(from_value=int(spec.range[0]), to_value=int(spec.range[1]), step=1)]
+    elif spec.range is not None:
+        d.floating_point_range = [FloatingPointRange(from_value=spec.range[0], to_value=spec.range[1], step=0.0)]
+    return d
 
 
 def declare_parameters(node: Node, table: Mapping[str, ParamSpec]) -> dict[str, Any]:
     """Declare every parameter of ``table`` with its descriptor; returns the values in effect."""
     for name, spec in table.items():
-        node.declare_parameter(name, spec.default, spec.descriptor())
+        node.declare_parameter(name, spec.default, descriptor(spec))
     return {name: node.get_parameter(name).value for name in table}
 
 

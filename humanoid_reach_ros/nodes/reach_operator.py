@@ -138,7 +138,7 @@ class Operator:
         from rcl_interfaces.srv import GetParameters
         from rclpy.parameter import parameter_value_to_python
 
-        from humanoid_reach_ros.nodes.reach_executor_params import PARAMETERS
+        from humanoid_reach_ros.execution.config import PARAMETERS
 
         values = {n: PARAMETERS[n].default for n in names}
         client = self.node.create_client(GetParameters, f"{EXECUTOR_NODE}/get_parameters")

@@ -57,6 +57,7 @@ from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 from humanoid_reach_ros.sim import camera as cam
 from humanoid_reach_ros.sim.scene import load_scene
+from humanoid_reach_ros.sim.sensors import HeadSensors, RenderWindow, SensorSettings
 
 NODE_NAME = "scene_sim"
 POINTS_FRAMES = ("optical", "world")
@@ -115,8 +116,6 @@ class SceneSim(Node):
         super().__init__(NODE_NAME, **kwargs)
         p = declare_parameters(self, PARAMETERS)
         self._p = p
-        if p["image_encoding"] not in cam.ENCODINGS:
-            raise ValueError(f"image_encoding must be one of {cam.ENCODINGS}, got {p['image_encoding']!r}")
         if p["points_frame"] not in POINTS_FRAMES:
             raise ValueError(f"points_frame must be one of {POINTS_FRAMES}, got {p['points_frame']!r}")
         if not (1 <= p["width"] <= 8192 and 1 <= p["height"] <= 8192 and 1 <= p["points_stride"] <= 64
@@ -127,25 +126,21 @@ class SceneSim(Node):
         p["camera_frame_id"] = p["camera_frame_id"] or self.model.camera_frame
         p["stereo_right_frame_id"] = p["stereo_right_frame_id"] or p["camera_frame_id"] + "_right"
         self.model.frame_id(p["camera_frame_id"])  # KeyError for a frame the URDF lacks
-        self.scene_full = load_scene(config_path(p["scene_file"]))
         self.camera = cam.PinholeCamera.from_fov(p["width"], p["height"], p["horizontal_fov_rad"])
-        self.noise = cam.DepthNoise(p["range_noise_per_m"], p["dropout_probability"], p["min_range_m"],
-                                    p["max_range_m"], p["points_stride"])
-        self.style = cam.RenderStyle(texture_amplitude=p["texture_amplitude"])
-        self.stereo_style = cam.RenderStyle(texture_amplitude=p["stereo_texture_amplitude"])
-        self.marker = cam.marker_print_from_scene(self.scene_full)
-        self.rng = np.random.default_rng(p["seed"])
-        self.scene = self._scene_without(p["disabled_primitives"])
+        self.sensors = HeadSensors(load_scene(config_path(p["scene_file"])), self.camera, SensorSettings(
+            p["image_encoding"], cam.DepthNoise(p["range_noise_per_m"], p["dropout_probability"], p["min_range_m"],
+                                                p["max_range_m"], p["points_stride"]) if p["publish_points"] else None,
+            p["points_frame"] == "world", p["stereo_baseline_m"] if p["stereo_enabled"] else None,
+            cam.RenderStyle(texture_amplitude=p["texture_amplitude"]),
+            cam.RenderStyle(texture_amplitude=p["stereo_texture_amplitude"]), p["render_threads"]), p["seed"])
+        self.sensors.disable(p["disabled_primitives"])
         self.hardware_id = self.model.name + " head sensors"
-
-        self._frame_cache: tuple | None = None     # (camera pose + scene key, hits, Image) of the last frame
-        self._stereo_cache: dict[str, tuple] = {}
-        self.cached_frames = 0
+        self._images: tuple = ()         # the last frame's Image messages (reused, new stamp, while it is)
         self._last_stamp_ns: int | None = None
         self.frames = 0
         self.bad_joint_states = 0
         self.last_bad_reason = ""
-        self._window = {"start": time.monotonic(), "frames": 0, "max_render_s": 0.0, "sum_render_s": 0.0}
+        self._window = RenderWindow()
 
         sensor = qos_profile_sensor_data
         self.image_pub = self.create_publisher(Image, "head_camera/image_raw", sensor)
@@ -171,14 +166,12 @@ class SceneSim(Node):
         if self.stereo_pubs is not None:
             outputs.append(f"stereo pair (baseline {p['stereo_baseline_m']:g} m)")
         self.get_logger().info(
-            f"scene sensors ready: scene {self.scene_full.name!r} ({len(self.scene.primitives)} primitives rendered), "
+            f"scene sensors ready: scene {self.sensors.scene_full.name!r} ({len(self.sensors.scene.primitives)} "
+            f"primitives rendered), "
             f"camera {p['camera_frame_id']} {self.camera.width}x{self.camera.height} "
             f"f={self.camera.fx:.1f} px at {1.0 / p['period_s']:.1f} Hz; publishing {', '.join(outputs)}")
 
-    # ------------------------------------------------------------ scene selection
-    def _scene_without(self, names: list[str]):
-        return cam.without_primitives(self.scene_full, [n for n in names if n])
-
+    # ------------------------------------------------------------ parameters
     def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
         for prm in params:
             if prm.name == "disabled_primitives":
@@ -186,7 +179,7 @@ class SceneSim(Node):
                     return SetParametersResult(successful=False,
                                                reason="disabled_primitives must be a list of primitive names")
                 try:
-                    self._scene_without(list(prm.value))
+                    self.sensors.without(list(prm.value))
                 except KeyError as exc:
                     return SetParametersResult(successful=False, reason=str(exc.args[0]))
         return SetParametersResult(successful=True)
@@ -194,11 +187,9 @@ class SceneSim(Node):
     def _apply_parameters(self, params: list[Parameter]) -> None:
         for prm in params:
             if prm.name == "disabled_primitives":
-                scene = self._scene_without(list(prm.value))
-                self.scene = scene
-                names = [n for n in prm.value if n]
-                self.get_logger().info(f"disabled primitives: {names or 'none'} "
-                                       f"({len(scene.primitives)} primitives rendered)")
+                self.sensors.disable(list(prm.value))
+                self.get_logger().info(f"disabled primitives: {self.sensors.disabled or 'none'} "
+                                       f"({len(self.sensors.scene.primitives)} primitives rendered)")
             self._p[prm.name] = prm.value
 
     # ------------------------------------------------------------ callbacks
@@ -224,68 +215,39 @@ class SceneSim(Node):
         self._last_stamp_ns = stamp_ns
         t0 = time.perf_counter()
         self.publish_frame(camera_pose(self.model, joints, self._p["camera_frame_id"]), msg.header.stamp)
-        dt = time.perf_counter() - t0
-        w = self._window
-        w["frames"] += 1
-        w["sum_render_s"] += dt
-        w["max_render_s"] = max(w["max_render_s"], dt)
+        self._window.add(time.perf_counter() - t0)
         self.frames += 1
 
     def publish_frame(self, T_wc: np.ndarray, stamp) -> None:
         """Render and publish one frame of every enabled sensor at camera pose ``T_wc``."""
         p, frame = self._p, self._p["camera_frame_id"]
-        scene = self.scene
-        # a still head in an unchanged scene sees the same image: the ray cast and the image are
-        # reused (new stamp); the depth noise is drawn anew for every frame, as a sensor's
-        key = (np.round(T_wc, 9).tobytes(), id(scene), p["image_encoding"])
-        if self._frame_cache is not None and self._frame_cache[0] == key:
-            _, hits, image = self._frame_cache
-            image.header.stamp = stamp
-            self.cached_frames += 1
+        f = self.sensors.frame(T_wc)
+        frames = (frame, p["stereo_right_frame_id"])
+        if f.reused and self._images:   # the same images: the same messages, new stamps
+            for m in self._images:
+                m.header.stamp = stamp
         else:
-            hits = cam.cast(scene, self.camera, T_wc, max_range_m=100.0, threads=p["render_threads"])
-            img = cam.render_image(scene, hits, self.marker, self.style, p["image_encoding"])
-            image = msgs.image_msg(img, p["image_encoding"], frame, stamp)
-            self._frame_cache = (key, hits, image)
-        self.image_pub.publish(image)
+            self._images = (msgs.image_msg(f.image, p["image_encoding"], frame, stamp),
+                            *(msgs.image_msg(im, "mono8", fid, stamp) for im, fid in zip(f.stereo or (), frames)))
+        self.image_pub.publish(self._images[0])
         self.info_pub.publish(camera_info_msg(self.camera, frame, stamp))
         if self.points_pub is not None:
-            pts = cam.depth_points(hits, self.noise, self.rng)
-            if p["points_frame"] == "world":
-                pts, cloud_frame = pts @ T_wc[:3, :3].T + T_wc[:3, 3], p["world_frame_id"]
-            else:
-                cloud_frame = frame
-            self.points_pub.publish(msgs.cloud_from_points(pts, cloud_frame, stamp))
+            self.points_pub.publish(msgs.cloud_from_points(f.points, p["world_frame_id"] if p["points_frame"] == "world"
+                                                           else frame, stamp))
         if self.stereo_pubs is not None:
-            left, right = cam.stereo_poses(T_wc, p["stereo_baseline_m"])
-            frames = (frame, p["stereo_right_frame_id"])
-            for (img_pub, info_pub), T, fid, tx in zip(self.stereo_pubs, (left, right), frames,
-                                                       (0.0, p["stereo_baseline_m"])):
-                skey = (key, fid)
-                cached = self._stereo_cache.get(fid)
-                if cached is not None and cached[0] == skey:
-                    msg = cached[1]
-                    msg.header.stamp = stamp
-                else:
-                    h = cam.cast(scene, self.camera, T, max_range_m=100.0, threads=p["render_threads"])
-                    im = cam.render_image(scene, h, self.marker, self.stereo_style, "mono8")
-                    msg = msgs.image_msg(im, "mono8", fid, stamp)
-                    self._stereo_cache[fid] = (skey, msg)
+            for (img_pub, info_pub), msg, fid, tx in zip(self.stereo_pubs, self._images[1:], frames,
+                                                         (0.0, p["stereo_baseline_m"])):
                 img_pub.publish(msg)
                 info_pub.publish(camera_info_msg(self.camera, fid, stamp, tx))
 
     # ------------------------------------------------------------ diagnostics
     def _publish_diagnostics(self) -> None:
-        now = time.monotonic()
-        w, self._window = self._window, {"start": now, "frames": 0, "max_render_s": 0.0, "sum_render_s": 0.0}
-        name, p = self.get_name(), self._p
-        age = self.joint_states.age_s()
-        rate = w["frames"] / max(now - w["start"], 1e-9)
+        w, name, p = self._window.report(), self.get_name(), self._p
+        age, rate = self.joint_states.age_s(), w["rate_hz"]
         values = {"frames_total": self.frames, "rate_hz": rate, "nominal_rate_hz": 1.0 / p["period_s"],
-                  "mean_render_ms": 1e3 * w["sum_render_s"] / w["frames"] if w["frames"] else 0.0,
-                  "max_render_ms": 1e3 * w["max_render_s"],
+                  "mean_render_ms": w["mean_render_ms"], "max_render_ms": w["max_render_ms"],
                   "joint_states_age_s": age if math.isfinite(age) else "never",
-                  "bad_joint_states_total": self.bad_joint_states, "frames_from_cache": self.cached_frames,
+                  "bad_joint_states_total": self.bad_joint_states, "frames_from_cache": self.sensors.reused_frames,
                   "last_bad_joint_states": self.last_bad_reason,
                   "disabled_primitives": ",".join(n for n in p["disabled_primitives"] if n) or "none",
                   "width": self.camera.width, "height": self.camera.height}

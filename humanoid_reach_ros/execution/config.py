@@ -1,5 +1,8 @@
-"""Declared parameters of ``reach_executor`` (defaults match config/reach_executor.yaml,
-checked by test_reach_executor_node) and their mapping onto the core's configurations."""
+"""The execution layer's configuration: the parameters ``reach_executor`` declares (defaults
+match config/reach_executor.yaml, checked by test_reach_executor_node) and the typed
+configurations made of their values: :class:`ExecutionConfig` (what the execution manager and
+the requests read at run time), ``ExecutorParams`` (the whole-body executor) and
+``SupervisorConfig`` (the loop)."""
 from __future__ import annotations
 
 import dataclasses
@@ -7,7 +10,7 @@ from typing import Any
 
 from humanoid_reach_ros.control.executor import ExecutorParams
 from humanoid_reach_ros.execution.supervisor import SupervisorConfig
-from humanoid_reach_ros.nodes.common import ParamSpec
+from humanoid_reach_ros.params import ParamSpec
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 
 SOLVERS = ("nullspace", "osqp")
@@ -135,3 +138,57 @@ def supervisor_config(values: dict[str, Any]) -> SupervisorConfig:
     return SupervisorConfig(period_s=values["period_s"], hold_settle_s=values["hold_settle_s"],
                             hold_timeout_s=values["hold_timeout_s"], dual_arm_brake_s=values["dual_arm_brake_s"],
                             lookahead_steps=values["lookahead_steps"])
+
+
+@dataclasses.dataclass(frozen=True)
+class ExecutionConfig:
+    """The values the execution manager and :class:`~humanoid_reach_ros.execution.requests.
+    ExecutionRequests` read while they run, typed (defaults: ``PARAMETERS``). The node makes it
+    from its parameters (:meth:`from_values`) and again on a run-time change
+    (:meth:`changed`): readers see one consistent set."""
+
+    robot_config: str = NODE_PARAMETERS["robot_config"].default
+    resolution_m: float = NODE_PARAMETERS["resolution_m"].default
+    safety_margin_m: float = NODE_PARAMETERS["safety_margin_m"].default
+    scene_exclude_groups: tuple[str, ...] = tuple(NODE_PARAMETERS["scene_exclude_groups"].default)
+    map_frame: str = NODE_PARAMETERS["map_frame"].default
+    target_exclusion_radius_m: float = NODE_PARAMETERS["target_exclusion_radius_m"].default
+    joint_states_timeout_s: float = NODE_PARAMETERS["joint_states_timeout_s"].default
+    joint_states_abort_s: float = NODE_PARAMETERS["joint_states_abort_s"].default
+    feedback_period_s: float = NODE_PARAMETERS["feedback_period_s"].default
+    max_overrun_fraction: float = NODE_PARAMETERS["max_overrun_fraction"].default
+    scan_poses_deg: tuple[float, ...] = tuple(NODE_PARAMETERS["scan_poses_deg"].default)
+    look_clearance_m: float = NODE_PARAMETERS["look_clearance_m"].default
+    look_distance_m: float = NODE_PARAMETERS["look_distance_m"].default
+    scan_dwell_s: float = NODE_PARAMETERS["scan_dwell_s"].default
+    head_speed_rad_s: float = NODE_PARAMETERS["head_speed_rad_s"].default
+    warn_throttle_s: float = NODE_PARAMETERS["warn_throttle_s"].default
+    dual_arm_regression: str = NODE_PARAMETERS["dual_arm_regression"].default
+    dual_arm_workspace: str = NODE_PARAMETERS["dual_arm_workspace"].default
+    dual_arm_max_speed_mps: float = NODE_PARAMETERS["dual_arm_max_speed_mps"].default
+    dual_arm_follow: bool = NODE_PARAMETERS["dual_arm_follow"].default
+    dual_arm_retarget_threshold_m: float = NODE_PARAMETERS["dual_arm_retarget_threshold_m"].default
+    dual_arm_retarget_threshold_rad: float = NODE_PARAMETERS["dual_arm_retarget_threshold_rad"].default
+    dual_arm_sequential_count: int = NODE_PARAMETERS["dual_arm_sequential_count"].default
+    dual_arm_sequential_seed: int = NODE_PARAMETERS["dual_arm_sequential_seed"].default
+    #: the whole-body executor's parameters of a new motion (``EXECUTOR_PARAMETERS``)
+    executor: ExecutorParams = dataclasses.field(default_factory=lambda: _executor_defaults())
+
+    @classmethod
+    def from_values(cls, values: dict[str, Any]) -> "ExecutionConfig":
+        """From parameter values (every key of ``PARAMETERS`` that is a field; others ignored)."""
+        return cls().changed(values)
+
+    def changed(self, values: dict[str, Any]) -> "ExecutionConfig":
+        """A copy with ``values`` (name -> value) that are fields applied; lists become tuples."""
+        names = {f.name for f in dataclasses.fields(self)} - {"executor"}
+        known = {f.name for f in dataclasses.fields(ExecutorParams)}
+        executor = {k: v for k, v in values.items() if k in EXECUTOR_PARAMETERS and k in known}
+        return dataclasses.replace(
+            self, **{k: tuple(v) if isinstance(v, list) else v for k, v in values.items() if k in names},
+            executor=dataclasses.replace(self.executor, **executor).validate() if executor else self.executor)
+
+
+def _executor_defaults() -> ExecutorParams:
+    known = {f.name for f in dataclasses.fields(ExecutorParams)}
+    return ExecutorParams(**{k: spec.default for k, spec in EXECUTOR_PARAMETERS.items() if k in known})

@@ -1,0 +1,570 @@
+"""The execution manager: the executor's requests, the motions in the control loop process and
+their ends, without ROS (in the spirit of MoveIt's trajectory execution manager).
+
+``reach_executor`` (``nodes/reach_executor.py``) adapts messages to it and back; its tests
+drive it directly (``test/test_execution_manager.py``). It owns
+
+* the typed configuration (:class:`~humanoid_reach_ros.execution.config.ExecutionConfig`,
+  replaced whole on a run-time change) and the inputs' validation
+  (:class:`~humanoid_reach_ros.execution.requests.ExecutionRequests`);
+* :class:`MotionTracker`: the motions handed to the loop (``StartMotion``) and the loop's
+  events (``execution/messages.py``: ``MotionStarted``, ``MotionFinished``, ``LoopStatus``,
+  ``LogLine``, ``LoopExited``); :meth:`MotionTracker.follow` waits for a motion while passing
+  on its progress and a client's cancel;
+* the requests: :meth:`ExecutionManager.execute` (a trajectory or dual-arm targets, followed to
+  its end), :meth:`ExecutionManager.look` (head poses or gaze points in turn, each held),
+  :meth:`~ExecutionManager.trajectory_topic`, :meth:`~ExecutionManager.targets_topic`,
+  :meth:`~ExecutionManager.sequential`, :meth:`~ExecutionManager.map_message`;
+* the stale-joint-state abort (:meth:`~ExecutionManager.watch_joint_states`) and the
+  diagnostics' values (:meth:`~ExecutionManager.diagnostics`).
+
+A request arrives as a callable that builds its typed goal from the message (the node's
+conversion; it raises :class:`~humanoid_reach_ros.codes.RequestError` on a bad input), so a
+conversion error is answered like any other: counted, logged and returned, never raised.
+A client's goal is seen through a :class:`GoalPort` (cancel requested, still active, feedback).
+"""
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+import threading
+import time
+import traceback
+from typing import Any, Callable, Protocol
+
+import numpy as np
+
+from humanoid_reach_ros.codes import ARM_AUTO, ExecuteCode as C, RequestError
+from humanoid_reach_ros.execution.config import MAX_SEQUENTIAL, ExecutionConfig
+from humanoid_reach_ros.execution.messages import (LogLine, LoopCommand, LoopEvent, LoopExited, LoopStatus,
+                                                   MotionFinished, MotionStarted, SetMap, StartMotion, StopMotion)
+from humanoid_reach_ros.execution.requests import ExecutionRequests
+from humanoid_reach_ros.execution.supervisor import IDLE, Motion
+
+RESULT_NAMES = {int(c): c.name for c in C}
+LEVEL_OK, LEVEL_WARN, LEVEL_ERROR = 0, 1, 2      # diagnostic levels (diagnostic_msgs' numbering)
+
+
+def counted(n: int, plural: str) -> str:
+    """``1 head pose``, ``2 head poses``."""
+    return f"{n} {plural[:-1] if n == 1 else plural}"
+
+
+class Log(Protocol):
+    """A logger as rclpy's (``throttle_duration_sec`` keyword)."""
+
+    def info(self, text: str, **kw: Any) -> Any: ...
+    def warning(self, text: str, **kw: Any) -> Any: ...
+    def error(self, text: str, **kw: Any) -> Any: ...
+    def debug(self, text: str, **kw: Any) -> Any: ...
+
+
+class Loop(Protocol):
+    """The control loop process as the manager uses it (``execution/process.LoopProcess``)."""
+
+    def send(self, command: LoopCommand) -> None: ...
+    def alive(self) -> bool: ...
+
+
+class GoalPort(Protocol):
+    """A client's goal: whether it asked to cancel, whether it is still active, and its feedback
+    (``feedback(LoopStatus)`` of an execution; ``feedback(LookProgress)`` of a look)."""
+
+    def cancel_requested(self) -> bool: ...
+    def active(self) -> bool: ...
+    def feedback(self, value: Any) -> None: ...
+
+
+# ---------------------------------------------------------------- typed goals and outcomes
+@dataclasses.dataclass(frozen=True)
+class TrajectoryGoal:
+    """Execute ``reference`` (an ``exec_msgs.Reference``) with the hand of ``arm`` (an arm code)."""
+
+    reference: Any
+    frame_id: str = ""
+    arm: int = ARM_AUTO
+    no_collision_avoidance: bool = False
+    no_com_compensation: bool = False
+    smooth_reshaping: bool = False
+
+
+@dataclasses.dataclass(frozen=True)
+class DualArmGoal:
+    """The dissertation's dual-arm controller to (right, left) ``HandTarget`` s."""
+
+    targets: tuple
+
+
+@dataclasses.dataclass(frozen=True)
+class LookGoal:
+    """Head poses (``yaw``, ``pitch`` [rad]; both empty: the scan pattern) or ``points`` (K, 3)
+    [m] to gaze at, each held ``dwell_s`` (<= 0 or not finite: ``scan_dwell_s``)."""
+
+    yaw: tuple[float, ...] = ()
+    pitch: tuple[float, ...] = ()
+    points: np.ndarray | None = None
+    dwell_s: float = 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class LookProgress:
+    """A look's feedback: the pose (or point) now, of how many, its head targets, holding or moving."""
+
+    pose_index: int
+    pose_count: int
+    yaw_rad: float
+    pitch_rad: float
+    holding: bool
+
+
+@dataclasses.dataclass
+class Outcome:
+    """The end of an execution (``summary``: the motion's figures) or a look (``poses_done``,
+    ``duration_s``, ``max_com_error_m``)."""
+
+    code: int
+    message: str
+    summary: dict = dataclasses.field(default_factory=dict)
+    poses_done: int = 0
+    duration_s: float = 0.0
+    max_com_error_m: float = 0.0
+
+    @property
+    def success(self) -> bool:
+        return self.code == C.SUCCESS
+
+
+# ---------------------------------------------------------------- the motions in the loop
+@dataclasses.dataclass(eq=False)
+class Pending:
+    """A motion handed to the loop, as the manager follows it."""
+
+    label: str
+    finished: threading.Event = dataclasses.field(default_factory=threading.Event)
+    code: int | None = None
+    message: str = ""
+    summary: dict = dataclasses.field(default_factory=dict)
+
+
+class MotionTracker:
+    """Motions in the control loop process (module doc). ``send``: a command to the loop;
+    ``config``: the manager's current configuration; ``ok``: false once shutting down."""
+
+    def __init__(self, send: Callable[[LoopCommand], None], log: Log, counters,
+                 config: Callable[[], ExecutionConfig], ok: Callable[[], bool]) -> None:
+        self.send, self.log, self.counters, self.config, self.ok = send, log, counters, config, ok
+        self.status = LoopStatus()            # the loop's latest (idle before the first)
+        self.last_result: Pending | None = None
+        self._pending: dict[int, Pending] = {}
+        self._lock = threading.Lock()
+
+    def submit(self, motion: Motion) -> Pending:
+        pend = Pending(motion.label)
+        with self._lock:
+            self._pending[motion.id] = pend
+        self.send(StartMotion(motion))
+        return pend
+
+    def on_event(self, event: LoopEvent) -> None:
+        log = self.log
+        match event:
+            case LoopStatus():
+                self.status = event
+            case MotionStarted(motion_id=mid, note=note, source=source):
+                with self._lock:
+                    pend = self._pending.get(mid)
+                line = f"{pend.label}: started from {source}" + (f": {note}" if note else "") if pend else ""
+                if pend is not None and pend.label.startswith("/dual_arm"):   # followed targets: throttled
+                    log.info(line, throttle_duration_sec=self.config().warn_throttle_s)
+                elif pend is not None:
+                    log.info(line)
+            case MotionFinished():
+                self._finished(event)
+            case LogLine(level="error", text=text):
+                log.error(text)
+            case LogLine(level="warning", text=text):
+                log.warning(text)
+            case LogLine(text=text):
+                log.info(text)
+            case LoopExited(returncode=returncode):
+                self._exited(returncode)
+
+    def _exited(self, returncode: int | None) -> None:
+        """The loop process is gone: every motion still pending ends ABORTED."""
+        if self.ok():
+            self.log.error(f"the control loop process exited ({returncode}): no more commands")
+        with self._lock:
+            pending, self._pending = list(self._pending.values()), {}
+        for pend in pending:
+            pend.code, pend.message = C.ABORTED, "the control loop process exited"
+            pend.finished.set()
+
+    def _finished(self, event: MotionFinished) -> None:
+        with self._lock:
+            pend = self._pending.pop(event.motion_id, None)
+        if pend is None:
+            return
+        code, message, s = event.code, event.message, event.summary
+        pend.code, pend.message, pend.summary = code, message, s.as_dict()
+        self.last_result = pend
+        c = self.counters
+        c.last_result = f"{pend.label}: {RESULT_NAMES.get(code, code)}"
+        c.successes += int(code == C.SUCCESS)
+        if code == C.INVALID_GOAL and message.startswith("infeasible"):
+            c.dual_arm_infeasible += 1
+            c.last_infeasible = f"{pend.label}: {message}"
+        line = (f"{pend.label}: {RESULT_NAMES.get(code, code)} at progress {event.progress:.2f}: "
+                f"{message} [{s.duration_s:.2f} s, "
+                f"{s.steps} steps, {s.overruns} overruns, max COG error "
+                f"{s.max_com_error_m * 1e3:.2f} mm, min distance {s.min_distance_m:.4f} m, "
+                f"final hand error {s.final_hand_error_m * 1e3:.2f} mm]")
+        if code in (C.SUCCESS, C.PREEMPTED, C.CANCELED):
+            self.log.info(line)
+        else:
+            self.log.warning(line)
+        pend.finished.set()
+
+    def follow(self, port: GoalPort, motion: Motion, feedback: Callable[[LoopStatus], None]) -> Pending:
+        """Submit ``motion`` and wait for its end, passing ``feedback(status)`` while it runs and
+        the stop to the loop when the client cancels."""
+        pend = self.submit(motion)
+        cancel_sent = False
+        while not pend.finished.wait(self.config().feedback_period_s):
+            if not self.ok():
+                break
+            if port.cancel_requested() and not cancel_sent:
+                cancel_sent = True
+                self.send(StopMotion(motion.id, int(C.CANCELED), "canceled by the client"))
+            st = self.status
+            if st.motion_id == motion.id and st.last is not None and port.active():
+                feedback(st)
+        if pend.code is None:
+            pend.code, pend.message = C.ABORTED, "the reach_executor node is shutting down"
+        return pend
+
+
+class LoopWindow:
+    """The loop's counters at the previous report: the next one gives the steps, overruns
+    and ticks since then."""
+
+    def __init__(self) -> None:
+        self.steps = self.overruns = self.ticks = 0
+        self.t = time.monotonic()
+
+    def advance(self, status: LoopStatus) -> tuple[int, int, int, float]:
+        """(steps, overruns, ticks, elapsed s) since the previous call."""
+        now = time.monotonic()
+        out = (status.steps - self.steps, status.overruns - self.overruns, status.ticks - self.ticks,
+               max(now - self.t, 1e-9))
+        self.steps, self.overruns, self.ticks, self.t = status.steps, status.overruns, status.ticks, now
+        return out
+
+
+# ---------------------------------------------------------------- the manager
+class ExecutionManager:
+    """The executor's requests and motions (module doc).
+
+    ``joints()``: the latest valid joint angles or ``(None, reason)``; ``joint_states_age()``:
+    seconds since the newest ``/joint_states`` (inf: none); ``log``: a :class:`Log`; ``ok()``:
+    false once shutting down. :meth:`attach` gives it the loop (whose events go to
+    :meth:`on_event`)."""
+
+    def __init__(self, robot, config: ExecutionConfig, joints: Callable[[], tuple[np.ndarray | None, str]],
+                 joint_states_age: Callable[[], float], log: Log, ok: Callable[[], bool] = lambda: True) -> None:
+        self.robot, self.config, self.log, self.ok = robot, config, log, ok
+        self._joints, self._age = joints, joint_states_age
+        self.requests = ExecutionRequests(robot, config)
+        self.counters = self.requests.counters
+        self.loop: Loop | None = None
+        self.tracker = MotionTracker(self._send, log, self.counters, lambda: self.config, ok)
+        self._motion_ids, self._goal_ids, self._trajectory_ids = (itertools.count(1), itertools.count(1),
+                                                                  itertools.count(1))
+        self._follow_ids, self._sequential_ids = itertools.count(1), itertools.count(1)
+        self._aborted_id: int | None = None
+        self._window = LoopWindow()
+
+    def attach(self, loop: Loop) -> None:
+        self.loop = loop
+        self.requests.send_map = lambda tree: loop.send(SetMap(tree))
+
+    def _send(self, command: LoopCommand) -> None:
+        if self.loop is None:
+            raise RuntimeError("no control loop attached")
+        self.loop.send(command)
+
+    def on_event(self, event: LoopEvent) -> None:
+        self.tracker.on_event(event)
+
+    def reconfigure(self, values: dict[str, Any]) -> None:
+        """Run-time parameter changes (name -> value): a new configuration, whole."""
+        self.config = self.config.changed(values)
+        self.requests.config = self.config
+
+    def joints(self) -> tuple[np.ndarray | None, str]:
+        return self._joints()
+
+    # ------------------------------------------------------------ refusals
+    def reject(self, counter: str, label: str, exc: Exception) -> int:
+        """Count and log a refused input (goals at WARN, topics throttled, internal errors at
+        ERROR); returns its code (``ABORTED`` for an internal error)."""
+        known = isinstance(exc, RequestError)
+        code = exc.code if known else C.ABORTED
+        what = RESULT_NAMES.get(code, code) if known else "internal error"
+        c = self.counters
+        setattr(c, counter, getattr(c, counter) + 1)
+        c.last_rejection = f"{label}: {what}: {exc}"
+        if known and counter == "goals_rejected":
+            self.log.warning(f"{label} rejected ({what}): {exc}")
+        elif known:   # topics: throttled (a flood must not flood the log)
+            self.log.warning(f"rejected {label} ({what}): {exc}", throttle_duration_sec=self.config.warn_throttle_s)
+        else:
+            self.log.error(f"{label}: internal error: {exc}\n{traceback.format_exc()}")
+        return int(code)
+
+    def _goal_label(self, kind: str) -> str:
+        self.counters.goals = max(self.counters.goals, n := next(self._goal_ids))
+        return f"{kind} #{n}"
+
+    # ------------------------------------------------------------ /execute_reach
+    def execute(self, build: Callable[[], TrajectoryGoal | DualArmGoal], port: GoalPort) -> Outcome:
+        """A trajectory or dual-arm targets (``build()``: the goal, or RequestError), followed to
+        its end; ``port.feedback(LoopStatus)`` while it runs."""
+        label = self._goal_label("goal")
+        try:
+            goal = build()
+            motion = self._motion(goal, label)
+        except Exception as exc:  # never die on a goal
+            code = self.reject("goals_rejected", label, exc)
+            return Outcome(code, str(exc) if isinstance(exc, RequestError)
+                           else f"internal error: {type(exc).__name__}: {exc}")
+        if port.cancel_requested():  # while it was being validated / reshaped
+            self.log.info(f"{label}: CANCELED before execution started")
+            return Outcome(int(C.CANCELED), "canceled before execution started")
+        self.log.info(f"{label}: accepted: {self.requests.describe(motion)}")
+        pend = self.tracker.follow(port, motion, port.feedback)
+        return Outcome(int(pend.code), pend.message, pend.summary)
+
+    def _motion(self, goal: TrajectoryGoal | DualArmGoal, label: str) -> Motion:
+        joints = self.joints()
+        if isinstance(goal, DualArmGoal):
+            try:
+                motion = self.requests.dual(next(self._motion_ids), label, goal.targets, *joints)
+            except RequestError as exc:
+                raise RequestError(exc.code, f"MODE_DUAL_ARM goal: {exc}") from None
+            self.counters.dual_arm_goals += 1
+            return motion
+        return self.requests.trajectory(next(self._motion_ids), label, goal.reference, goal.frame_id, goal.arm,
+                                        goal.no_collision_avoidance, goal.no_com_compensation,
+                                        goal.smooth_reshaping, *joints, log=self.log.info)
+
+    # ------------------------------------------------------------ /look
+    def look(self, build: Callable[[], LookGoal], port: GoalPort) -> Outcome:
+        """One whole-body motion per head pose, or per gaze point (the balanced whole-body gaze of
+        ``control/gaze.py``, from the joints measured when its turn comes), each followed by
+        ``dwell_s`` of holding (the loop holds after a motion); ``port.feedback(LookProgress)``
+        names the pose and the head joints' targets. A gaze point no reachable gaze brings into
+        view is still looked at (the best effort) and the message says so."""
+        label, t0 = self._goal_label("look"), time.monotonic()
+        try:
+            goal = build()
+            points, poses, directions = goal.points, None, False
+            if points is None:   # head angles; a robot without a neck looks in their directions by a gaze
+                poses, points = self.requests.look_targets(list(goal.yaw), list(goal.pitch))
+                directions = points is not None
+            dwell = float(goal.dwell_s) if math.isfinite(goal.dwell_s) and goal.dwell_s > 0 else \
+                self.config.scan_dwell_s
+            if dwell > 60.0:
+                raise RequestError(C.INVALID_GOAL, f"dwell_s {dwell:g} s is longer than 60 s")
+        except Exception as exc:
+            code = self.reject("goals_rejected", label, exc)
+            return Outcome(code, str(exc))
+        count, what, item = (len(poses), "head poses", "pose") if points is None else (len(points), "gaze points",
+                                                                                       "point")
+        self.log.info(f"{label}: accepted: {counted(count, what)}, {dwell:g} s each"
+                      + (" (the directions asked, for a robot without a neck)" if directions else ""))
+        out, unseen = Outcome(int(C.SUCCESS), ""), []
+        for k in range(count):
+            try:
+                if points is None:
+                    yaw, pitch = poses[k]
+                    motion = self.requests.look(next(self._motion_ids), f"{label} pose {k}", (yaw, pitch),
+                                                *self.joints())
+                else:
+                    motion, gaze = self.requests.gaze(next(self._motion_ids), f"{label} point {k}", points[k],
+                                                      *self.joints())
+                    yaw, pitch = self.requests.head_targets(gaze.joints)
+                    if not gaze.visible:
+                        unseen.append(f"point {k} {np.round(points[k], 3).tolist()} {gaze.unseen_reason}")
+            except RequestError as exc:
+                out.code, out.message = int(exc.code), f"{item} {k}: {exc}"
+                break
+            port.feedback(LookProgress(k, count, float(yaw), float(pitch), False))
+            pend = self.tracker.follow(port, motion, lambda st: None)
+            out.max_com_error_m = max(out.max_com_error_m, float(pend.summary.get("max_com_error_m", 0.0)))
+            if pend.code != C.SUCCESS:
+                out.code, out.message = int(pend.code), f"{item} {k}: {pend.message}"
+                break
+            port.feedback(LookProgress(k, count, float(yaw), float(pitch), True))
+            end = time.monotonic() + dwell
+            while time.monotonic() < end and not port.cancel_requested() and self.ok():
+                time.sleep(min(0.05, max(0.0, end - time.monotonic())))
+            if port.cancel_requested():
+                out.code, out.message = int(C.CANCELED), f"canceled at {item} {k} (holding there)"
+                break
+            out.poses_done = k + 1
+        out.duration_s = time.monotonic() - t0
+        if out.success and points is None:
+            out.message = f"{counted(count, 'head poses')} reached and held {dwell:g} s each"
+        elif out.success:
+            out.message = (f"{counted(count, 'gaze points')} looked at and held {dwell:g} s each"
+                           + (f"; {'; '.join(unseen)}" if unseen else ": every point in view"))
+        line = (f"{label}: {RESULT_NAMES.get(out.code, out.code)}: {out.message} "
+                f"[{out.duration_s:.1f} s, max COG error {out.max_com_error_m * 1e3:.2f} mm]")
+        if out.code in (C.SUCCESS, C.CANCELED):   # one severity per call site (rclpy's rule)
+            self.log.info(line)
+        else:
+            self.log.warning(line)
+        return out
+
+    # ------------------------------------------------------------ topics and services
+    def trajectory_topic(self, build: Callable[[], TrajectoryGoal]) -> bool:
+        """``/reach_trajectory``: executed like a goal with ``arm = 0``; nobody waits for it."""
+        self.counters.trajectories = n = next(self._trajectory_ids)
+        label = f"/reach_trajectory #{n}"
+        try:
+            motion = self._motion(build(), label)
+        except Exception as exc:  # never die on an input
+            self.reject("trajectories_rejected", label, exc)
+            return False
+        self.log.info(f"{label}: accepted: {self.requests.describe(motion)}")
+        self.tracker.submit(motion)
+        return True
+
+    def targets_topic(self, build: Callable[[], tuple]) -> bool:
+        """``/dual_arm/targets`` (right, left): followed while ``dual_arm_follow``; targets that
+        did not move past the retarget thresholds are dropped."""
+        c = self.counters
+        c.target_messages = n = next(self._follow_ids)
+        label = f"/dual_arm/targets #{n}"
+        try:
+            targets = build()
+            if not self.config.dual_arm_follow:
+                c.target_messages_ignored += 1
+                self.log.info(f"{label} ignored: dual_arm_follow is false (set it true to follow the targets)",
+                              throttle_duration_sec=self.config.warn_throttle_s)
+                return False
+            motion = self.requests.dual(next(self._motion_ids), label, targets, *self.joints(), follow=True)
+        except Exception as exc:
+            self.reject("target_messages_rejected", label, exc)
+            return False
+        if self.requests.unchanged(motion.targets, self.tracker.status.dual_targets):
+            c.target_messages_unchanged += 1
+            return False
+        self.log.info(f"{label}: accepted: {self.requests.describe(motion)}",
+                      throttle_duration_sec=self.config.warn_throttle_s)
+        self.tracker.submit(motion)
+        return True
+
+    def sequential(self) -> tuple[bool, str]:
+        """``~/dual_arm_sequential``: ``dual_arm_sequential_count`` random reachable target pairs
+        (seed ``dual_arm_sequential_seed``) in turn (Sec. 5.4)."""
+        count, seed = int(self.config.dual_arm_sequential_count), int(self.config.dual_arm_sequential_seed)
+        label = f"sequential #{next(self._sequential_ids)}"
+        t0 = time.perf_counter()
+        try:
+            if not 1 <= count <= MAX_SEQUENTIAL:
+                raise RequestError(C.INVALID_GOAL, f"dual_arm_sequential_count must be in 1..{MAX_SEQUENTIAL}, "
+                                                   f"got {count}")
+            if seed < 0:
+                raise RequestError(C.INVALID_GOAL, f"dual_arm_sequential_seed must be >= 0, got {seed}")
+            motion = self.requests.sequential(next(self._motion_ids), label, count, seed, *self.joints())
+        except Exception as exc:
+            self.reject("goals_rejected", "~/dual_arm_sequential", exc)
+            return False, str(exc)
+        self.log.info(f"{label}: accepted: {self.requests.describe(motion)}")
+        self.tracker.submit(motion)
+        return True, (f"{label}: {count} random target pairs (seed {seed}, drawn in "
+                      f"{time.perf_counter() - t0:.2f} s)")
+
+    def scene_map(self, voxels: np.ndarray | None, path: str = "") -> None:
+        """The scene file's voxels (None: no scene file) are the map until a /voxel_map arrives."""
+        tree, note = self.requests.scene_map(voxels, path)
+        if tree is not None:
+            self._send(SetMap(tree))
+        self.log.info(note)
+
+    def map_message(self, build: Callable[[], Any]) -> bool:
+        """``/voxel_map`` (``build()``: the parsed cloud): the loop's sphere tree, the object at the
+        motion's target left out; a malformed one is counted and the previous map kept."""
+        try:
+            tree, line, changed = self.requests.measured_map(build())
+        except Exception as exc:  # malformed cloud: keep the previous map
+            self.requests.reject_map(exc)
+            self.log.warning(f"rejected /voxel_map ({self.counters.maps_rejected} so far): {exc}; keeping the "
+                             f"previous map ({self.counters.map_source})",
+                             throttle_duration_sec=self.config.warn_throttle_s)
+            return False
+        self._send(SetMap(tree))
+        if changed:   # state changes at INFO, repetition at DEBUG
+            self.log.info(line)
+        else:
+            self.log.debug(line)
+        return True
+
+    def watch_joint_states(self) -> bool:
+        """A running motion whose /joint_states went stale (``joint_states_abort_s``) is aborted
+        (the loop holds the last command); True when it sent the stop."""
+        mid, age = self.tracker.status.motion_id, self._age()
+        if mid is None or mid == self._aborted_id or age <= self.config.joint_states_abort_s:
+            return False
+        self._aborted_id = mid
+        self._send(StopMotion(mid, int(C.ABORTED), f"stopped: /joint_states stale ({age:.2f} s > "
+                                                   f"{self.config.joint_states_abort_s:g} s)"))
+        return True
+
+    # ------------------------------------------------------------ diagnostics
+    def diagnostics(self, period_s: float) -> list[tuple[str, int, str, dict]]:
+        """``(name, level, message, values)`` of the execution (state, counters), the loop (tick
+        rate, steps and overruns since the last call, step times) and the inputs (joint states,
+        map); ``period_s``: the nominal control period."""
+        st, c = self.tracker.status, self.counters          # one status (frozen): consistent values
+        counters = dataclasses.asdict(c)
+        values: dict[str, Any] = {"state": st.mode, "motion": st.motion_label, "progress": st.progress,
+                                  "engine": st.engine, "dual_arm_follow": bool(self.config.dual_arm_follow),
+                                  **{k: v for k, v in counters.items() if not k.startswith("map")}}
+        message = f"{values['state']}" + (f": {values['motion']}" if values["motion"] else "")
+        if c.last_rejection:
+            message += f"; last rejection: {c.last_rejection}"
+        out = [("execution", LEVEL_OK, message, values)]
+        steps, overruns, ticks, elapsed = self._window.advance(st)
+        alive = self.loop is not None and self.loop.alive()
+        values = {"nominal_rate_hz": 1.0 / period_s, "tick_rate_hz": ticks / elapsed, "steps_recent": steps,
+                  "overruns_recent": overruns, "overruns_total": st.overruns,
+                  "missed_deadlines_total": st.missed_deadlines, "published_total": st.published,
+                  "step_p50_ms": st.step_p50_ms, "step_p99_ms": st.step_p99_ms,
+                  "max_step_ms": st.step_max_ms, "hold_step_p99_ms": st.hold_step_p99_ms,
+                  "slow_publishes_total": st.slow_publishes, "max_publish_ms": st.max_publish_ms,
+                  "loop_process_alive": alive}
+        level, message = LEVEL_OK, f"{ticks / elapsed:.0f} Hz ticks, {steps} steps, {overruns} overruns"
+        if st.mode == IDLE and not steps:
+            message = "idle: the loop sleeps until the next motion (nothing to publish)"
+        if not alive:
+            level, message = LEVEL_ERROR, "the control loop process is not running"
+        elif steps and overruns / max(steps + overruns, 1) > self.config.max_overrun_fraction:
+            level, message = LEVEL_WARN, f"{overruns} of {steps + overruns} periods overran (last command held)"
+        out.append(("loop", level, message, values))
+        joints, reason = self.joints()
+        last, age = st.last_joints, self._age()
+        values = {"joint_states_age_s": age if math.isfinite(age) else "never",
+                  "tracking_error_rad": float(np.max(np.abs(joints - last)))
+                  if joints is not None and last is not None else 0.0,
+                  **{k: v for k, v in counters.items() if k.startswith("map")}}
+        level, message = (LEVEL_OK, "joint_states current") if joints is not None else (LEVEL_WARN, reason)
+        out.append(("inputs", level, message, values))
+        return out
+
+
+__all__ = ["ExecutionManager", "MotionTracker", "Pending", "LoopWindow", "GoalPort", "TrajectoryGoal",
+           "DualArmGoal", "LookGoal", "LookProgress", "Outcome", "RESULT_NAMES", "LEVEL_OK", "LEVEL_WARN",
+           "LEVEL_ERROR", "counted"]

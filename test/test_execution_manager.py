@@ -1,0 +1,232 @@
+"""The execution manager without ROS (issue 25, part 2): ``execution/manager.py`` driven
+directly, its loop a stand-in that answers commands with the events the control process sends.
+
+Checked: a trajectory goal followed to its end with feedback; a bad goal and a missing joint
+state answered, never raised; a client's cancel sent to the loop as a stop; a look of two head
+poses in turn with feedback and holding; the stale-joint-state abort, once per motion; the loop
+process exiting ends what is pending ABORTED; a malformed map kept out; run-time configuration;
+the diagnostics' values.
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from humanoid_reach_ros.codes import ExecuteCode as C, RequestError
+from humanoid_reach_ros.execution.config import ExecutionConfig
+from humanoid_reach_ros.execution.manager import (LEVEL_ERROR, LEVEL_OK, LEVEL_WARN, ExecutionManager, LookGoal,
+                                                  LookProgress, TrajectoryGoal)
+from humanoid_reach_ros.execution.messages import (LoopExited, LoopStatus, MotionFinished, MotionStarted,
+                                                   MotionSummary, SetMap, StartMotion, StopMotion)
+from humanoid_reach_ros.robot.model import RobotModel
+
+SUMMARY = MotionSummary(0.2, 40, 0, 1e-5, 0.05, 1e-4, 1e-4)
+
+
+class Log:
+    def __init__(self) -> None:
+        self.lines: list[tuple[str, str]] = []
+
+    def _add(self, level: str, text: str, **_kw) -> None:
+        self.lines.append((level, text))
+
+    def info(self, text, **kw):
+        self._add("info", text, **kw)
+
+    def warning(self, text, **kw):
+        self._add("warning", text, **kw)
+
+    def error(self, text, **kw):
+        self._add("error", text, **kw)
+
+    def debug(self, text, **kw):
+        self._add("debug", text, **kw)
+
+    def text(self, level: str | None = None) -> str:
+        return "\n".join(t for lv, t in self.lines if level is None or lv == level)
+
+
+class FakeLoop:
+    """Answers StartMotion with a start, a status and (unless ``hold``) a SUCCESS after
+    ``run_s``; StopMotion with that code. Events come from another thread, as the reader's do."""
+
+    def __init__(self, run_s: float = 0.15, hold: bool = False) -> None:
+        self.manager: ExecutionManager | None = None
+        self.sent: list = []
+        self.run_s, self.hold, self.up = run_s, hold, True
+
+    def alive(self) -> bool:
+        return self.up
+
+    def send(self, command) -> None:
+        self.sent.append(command)
+        m = self.manager
+        match command:
+            case StartMotion(motion=motion):
+                def run() -> None:
+                    m.on_event(MotionStarted(motion.id, "", "/joint_states"))
+                    m.on_event(LoopStatus(mode="running", motion_id=motion.id, motion_label=motion.label,
+                                          progress=0.5, last=object(), steps=10, ticks=10))
+                    if not self.hold:
+                        time.sleep(self.run_s)
+                        m.on_event(MotionFinished(motion.id, int(C.SUCCESS), "done", SUMMARY, 1.0, ""))
+                threading.Thread(target=run, daemon=True).start()
+            case StopMotion(motion_id=mid, code=code, message=message):
+                m.on_event(MotionFinished(mid, code, message, SUMMARY, 0.5, ""))
+
+
+class Port:
+    def __init__(self, cancel_after: int | None = None) -> None:
+        self.feedback_values: list = []
+        self.cancel_after = cancel_after
+
+    def cancel_requested(self) -> bool:
+        return self.cancel_after is not None and len(self.feedback_values) >= self.cancel_after
+
+    def active(self) -> bool:
+        return True
+
+    def feedback(self, value) -> None:
+        self.feedback_values.append(value)
+
+
+@pytest.fixture(scope="module")
+def robot() -> RobotModel:
+    return RobotModel()
+
+
+def make(robot, loop: FakeLoop | None = None, joints=True, age: float = 0.01, **config):
+    log = Log()
+    state = {"age": age}
+    j = robot.half_sitting_joints.copy()
+    m = ExecutionManager(robot, ExecutionConfig(feedback_period_s=0.01, scan_dwell_s=0.05, **config),
+                         (lambda: (j, "")) if joints else (lambda: (None, "no /joint_states received")),
+                         lambda: state["age"], log)
+    loop = loop or FakeLoop()
+    loop.manager = m
+    m.attach(loop)
+    return m, loop, log, state
+
+
+def reference(robot, seconds: float = 0.5):
+    """What the node makes of a JointTrajectory (``exec_msgs.Reference``), made here without it."""
+    from types import SimpleNamespace
+
+    from humanoid_reach_ros.geometry.trajectory import SplineTrajectory
+    j0 = robot.half_sitting_joints
+    j1 = j0.copy()
+    j1[robot.joint_index[robot.spec.head_joints[0]]] += 0.1
+    times, positions = np.array([0.0, seconds]), np.stack([j0, j1])
+    return SimpleNamespace(times=times, positions=positions, spline=SplineTrajectory(positions, times),
+                           time_offset_s=0.0)
+
+
+def test_a_trajectory_goal_runs_to_its_end_with_feedback(robot) -> None:
+    m, loop, log, _ = make(robot)
+    port = Port()
+    out = m.execute(lambda: TrajectoryGoal(reference(robot)), port)
+    assert out.success and out.message == "done" and out.summary["steps"] == 40, (out, log.text())
+    assert [type(c) for c in loop.sent] == [StartMotion]
+    assert port.feedback_values and all(isinstance(s, LoopStatus) for s in port.feedback_values)
+    assert m.counters.successes == 1 and m.counters.goals == 1
+    assert "goal #1: accepted" in log.text("info") and "goal #1: SUCCESS" in log.text("info")
+
+
+def test_bad_goals_are_answered_never_raised(robot) -> None:
+    m, loop, log, _ = make(robot)
+
+    def bad():
+        raise RequestError(C.INVALID_GOAL, "trajectory has no points")
+    out = m.execute(bad, Port())
+    assert out.code == C.INVALID_GOAL and "no points" in out.message
+    out = m.execute(lambda: 1 / 0, Port())                       # a bug in a conversion: ABORTED, said
+    assert out.code == C.ABORTED and "internal error: ZeroDivisionError" in out.message
+    assert m.counters.goals_rejected == 2 and not loop.sent
+    assert "goal #1 rejected (INVALID_GOAL)" in log.text("warning") and "internal error" in log.text("error")
+    blind, loop2, _, _ = make(robot, joints=False)
+    out = blind.execute(lambda: TrajectoryGoal(reference(robot)), Port())
+    assert out.code == C.NO_JOINT_STATES and "no /joint_states" in out.message and not loop2.sent
+
+
+def test_a_cancel_becomes_a_stop_for_the_loop(robot) -> None:
+    m, loop, _, _ = make(robot, FakeLoop(hold=True))
+    out = m.execute(lambda: TrajectoryGoal(reference(robot)), Port(cancel_after=1))
+    assert out.code == C.CANCELED and out.message == "canceled by the client"
+    assert [type(c) for c in loop.sent] == [StartMotion, StopMotion] and loop.sent[1].code == C.CANCELED
+
+
+def test_a_look_moves_the_head_pose_by_pose_and_holds(robot) -> None:
+    m, loop, log, _ = make(robot)
+    port = Port()
+    out = m.look(lambda: LookGoal((0.1, -0.1), (0.3, 0.2), None, 0.05), port)
+    assert out.success and out.poses_done == 2 and "2 head poses reached and held" in out.message, out
+    assert sum(isinstance(c, StartMotion) for c in loop.sent) == 2
+    progress = [v for v in port.feedback_values if isinstance(v, LookProgress)]
+    assert [(p.pose_index, p.holding) for p in progress] == [(0, False), (0, True), (1, False), (1, True)]
+    assert progress[0].pose_count == 2 and math.isclose(progress[2].yaw_rad, -0.1)
+    out = m.look(lambda: LookGoal((0.1,), (0.3, 0.2)), Port())          # refused: named, counted
+    assert out.code == C.INVALID_GOAL and "one pitch per yaw" in out.message
+    out = m.look(lambda: LookGoal((0.1,), (0.3,), None, 61.0), Port())
+    assert out.code == C.INVALID_GOAL and "longer than 60 s" in out.message
+    assert m.counters.goals_rejected == 2 and "look #3" in log.text("warning")
+
+
+def test_stale_joint_states_abort_the_running_motion_once(robot) -> None:
+    m, loop, log, state = make(robot, FakeLoop(hold=True))
+    assert m.trajectory_topic(lambda: TrajectoryGoal(reference(robot)))
+    deadline = time.monotonic() + 10.0
+    while m.tracker.status.motion_id is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert not m.watch_joint_states()                      # fresh: nothing
+    state["age"] = m.config.joint_states_abort_s + 0.5
+    assert m.watch_joint_states()
+    assert not m.watch_joint_states()                      # once per motion
+    stop = loop.sent[-1]
+    assert isinstance(stop, StopMotion) and stop.code == C.ABORTED and "/joint_states stale" in stop.message
+
+
+def test_the_loop_exiting_ends_pending_motions_aborted(robot) -> None:
+    m, loop, log, _ = make(robot, FakeLoop(hold=True))
+    result = {}
+    worker = threading.Thread(target=lambda: result.update(out=m.execute(lambda: TrajectoryGoal(reference(robot)),
+                                                                          Port())))
+    worker.start()
+    deadline = time.monotonic() + 10.0
+    while not any(isinstance(c, StartMotion) for c in loop.sent) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    loop.up = False
+    m.on_event(LoopExited(-9))
+    worker.join(10.0)
+    assert result["out"].code == C.ABORTED and "control loop process exited" in result["out"].message
+    assert "the control loop process exited (-9)" in log.text("error")
+    names = {name: (level, message) for name, level, message, _ in m.diagnostics(0.005)}
+    assert names["loop"] == (LEVEL_ERROR, "the control loop process is not running")
+
+
+def test_maps_topics_configuration_and_diagnostics(robot) -> None:
+    from types import SimpleNamespace as CloudPoints   # a parsed /voxel_map (io.msgs.CloudPoints' fields)
+    m, loop, log, state = make(robot)
+    assert not m.map_message(lambda: CloudPoints(points=np.zeros((2, 3)), dropped_nonfinite=0, frame_id="odom"))   # another frame: kept out
+    assert m.counters.maps_rejected == 1 and "rejected /voxel_map (1 so far)" in log.text("warning")
+    voxels = np.array([[0.8, 0.0, 0.9], [0.8, 0.02, 0.9]])
+    assert m.map_message(lambda: CloudPoints(points=voxels, dropped_nonfinite=0, frame_id="world"))
+    assert isinstance(loop.sent[-1], SetMap) and loop.sent[-1].tree.n_spheres == 2
+    assert not m.targets_topic(lambda: None)            # dual_arm_follow is false: ignored, said
+    assert m.counters.target_messages_ignored == 1 and "dual_arm_follow is false" in log.text("info")
+    m.reconfigure({"dual_arm_follow": True, "scan_dwell_s": 0.2, "not_a_field": 1})
+    assert m.config.dual_arm_follow and m.requests.config.scan_dwell_s == 0.2
+    ok, message = m.reconfigure({"dual_arm_sequential_count": 0}) or m.sequential()
+    assert not ok and "dual_arm_sequential_count must be in 1..1000" in message
+    names = {name: (level, message, values) for name, level, message, values in m.diagnostics(0.005)}
+    assert set(names) == {"execution", "loop", "inputs"}
+    assert names["loop"][0] == LEVEL_OK and names["loop"][2]["nominal_rate_hz"] == pytest.approx(200.0)
+    assert names["inputs"][0] == LEVEL_OK and names["inputs"][2]["map_voxels"] == 2
+    assert names["inputs"][2]["maps_rejected"] == 1 and names["execution"][2]["target_messages_ignored"] == 1
+    state["age"] = math.inf
+    blind, _, _, _ = make(robot, joints=False, age=math.inf)
+    inputs = {name: (level, message, values) for name, level, message, values in blind.diagnostics(0.005)}["inputs"]
+    assert inputs[0] == LEVEL_WARN and inputs[2]["joint_states_age_s"] == "never"
