@@ -259,14 +259,14 @@ def operator_child(events_path: str, argv: list[str]) -> int:
         return outcome, result
     ro.Operator.look = recording_look
 
-    marker = ro.ensure_marker_target
+    marker = ro.OperatorSession.ensure_marker_target
 
     def recording_marker(*a: Any, **k: Any) -> int:
         emit("marker_start")
         code = marker(*a, **k)
         emit("marker_end", code=int(code))
         return code
-    ro.ensure_marker_target = recording_marker
+    ro.OperatorSession.ensure_marker_target = recording_marker
     try:
         return ro.main(["reach_operator", *argv])
     finally:

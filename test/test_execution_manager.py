@@ -210,7 +210,8 @@ def test_the_loop_exiting_ends_pending_motions_aborted(robot) -> None:
 def test_maps_topics_configuration_and_diagnostics(robot) -> None:
     from types import SimpleNamespace as CloudPoints   # a parsed /voxel_map (io.msgs.CloudPoints' fields)
     m, loop, log, state = make(robot)
-    assert not m.map_message(lambda: CloudPoints(points=np.zeros((2, 3)), dropped_nonfinite=0, frame_id="odom"))   # another frame: kept out
+    other_frame = CloudPoints(points=np.zeros((2, 3)), dropped_nonfinite=0, frame_id="odom")
+    assert not m.map_message(lambda: other_frame)       # another frame: kept out
     assert m.counters.maps_rejected == 1 and "rejected /voxel_map (1 so far)" in log.text("warning")
     voxels = np.array([[0.8, 0.0, 0.9], [0.8, 0.02, 0.9]])
     assert m.map_message(lambda: CloudPoints(points=voxels, dropped_nonfinite=0, frame_id="world"))
@@ -228,5 +229,5 @@ def test_maps_topics_configuration_and_diagnostics(robot) -> None:
     assert names["inputs"][2]["maps_rejected"] == 1 and names["execution"][2]["target_messages_ignored"] == 1
     state["age"] = math.inf
     blind, _, _, _ = make(robot, joints=False, age=math.inf)
-    inputs = {name: (level, message, values) for name, level, message, values in blind.diagnostics(0.005)}["inputs"]
-    assert inputs[0] == LEVEL_WARN and inputs[2]["joint_states_age_s"] == "never"
+    inputs = {name: (level, values) for name, level, _, values in blind.diagnostics(0.005)}["inputs"]
+    assert inputs[0] == LEVEL_WARN and inputs[1]["joint_states_age_s"] == "never"

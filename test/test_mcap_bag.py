@@ -109,7 +109,7 @@ def test_qos_yaml_and_schedule() -> None:
     assert replay_qos([]) == QosInfo()
     assert playback_schedule([10**9, 2 * 10**9, 4 * 10**9], 2.0) == [0.0, 0.5, 1.5]
     assert playback_schedule([], 1.0) == []
-    from humanoid_reach_ros.nodes.bag_play import restamp_ns
+    from humanoid_reach_ros.io.endpoints import restamp_ns
     # rate 1: one constant shift (equal stamps stay equal); rate 2: spacing halved; 0 = unstamped stays 0
     assert [restamp_ns(s, 10**9, 5 * 10**9, 1.0) for s in (10**9 - 3, 10**9, 10**9, 2 * 10**9)] == \
         [5 * 10**9 - 3, 5 * 10**9, 5 * 10**9, 6 * 10**9]
@@ -120,7 +120,8 @@ def test_qos_yaml_and_schedule() -> None:
 
 
 def test_recorder_topic_choice_and_qos_matching() -> None:
-    from humanoid_reach_ros.nodes.bag_record import is_hidden, subscription_qos
+    from humanoid_reach_ros.io.endpoints import recording_qos as subscription_qos
+    from humanoid_reach_ros.nodes.bag_record import is_hidden
 
     assert is_hidden("/execute_reach/_action/feedback") and is_hidden("/_x")
     assert not is_hidden("/joint_states") and not is_hidden("/head_camera/points")

@@ -32,7 +32,7 @@ def test_latest_on_demand_age_is_from_reception_not_from_the_take(ros_env) -> No
     staleness checks of the planner and the executor need no periodic take)."""
     from std_msgs.msg import String
 
-    from humanoid_reach_ros.nodes.common import LatestOnDemand
+    from humanoid_reach_ros.io.endpoints import LatestOnDemand
 
     ctx = Context()
     rclpy.init(context=ctx)

@@ -322,9 +322,10 @@ def test_execute_with_progress_and_cancel(start_node, ros_env, tmp_path: Path) -
 class _SlowLookGraph:
     """An operator whose planner answers UNOBSERVED_SPACE and whose /look is discovered only
     ``look_after_s`` after the request (None: never); the real waiting code (``spin_until``,
-    ``wait_for_server``) runs on it."""
+    ``wait_for_server``, ``wait_for_look``) runs on it."""
     spin_until = op.Operator.spin_until
     wait_for_server = op.Operator.wait_for_server
+    wait_for_look = op.Operator.wait_for_look
 
     def __init__(self, look_after_s: float | None, timeout_s: float) -> None:
         self.t0 = time.monotonic()
@@ -349,12 +350,12 @@ def test_an_automatic_look_waits_for_a_slowly_discovered_look_server(monkeypatch
     action; a 3 s guess then planned without looking). Without any /look it says so after
     --timeout and returns the planner's answer; --no-auto-look never waits."""
     # the look itself (the /look action's feedback and result) is tested against the real executor elsewhere
-    monkeypatch.setattr(op, "look", lambda o, args, text, err, summary, gaze_points=None: (
-        o.looks.append(gaze_points), op.EXIT["success"])[1])
+    monkeypatch.setattr(op.OperatorSession, "look", lambda session, gaze_points=None: (
+        session.client.looks.append(gaze_points), op.EXIT["success"])[1])
     args = op.parse_args(["--target", "0.45", "-0.35", "0.50"])
     slow = _SlowLookGraph(look_after_s=4.0, timeout_s=20.0)
     text = io.StringIO()
-    resp, code = op.plan_with_looks(slow, args, PlanReach.Request(), text, slow.err, {})
+    resp, code = op.OperatorSession(slow, args, text, slow.err, {}).plan_with_looks(PlanReach.Request())
     assert code == 0 and resp.error_code == PlanReach.Response.SUCCESS, slow.err.getvalue()
     assert len(slow.looks) == 1 and np.allclose(slow.looks[0], [[0.25, -0.29, 0.66]])
     assert "automatic look 1/3" in text.getvalue()
@@ -362,15 +363,15 @@ def test_an_automatic_look_waits_for_a_slowly_discovered_look_server(monkeypatch
         slow.err.getvalue()), slow.err.getvalue()
 
     never = _SlowLookGraph(look_after_s=None, timeout_s=2.5)
-    resp, code = op.plan_with_looks(never, args, PlanReach.Request(), io.StringIO(), never.err, {})
+    resp, code = op.OperatorSession(never, args, io.StringIO(), never.err, {}).plan_with_looks(PlanReach.Request())
     assert code == 0 and resp.error_code == PlanReach.Response.UNOBSERVED_SPACE and not never.looks
     assert "/look not available after 2.5 s (is reach_executor running? --no-auto-look plans without looking): " \
            "no automatic look at [0.25, -0.29, 0.66]" in never.err.getvalue(), never.err.getvalue()
 
     t0 = time.monotonic()
     off = _SlowLookGraph(look_after_s=None, timeout_s=30.0)
-    resp, code = op.plan_with_looks(off, op.parse_args(["--target", "0.45", "-0.35", "0.50", "--no-auto-look"]),
-                                    PlanReach.Request(), io.StringIO(), off.err, {})
+    resp, code = op.OperatorSession(off, op.parse_args(["--target", "0.45", "-0.35", "0.50", "--no-auto-look"]),
+                                    io.StringIO(), off.err, {}).plan_with_looks(PlanReach.Request())
     assert resp.error_code == PlanReach.Response.UNOBSERVED_SPACE and not off.looks and time.monotonic() - t0 < 5.0
 
 

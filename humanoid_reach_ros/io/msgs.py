@@ -712,6 +712,14 @@ def line_strip_marker(points: np.ndarray, ns: str, frame_id: str, stamp: Time | 
     return m
 
 
+def cube_list_marker(centres: np.ndarray, size_m: float, frame_id: str, stamp: Time | None = None,
+                     ns: str = "voxel_map", color: RGBA = (0.3, 0.6, 0.9, 0.8)) -> Marker:
+    """One CUBE_LIST marker of cubes of edge ``size_m`` at ``centres`` (N, 3) (a voxel map layer)."""
+    m = _marker(Marker.CUBE_LIST, ns, 0, frame_id, stamp, color, (size_m, size_m, size_m))
+    m.points = [Point(x=x, y=y, z=z) for x, y, z in np.asarray(centres, dtype=float).tolist()]
+    return m
+
+
 def pose_arrow_markers(poses: Iterable[pin.SE3], ns: str, frame_id: str, stamp: Time | None = None,
                        color: RGBA = (0.9, 0.6, 0.1, 0.9), length_m: float = 0.08, axis: int = 2) -> list[Marker]:
     """One ARROW per pose along the pose's ``axis`` (2 = z, the hand's approach axis)."""

@@ -57,35 +57,17 @@ from typing import Any
 import rclpy
 from rclpy.duration import Duration
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
-from humanoid_reach_ros.io.mcap_bag import BagError, BagReader, QosInfo, describe, message_class, playback_schedule
+from humanoid_reach_ros.io.endpoints import has_header, replay_publisher_qos, restamp_ns
+from humanoid_reach_ros.io.mcap_bag import BagError, BagReader, describe, message_class, playback_schedule
 from humanoid_reach_ros.nodes.bag_record import StopSignals
 
 NODE_NAME = "bag_play"
 _UNNAMED = "_NODE_NAME_UNKNOWN_"   # rmw's node name of an endpoint whose node is not discovered yet
-
-
-def publisher_qos(q: QosInfo) -> QoSProfile:
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(1, q.depth) if q.transient_local else max(10, q.depth),
-                      reliability=ReliabilityPolicy.RELIABLE if q.reliable else ReliabilityPolicy.BEST_EFFORT,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL if q.transient_local else DurabilityPolicy.VOLATILE)
-
-
-def restamp_ns(stamp_ns: int, first_log_ns: int, pass_start_ns: int, rate: float) -> int:
-    """``--stamps-now``: a recorded stamp [ns] on the replay clock, ``pass_start_ns +
-    (stamp_ns - first_log_ns) / rate`` (an affine map: equal stamps stay equal, order and
-    relative spacing are kept); a zero stamp (unstamped) stays zero."""
-    if stamp_ns == 0:
-        return 0
-    return pass_start_ns + int(round((stamp_ns - first_log_ns) / rate))
-
-
-def has_header(cls: type) -> bool:
-    return cls.get_fields_and_field_types().get("header") == "std_msgs/Header"
 
 
 class BagPlayerNode(Node):
@@ -97,7 +79,7 @@ class BagPlayerNode(Node):
         self.topics = topics
         self.stamps_now = stamps_now
         self.classes = {t: message_class(reader.topics[t].type) for t in topics}  # BagError if unknown
-        self.publishers_ = {t: self.create_publisher(self.classes[t], t, publisher_qos(reader.topics[t].qos))
+        self.publishers_ = {t: self.create_publisher(self.classes[t], t, replay_publisher_qos(reader.topics[t].qos))
                             for t in topics}
         self.restamp = {t for t in topics if stamps_now and has_header(self.classes[t])}
         self.published = 0

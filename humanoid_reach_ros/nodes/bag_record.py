@@ -35,14 +35,13 @@ from typing import Any, Callable
 
 import rclpy
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
-from humanoid_reach_ros.io.mcap_bag import BagError, BagWriter, QosInfo, message_class
+from humanoid_reach_ros.io.endpoints import offered_qos, recording_qos
+from humanoid_reach_ros.io.mcap_bag import BagError, BagWriter, message_class
 
 NODE_NAME = "bag_record"
-SUBSCRIPTION_DEPTH = 100
 
 
 class StopSignals:
@@ -63,23 +62,6 @@ class StopSignals:
 
 def is_hidden(topic: str) -> bool:
     return any(part.startswith("_") for part in topic.split("/") if part)
-
-
-def publisher_qos(infos: list[Any]) -> list[QosInfo]:
-    """What each publisher of a topic offers (from ``TopicEndpointInfo.qos_profile``)."""
-    return [QosInfo(reliable=i.qos_profile.reliability != ReliabilityPolicy.BEST_EFFORT,
-                    transient_local=i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL,
-                    depth=max(1, int(i.qos_profile.depth or 1))) for i in infos]
-
-
-def subscription_qos(offered: list[QosInfo]) -> QoSProfile:
-    """A subscription that matches every publisher: best effort if any publisher is, transient
-    local only if all are (a transient-local subscription does not match volatile publishers)."""
-    reliable = all(p.reliable for p in offered)
-    latched = bool(offered) and all(p.transient_local for p in offered)
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SUBSCRIPTION_DEPTH,
-                      reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
 
 class BagRecorderNode(Node):
@@ -121,7 +103,7 @@ class BagRecorderNode(Node):
             except BagError as exc:
                 self._skip_once(topic, str(exc))
                 continue
-            offered = publisher_qos(self.get_publishers_info_by_topic(topic))
+            offered = offered_qos(self.get_publishers_info_by_topic(topic))
             if not offered:
                 continue  # only subscribers so far: wait for a publisher to know its QoS
             try:
@@ -129,7 +111,7 @@ class BagRecorderNode(Node):
             except BagError as exc:
                 self._skip_once(topic, str(exc))
                 continue
-            qos = subscription_qos(offered)
+            qos = recording_qos(offered)
             self._recorded[topic] = self.create_subscription(cls, topic, self._writer_for(topic), qos, raw=True)
             self.get_logger().info(f"recording {topic} [{types[0]}] ({qos.reliability.name.lower()}, "
                                    f"{qos.durability.name.lower()})")

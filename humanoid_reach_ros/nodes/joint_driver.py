@@ -42,7 +42,9 @@ from humanoid_reach_ros.execution.realtime import (REALTIME_SWITCH_INTERVAL_S, m
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.io.gil_free import GilFreePublisher
 from humanoid_reach_ros.io.host_local import HostLocalSubscription
-from humanoid_reach_ros.nodes.common import LATCHED, ParamSpec, declare_parameters, run_node
+from humanoid_reach_ros.io.endpoints import LATCHED
+from humanoid_reach_ros.nodes.common import declare_parameters, run_node
+from humanoid_reach_ros.params import ParamSpec
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 from humanoid_reach_ros.sim.driver import POSTURES, SimulatedDriver

@@ -50,7 +50,9 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_
 from sensor_msgs.msg import CameraInfo, Image, JointState
 
 from humanoid_reach_ros.io import msgs
-from humanoid_reach_ros.nodes.common import LatestOnDemand, ParamSpec, declare_parameters, run_node
+from humanoid_reach_ros.io.endpoints import LatestOnDemand
+from humanoid_reach_ros.nodes.common import declare_parameters, run_node
+from humanoid_reach_ros.params import ParamSpec
 from humanoid_reach_ros.perception.localizing import JointSample, MarkerLocalizing
 from humanoid_reach_ros.perception.markers import MarkerDetector, marker_table
 from humanoid_reach_ros.robot.model import RobotModel

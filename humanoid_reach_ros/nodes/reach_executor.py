@@ -50,8 +50,8 @@ from humanoid_reach_ros.execution.manager import DualArmGoal, ExecutionManager, 
     TrajectoryGoal
 from humanoid_reach_ros.execution.process import LoopConfig, LoopProcess
 from humanoid_reach_ros.io import exec_msgs, msgs
-from humanoid_reach_ros.nodes.common import (LATCHED, RELIABLE_LATEST, LatestOnDemand, current_joints,
-                                             declare_parameters, run_node, scene_file_voxels)
+from humanoid_reach_ros.io.endpoints import LATCHED, RELIABLE_LATEST, LatestOnDemand, current_joints
+from humanoid_reach_ros.nodes.common import declare_parameters, run_node, scene_file_voxels
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.robot.model import RobotModel
 

@@ -23,9 +23,9 @@ from humanoid_reach_ros.operator.report import (
     exit_class, progress_bar, trajectory_duration)
 from humanoid_reach_ros.operator.session import Canceled, Countdown, OperatorSession
 
-__all__ = ["EXECUTE_CODES", "EXIT", "PLAN_CODES", "Operator", "Progress", "ProgressPrinter", "code_text",
-           "ensure_marker_target", "execution_report", "execution_summary", "exit_class", "look", "main",
-           "parse_args", "plan_request", "plan_with_looks", "progress_bar"]   # the names tests and benches use
+__all__ = ["EXECUTE_CODES", "EXIT", "PLAN_CODES", "Operator", "OperatorSession", "Progress", "ProgressPrinter",
+           "code_text", "execution_report", "execution_summary", "exit_class", "main", "parse_args", "plan_request",
+           "progress_bar"]   # the names tests and benches use
 
 SCAN_POSES_ASSUMED = 20   # for the result deadline of a scan: poses of the executor's scan_poses_deg at most
 LOOK_START_GRACE_S = 5.0        # /look answered NO_JOINT_STATES: asked again for this long (a graph just up)
@@ -244,42 +244,12 @@ class Operator:
             return "canceled", result_future.result().result if result_future.done() else None
 
 
-# ---------------------------------------------------------------- the flow (operator.session) on this client
-class RosSession(OperatorSession):
-    """Its look and marker steps go through this module's names (tests and bench/session.py wrap them)."""
-
-    def look(self, gaze_points: np.ndarray | None = None) -> int:
-        return look(self.client, self.args, self.text, self.err, self.summary, gaze_points)
-
-    def ensure_marker_target(self) -> int:
-        return ensure_marker_target(self.client, self.args, self.text, self.err, self.summary)
-
-    def wait_for_look(self, owner: str) -> bool:
-        return Operator.wait_for_look(self.client, owner)
-
-
-def look(op: Operator, args: argparse.Namespace, text: TextIO, err: TextIO, summary: dict, gaze_points=None) -> int:
-    """``OperatorSession.look``: ``--scan``, ``--look`` or an automatic look at ``gaze_points``."""
-    return OperatorSession.look(RosSession(op, args, text, err, summary), gaze_points)
-
-
-def ensure_marker_target(op: Operator, args: argparse.Namespace, text: TextIO, err: TextIO, summary: dict) -> int:
-    """``OperatorSession.ensure_marker_target``: a fresh /target_pose, the head turned to find it."""
-    return OperatorSession.ensure_marker_target(RosSession(op, args, text, err, summary))
-
-
-def plan_with_looks(op: Operator, args: argparse.Namespace, req: Any, text: TextIO, err: TextIO,
-                    summary: dict) -> tuple[Any | None, int]:
-    """``OperatorSession.plan_with_looks``: /plan_reach, with automatic looks; (response, exit code)."""
-    return RosSession(op, args, text, err, summary).plan_with_looks(req)
-
-
 def run(args: argparse.Namespace, out: TextIO = sys.stdout, err: TextIO = sys.stderr) -> int:
     req = plan_request(args) if args.plan else None
     op = Operator(args.timeout, err)
     old = {s: signal.signal(s, lambda *_: setattr(op, "interrupted", True)) for s in (signal.SIGINT, signal.SIGTERM)}
     try:   # with --json, stdout holds only the JSON line
-        return RosSession(op, args, err if args.json else out, err).run(req, out)
+        return OperatorSession(op, args, err if args.json else out, err).run(req, out)
     finally:
         op.close()
         for s, h in old.items():

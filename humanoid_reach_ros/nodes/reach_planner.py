@@ -57,8 +57,9 @@ from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 from humanoid_reach_ros.io import msgs
-from humanoid_reach_ros.nodes.common import (LATCHED, RELIABLE_LATEST, LatestOnDemand, ParamSpec, declare_parameters,
-                                             run_node)
+from humanoid_reach_ros.io.endpoints import LATCHED, RELIABLE_LATEST, LatestOnDemand
+from humanoid_reach_ros.nodes.common import declare_parameters, run_node
+from humanoid_reach_ros.params import ParamSpec
 from humanoid_reach_ros.planning.reach import PlannerParams
 from humanoid_reach_ros.planning.service import ERROR_NAMES, PlanningService, PlanningServiceConfig, PlanReply
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT

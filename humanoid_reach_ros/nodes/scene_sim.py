@@ -50,7 +50,9 @@ from sensor_msgs.msg import CameraInfo, Image, JointState, PointCloud2
 
 from humanoid_reach_ros.geometry.camera import CameraCalibration
 from humanoid_reach_ros.io import msgs
-from humanoid_reach_ros.nodes.common import LatestOnDemand, ParamSpec, declare_parameters, run_node
+from humanoid_reach_ros.io.endpoints import LatestOnDemand
+from humanoid_reach_ros.nodes.common import declare_parameters, run_node
+from humanoid_reach_ros.params import ParamSpec
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.perception.markers import camera_pose
 from humanoid_reach_ros.robot.model import RobotModel

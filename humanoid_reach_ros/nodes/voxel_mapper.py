@@ -34,19 +34,19 @@ from __future__ import annotations
 
 import sys
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import Point
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, JointState, PointCloud2
 from std_srvs.srv import Trigger
-from visualization_msgs.msg import Marker, MarkerArray
+from visualization_msgs.msg import MarkerArray
 
 from humanoid_reach_ros.io import msgs
-from humanoid_reach_ros.nodes.common import LatestOnDemand, LATCHED, ParamSpec, declare_parameters, run_node
+from humanoid_reach_ros.io.endpoints import LATCHED, LatestOnDemand
+from humanoid_reach_ros.nodes.common import declare_parameters, run_node
+from humanoid_reach_ros.params import ParamSpec
 from humanoid_reach_ros.perception.mapping import DepthJob, MappingConfig, MappingPipeline
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
@@ -133,17 +133,6 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
                                 (0.0, 3600.0)),
 }
 PARAMETERS: dict[str, ParamSpec] = {**FUSION_PARAMETERS, **STEREO_PARAMETERS, **NODE_PARAMETERS}
-
-
-def cube_list_marker(centres: np.ndarray, size_m: float, frame_id: str, stamp, ns: str = "voxel_map",
-                     color: tuple[float, float, float, float] = (0.3, 0.6, 0.9, 0.8)) -> Marker:
-    """One CUBE_LIST marker of cubes of edge ``size_m`` at ``centres`` (N, 3)."""
-    m = Marker(header=msgs.header(frame_id, stamp), ns=ns, id=0, type=Marker.CUBE_LIST, action=Marker.ADD)
-    m.pose.orientation.w = 1.0
-    m.scale.x = m.scale.y = m.scale.z = float(size_m)
-    m.color.r, m.color.g, m.color.b, m.color.a = color
-    m.points = [Point(x=x, y=y, z=z) for x, y, z in np.asarray(centres, dtype=float).tolist()]
-    return m
 
 
 class VoxelMapperNode(Node):
@@ -271,7 +260,7 @@ class VoxelMapperNode(Node):
             if points is not None:
                 pub.publish(msgs.cloud_from_points(points, self.map_frame, stamp))
         if layers.occupied is not None and self._markers_enabled:
-            marker = cube_list_marker(layers.occupied, self.pipeline.map.resolution_m, self.map_frame, stamp)
+            marker = msgs.cube_list_marker(layers.occupied, self.pipeline.map.resolution_m, self.map_frame, stamp)
             self.markers_pub.publish(msgs.marker_array([marker], True, self.map_frame, stamp))
 
     def diagnostic_statuses(self) -> list:
