@@ -38,6 +38,7 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "bench"))
 
 from humanoid_reach_ros.testing.machine import describe as describe_machine  # noqa: E402
+from humanoid_reach_ros.codes import ErrorCode, code_name  # noqa: E402
 from humanoid_reach_ros.robot.spec import robots  # noqa: E402
 
 PLANNER_PARAMS = REPO / "config" / "reach_planner.yaml"
@@ -155,13 +156,13 @@ def node_runs(cases, budget_s: float, timeout_s: float, robot: str) -> list[dict
             deadline = time.monotonic() + 60.0
             while True:   # the first answers may be NO_JOINT_STATES until the planner has them
                 first, first_s = client.call(req, timeout_s, planner.log_tail)
-                if first.error_code != first.NO_JOINT_STATES or time.monotonic() > deadline:
+                if first.error_code.val != ErrorCode.NO_JOINT_STATES or time.monotonic() > deadline:
                     break
                 time.sleep(0.2)
             resp, wait_s = client.call(req, timeout_s, planner.log_tail)   # the same request again, timed
-            name = msgs_error_name(resp.error_code)
+            name = code_name(resp.error_code.val)
             out.append({"case": case.name, "arm": arm, "expect": expect[arm], "code": name,
-                        "correct": {name, msgs_error_name(first.error_code)} <= set(case.expected_codes(arm, robot)),
+                        "correct": {name, code_name(first.error_code.val)} <= set(case.expected_codes(arm, robot)),
                         "wait_ms": 1e3 * wait_s, "node_ms": 1e3 * resp.statistics.total_time_s,
                         "first_wait_ms": 1e3 * first_s, "message": resp.message[:200]})
             print(f"/plan_reach {case.name} {arm}: {name} in {1e3 * wait_s:.0f} ms ({resp.message[:120]})", flush=True)
@@ -178,12 +179,6 @@ def node_runs(cases, budget_s: float, timeout_s: float, robot: str) -> list[dict
     return out
 
 
-def msgs_error_name(code: int) -> str:
-    from humanoid_reach_interfaces.srv import PlanReach
-
-    names = {getattr(PlanReach.Response, n): n for n in dir(PlanReach.Response)
-             if n.isupper() and isinstance(getattr(PlanReach.Response, n), int)}
-    return names.get(int(code), str(code))
 
 
 def main() -> int:

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from humanoid_reach_ros.codes import ARM_NAMES
+from humanoid_reach_ros.codes import ARM_NAMES, ErrorCode
 from humanoid_reach_ros.demo import GRAPH_NODES, SIM_JOINT_STATES_ABORT_S, SIM_JOINT_STATES_TIMEOUT_S, Graph, \
     DemoClient, scan_plant, wait_marker
 from humanoid_reach_ros.graph import allocate_domain, graph_env
@@ -179,7 +179,7 @@ class Bench:
         postures; the way back is the trajectory reversed, executed like any other)."""
         resp, plan_s = self.call_plan(self.plan_request(arm, target))
         if not resp.success:
-            return [{"name": name, "arm": arm, "success": False, "error_code": -int(resp.error_code),
+            return [{"name": name, "arm": arm, "success": False, "error_code": -int(resp.error_code.val),
                      "message": f"/plan_reach failed: {resp.message}"}]
         there = self.execute(name, resp.trajectory, resp.arm)
         there["plan_ms"] = plan_s * 1e3
@@ -208,8 +208,8 @@ class Bench:
         self.op.spin_until(fut.done, duration * 5 + 60.0, "the /execute_reach result")
         wall = time.monotonic() - t_accept
         result = fut.result().result
-        if not result.success and result.error_code != ex.Result.TARGET_NOT_REACHED:
-            raise RuntimeError(f"{name}: /execute_reach failed ({result.error_code}): {result.message}")
+        if not result.success and result.error_code.val != ErrorCode.TARGET_NOT_REACHED:
+            raise RuntimeError(f"{name}: /execute_reach failed ({result.error_code.val}): {result.message}")
         # hold: settle of the measured joints (the driver's tracking lag), then hold_s more
         t_hold = time.monotonic()
 
@@ -241,7 +241,7 @@ class Bench:
         metrics = list(self.op.metrics)
         run = [m.step_time_s * 1e3 for m in metrics if m.time_from_start_s <= duration + 1e-9]
         after = [m.step_time_s * 1e3 for m in metrics if m.time_from_start_s > duration + 1e-9]
-        return {"name": name, "arm": arm, "success": bool(result.success), "error_code": int(result.error_code),
+        return {"name": name, "arm": arm, "success": bool(result.success), "error_code": int(result.error_code.val),
                 "message": result.message,
                 "duration_s": duration, "wall_s": wall, "wall_over_duration": wall / duration,
                 "steps": int(result.steps), "overruns": int(result.overruns), "metrics_messages": len(metrics),

@@ -201,7 +201,7 @@ def pinger_child(out: Path) -> int:
             pending.remove((sent, fut))
             r = fut.result()
             log.write(json.dumps({"sent": sent, "recv": time.monotonic(),
-                                  "code": None if r is None else int(r.error_code)}) + "\n")
+                                  "code": None if r is None else int(r.error_code.val)}) + "\n")
             log.flush()
         if len(pending) > 200:     # a long cut: forget the oldest
             pending = pending[-100:]

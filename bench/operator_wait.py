@@ -36,6 +36,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from humanoid_reach_ros.testing.machine import describe as describe_machine  # noqa: E402
+from humanoid_reach_ros.codes import ErrorCode  # noqa: E402
 from humanoid_reach_ros.graph import NodeProcess, allocate_domain, graph_env, wait_for  # noqa: E402
 
 PLANNER_PARAMS = REPO / "config" / "reach_planner.yaml"
@@ -182,10 +183,10 @@ def main() -> int:
         deadline = time.monotonic() + 60.0
         while True:
             resp, _ = client.call(msgs.plan_reach_request(region, seed=seeds[0] - 1), args.timeout_s, planner.log_tail)
-            if resp.error_code != resp.NO_JOINT_STATES or time.monotonic() > deadline:
+            if resp.error_code.val != ErrorCode.NO_JOINT_STATES or time.monotonic() > deadline:
                 break
             time.sleep(0.2)
-        out["warmup_error_code"] = int(resp.error_code)
+        out["warmup_error_code"] = int(resp.error_code.val)
         rp = None
         if not args.no_in_process:
             from humanoid_reach_ros.planning.reach import PlanRequest
@@ -211,8 +212,8 @@ def main() -> int:
             node_total.append(st.total_time_s)
             goal.append(st.goal_sampling_time_s)
             path.append(st.path_planning_time_s)
-            codes.append(int(resp.error_code))
-            print(f"seed {s}: {'SUCCESS' if resp.success else resp.error_code} client {1e3 * dt:.0f} ms, node "
+            codes.append(int(resp.error_code.val))
+            print(f"seed {s}: {'SUCCESS' if resp.success else resp.error_code.val} client {1e3 * dt:.0f} ms, node "
                   f"{1e3 * st.total_time_s:.0f} ms (goals {1e3 * st.goal_sampling_time_s:.0f}, path "
                   f"{1e3 * st.path_planning_time_s:.0f})", flush=True)
         ok = sum(c == 0 for c in codes)

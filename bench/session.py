@@ -56,7 +56,7 @@ Measured:
   as the executor rebuilds it (``SplineTrajectory(samples, times)`` in model joint order) and
   checked exactly (``check_limits(lower, upper)``: extrema of each cubic segment, tol 1e-12)
   against the URDF limits of the robot model.
-* **executor refusals**: every INVALID_GOAL result (executions, scans, looks, automatic looks)
+* **executor refusals**: every INVALID_REQUEST result (executions, scans, looks, automatic looks)
   and every rejected goal.
 * **overruns**: of every motion the executor ran (reaches, retreats, home, the scan's and the
   automatic looks' head poses), from the outcome line it logs for each, summed
@@ -208,7 +208,7 @@ def operator_child(events_path: str, argv: list[str]) -> int:
 
     def response(resp: Any) -> dict[str, Any]:
         tr = resp.trajectory
-        return {"error_code": int(resp.error_code), "success": bool(resp.success), "message": resp.message,
+        return {"error_code": int(resp.error_code.val), "success": bool(resp.success), "message": resp.message,
                 "retreat": resp.retreat, "arm": int(resp.arm),
                 "unobserved_points": [[p.x, p.y, p.z] for p in resp.unobserved_points],
                 "total_time_s": float(resp.statistics.total_time_s),
@@ -255,7 +255,7 @@ def operator_child(events_path: str, argv: list[str]) -> int:
         emit("look_start", gaze=(k.get("gaze_points") if "gaze_points" in k else (a[4] if len(a) > 4 else None))
              is not None)
         outcome, result = look(self, *a, **k)
-        emit("look_end", outcome=outcome, error_code=None if result is None else int(result.error_code))
+        emit("look_end", outcome=outcome, error_code=None if result is None else int(result.error_code.val))
         return outcome, result
     ro.Operator.look = recording_look
 
@@ -467,7 +467,7 @@ def step_figures(sess: Session, kind: str, run: dict[str, Any]) -> dict[str, Any
         "execution": {k: ex.get(k) for k in ("outcome", "success", "error_name", "message", "duration_s", "steps",
                                              "overruns", "final_hand_error_m", "min_distance_m")} if ex else None,
         "overruns": int(ex.get("overruns") or 0),
-        "refusals": sum(1 for x in [ex] + looks_all if x.get("error_name") == "INVALID_GOAL")
+        "refusals": sum(1 for x in [ex] + looks_all if x.get("error_name") == "INVALID_REQUEST")
         + sum(1 for x in [ex] + looks_all if x.get("outcome") == "rejected"),
         "limits": [c for c in (limits_check(sess.robot, r) for r in responses) if c is not None],
     }

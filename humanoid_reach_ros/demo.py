@@ -32,7 +32,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from humanoid_reach_ros.codes import ARM_REQUESTS
+from humanoid_reach_ros.codes import ARM_REQUESTS, ErrorCode, code_name
 from humanoid_reach_ros.graph import (  # noqa: F401  (Graph, GRAPH_NODES: also for benches and tools)
     GRAPH_NODES, STOP_DEADLINE_S, Graph, allocate_domain, graph_env, wait_for)
 from humanoid_reach_ros.execution.config import PARAMETERS
@@ -136,11 +136,11 @@ class DemoClient:
             self.spin_until(result.done, timeout, "the /look result")
             res = result.result().result
             # right after start-up the executor may not have taken a /joint_states yet: ask again
-            if res.error_code != self.Look.Result.NO_JOINT_STATES or time.monotonic() > deadline:
+            if res.error_code.val != ErrorCode.NO_JOINT_STATES or time.monotonic() > deadline:
                 break
             self.spin_for(0.5)
         if not res.success:
-            raise RuntimeError(f"/look failed ({res.error_code}): {res.message}")
+            raise RuntimeError(f"/look failed ({res.error_code.val}): {res.message}")
         return res
 
     def close(self) -> None:
@@ -220,7 +220,7 @@ def plan(op: DemoClient, args: argparse.Namespace, home: bool = False):
         op.spin_until(future.done, args.budget + 30.0, "the /plan_reach response")
         wait_s += time.monotonic() - t0
         resp = future.result()
-        if resp.error_code != op.PlanReach.Response.UNOBSERVED_SPACE or not resp.unobserved_points \
+        if resp.error_code.val != ErrorCode.UNOBSERVED_SPACE or not resp.unobserved_points \
                 or looks >= max_looks:
             return resp, wait_s, region, looks
         looks += 1
@@ -406,10 +406,8 @@ def run(args: argparse.Namespace) -> dict:
             p = msgs.se3_from_pose(target.pose).translation
             print(f"[demo] marker target (valve centre) at {np.round(p, 4).tolist()} m in world")
         resp, wait_s, region, looks = plan(op, args)
-        E = op.PlanReach.Response
-        names_by_code = {getattr(E, n): n for n in dir(E) if n.isupper() and isinstance(getattr(E, n), int)}
         if not resp.success:
-            raise RuntimeError(f"/plan_reach failed: {names_by_code.get(resp.error_code, resp.error_code)}: "
+            raise RuntimeError(f"/plan_reach failed: {code_name(resp.error_code.val)}: "
                                f"{resp.message}")
         if args.target is None:
             from humanoid_reach_ros.io import msgs
@@ -425,7 +423,7 @@ def run(args: argparse.Namespace) -> dict:
         op.metrics.clear()
         result, exec_s = execute(op, traj, resp.arm)
         if not result.success:
-            raise RuntimeError(f"/execute_reach failed ({result.error_code}): {result.message}")
+            raise RuntimeError(f"/execute_reach failed ({result.error_code.val}): {result.message}")
         op.spin_for(0.5)
         in_region = final_hand_in_region(op, region, arm, robot_name=args.robot)
         measured = measured_balance(op.samples, args.robot)
@@ -457,12 +455,12 @@ def run(args: argparse.Namespace) -> dict:
         # the session ends where it began: the arm home (a retreat from the valve first)
         home, home_wait_s, _, _ = plan(op, args, home=True)
         if not home.success:
-            raise RuntimeError(f"/plan_reach home failed: {names_by_code.get(home.error_code, home.error_code)}: "
+            raise RuntimeError(f"/plan_reach home failed: {code_name(home.error_code.val)}: "
                                f"{home.message}")
         print(f"[demo] planned the way home in {home_wait_s * 1e3:.0f} ms: {home.message}")
         home_result, home_exec_s = execute(op, home.trajectory, home.arm)
         if not home_result.success:
-            raise RuntimeError(f"/execute_reach (home) failed ({home_result.error_code}): {home_result.message}")
+            raise RuntimeError(f"/execute_reach (home) failed ({home_result.error_code.val}): {home_result.message}")
         op.spin_for(0.5)
         from humanoid_reach_ros.robot.model import RobotModel
         robot = RobotModel(args.robot)

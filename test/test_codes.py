@@ -1,8 +1,12 @@
-"""codes.py is the one definition of result and arm codes: every value equals the generated
-interface constant of the same name, and every interface constant has its code."""
+"""codes.py is the one definition of error and arm codes: one error numbering serves every
+interface (issue 25): ``msg/ErrorCode`` holds it, ``PlanReach``'s response and ``ExecuteReach``'s
+and ``Look``'s results embed it and define no codes of their own, and every value equals
+``codes.ErrorCode``'s of the same name."""
 from __future__ import annotations
 
+import pytest
 from humanoid_reach_interfaces.action import ExecuteReach, Look
+from humanoid_reach_interfaces.msg import ErrorCode
 from humanoid_reach_interfaces.srv import PlanReach
 
 from humanoid_reach_ros import codes
@@ -13,14 +17,26 @@ def _constants(cls, prefix: str = "") -> dict[str, int]:
             and isinstance(getattr(cls, n), int)}
 
 
-def test_plan_codes_are_the_interface_codes():
-    assert {e.name: e.value for e in codes.PlanError} == _constants(PlanReach.Response)
+def test_one_numbering_is_the_interface_error_code():
+    assert {e.name: e.value for e in codes.ErrorCode} == _constants(ErrorCode)
+    assert codes.PlanError is codes.ExecuteCode is codes.ErrorCode
+    assert len(set(_constants(ErrorCode).values())) == len(_constants(ErrorCode))   # one name per code
 
 
-def test_execute_codes_are_the_interface_codes():
-    assert {e.name: e.value for e in codes.ExecuteCode} == _constants(ExecuteReach.Result)
-    # the Look action shares the first six
-    assert _constants(Look.Result) == {e.name: e.value for e in codes.ExecuteCode if e.value <= 5}
+@pytest.mark.parametrize("cls", [PlanReach.Response, ExecuteReach.Result, Look.Result])
+def test_every_interface_embeds_it_and_defines_no_codes_of_its_own(cls):
+    assert cls.get_fields_and_field_types()["error_code"] == "humanoid_reach_interfaces/ErrorCode"
+    assert isinstance(cls().error_code, ErrorCode)
+    assert _constants(cls, "") == {}, _constants(cls)
+
+
+def test_the_error_type_carries_its_code_and_source():
+    err = codes.RequestError(codes.ErrorCode.NO_MAP, "no map yet", unobserved_points=None)
+    assert err.code is codes.ErrorCode.NO_MAP and str(err) == err.message == "no map yet"
+    assert err.source == __name__ and err.extra == {"unobserved_points": None}
+    assert codes.RequestError(1, "x", source="planner").source == "planner"
+    assert codes.code_name(12) == "UNOBSERVED_SPACE" and codes.code_name(42) == "UNKNOWN_CODE_42"
+    assert set(codes.CODE_INFO) == set(codes.ErrorCode)
 
 
 def test_arm_codes_are_the_interface_codes():

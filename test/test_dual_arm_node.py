@@ -26,6 +26,7 @@ from rclpy.action import ActionClient
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
+from humanoid_reach_ros.codes import ErrorCode
 from humanoid_reach_ros.io import exec_msgs, msgs
 from humanoid_reach_ros.io.exec_msgs import ExecInputError
 from humanoid_reach_ros.dual_arm.controller import ControllerConfig, DualArmReachController
@@ -35,7 +36,7 @@ from humanoid_reach_ros.robot.model import RobotModel
 from test_reach_executor_node import (DEEP, DRIVER_PARAMS, JUMP_PERIODS, PARAMS_FILE, READY, Run, command_array,
                                       left_sole_offset, max_jump_ratio, status, wait_log)
 
-R = ExecuteReach.Result
+R = ErrorCode   # one numbering for every interface (msg/ErrorCode)
 G = ExecuteReach.Goal
 #: (right, left) hand positions [m], reachable from half-sitting and from each other (test_dual_arm_controller)
 PAIRS = [
@@ -114,7 +115,7 @@ def test_target_validation_in_process(ws) -> None:
     for name, (msg, word) in cases.items():
         with pytest.raises(ExecInputError, match=word) as info:
             exec_msgs.array_hand_targets(msg)
-        assert info.value.code == R.INVALID_GOAL, name
+        assert info.value.code == R.INVALID_REQUEST, name
 
 
 def test_controller_starts_from_any_posture_and_brakes(model, ws) -> None:
@@ -181,7 +182,7 @@ def test_dual_arm_goals_follow_and_bad_inputs(start_node, ros_probe, model, ws) 
     def execution() -> dict[str, str]:
         return msgs.diagnostic_values(status(diags, ": execution"))
 
-    # bad goals and an unreachable pair: INVALID_GOAL with the reason, nothing commanded
+    # bad goals and an unreachable pair: INVALID_REQUEST with the reason, nothing commanded
     right, left = poses(ws, PAIRS[0])
     bad = {"frame": (dual_goal(right, left, frame="map"), "'map' is unknown"),
            "nan": (dual_goal(right, left), "NaN"), "quaternion": (dual_goal(right, left), "unit length"),
@@ -191,7 +192,7 @@ def test_dual_arm_goals_follow_and_bad_inputs(start_node, ros_probe, model, ws) 
     o.x, o.y, o.z, o.w = 1.5 * o.x, 1.5 * o.y, 1.5 * o.z, 1.5 * o.w
     for name, (g, word) in bad.items():
         st, res = Run(ros_probe, client, g).result()
-        assert st == GoalStatus.STATUS_ABORTED and res.error_code == R.INVALID_GOAL, (name, res.message)
+        assert st == GoalStatus.STATUS_ABORTED and res.error_code.val == R.INVALID_REQUEST, (name, res.message)
         assert word in res.message, (name, res.message)
         assert name == "unreachable" or "MODE_DUAL_ARM goal" in res.message, (name, res.message)
         print(f"{name}: {res.message}")
@@ -230,7 +231,7 @@ def test_dual_arm_goals_follow_and_bad_inputs(start_node, ros_probe, model, ws) 
     cancel = handle.cancel_goal_async()
     ros_probe.spin_until(cancel.done, 20.0, "cancel response")
     st, res = g.result()
-    assert st == GoalStatus.STATUS_CANCELED and res.error_code == R.CANCELED, res.message
+    assert st == GoalStatus.STATUS_CANCELED and res.error_code.val == R.CANCELED, res.message
     held = settled_joints()
     Jc, sc = command_array(commands, model, n_c - 1)
     assert max_jump_ratio(Jc, model, period, sc) <= JUMP_PERIODS and np.all(np.isfinite(Jc))
@@ -290,7 +291,7 @@ def test_dual_arm_goals_follow_and_bad_inputs(start_node, ros_probe, model, ws) 
         pub.publish(msg)
         ros_probe.spin_until(lambda i=i: int(execution()["target_messages_rejected"]) == i + 1, 20.0,
                              f"rejection {i + 1}", on_timeout=ex.log_tail)
-    assert wait_log(ros_probe, ex, r"rejected /dual_arm/targets #\d+ \(INVALID_GOAL\): PoseArray has 1 poses")
+    assert wait_log(ros_probe, ex, r"rejected /dual_arm/targets #\d+ \(INVALID_REQUEST\): PoseArray has 1 poses")
     n_hold = len(commands)
     pub.publish(pose_array(*(pin.SE3(np.eye(3), np.array(p)) for p in UNREACHABLE)))
     ros_probe.spin_until(lambda: int(execution()["dual_arm_infeasible"]) == 2, 20.0, "infeasible follow pair",

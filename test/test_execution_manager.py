@@ -140,13 +140,13 @@ def test_bad_goals_are_answered_never_raised(robot) -> None:
     m, loop, log, _ = make(robot)
 
     def bad():
-        raise RequestError(C.INVALID_GOAL, "trajectory has no points")
+        raise RequestError(C.INVALID_REQUEST, "trajectory has no points")
     out = m.execute(bad, Port())
-    assert out.code == C.INVALID_GOAL and "no points" in out.message
+    assert out.code == C.INVALID_REQUEST and "no points" in out.message
     out = m.execute(lambda: 1 / 0, Port())                       # a bug in a conversion: ABORTED, said
     assert out.code == C.ABORTED and "internal error: ZeroDivisionError" in out.message
     assert m.counters.goals_rejected == 2 and not loop.sent
-    assert "goal #1 rejected (INVALID_GOAL)" in log.text("warning") and "internal error" in log.text("error")
+    assert "goal #1 rejected (INVALID_REQUEST)" in log.text("warning") and "internal error" in log.text("error")
     blind, loop2, _, _ = make(robot, joints=False)
     out = blind.execute(lambda: TrajectoryGoal(reference(robot)), Port())
     assert out.code == C.NO_JOINT_STATES and "no /joint_states" in out.message and not loop2.sent
@@ -169,9 +169,9 @@ def test_a_look_moves_the_head_pose_by_pose_and_holds(robot) -> None:
     assert [(p.pose_index, p.holding) for p in progress] == [(0, False), (0, True), (1, False), (1, True)]
     assert progress[0].pose_count == 2 and math.isclose(progress[2].yaw_rad, -0.1)
     out = m.look(lambda: LookGoal((0.1,), (0.3, 0.2)), Port())          # refused: named, counted
-    assert out.code == C.INVALID_GOAL and "one pitch per yaw" in out.message
+    assert out.code == C.INVALID_REQUEST and "one pitch per yaw" in out.message
     out = m.look(lambda: LookGoal((0.1,), (0.3,), None, 61.0), Port())
-    assert out.code == C.INVALID_GOAL and "longer than 60 s" in out.message
+    assert out.code == C.INVALID_REQUEST and "longer than 60 s" in out.message
     assert m.counters.goals_rejected == 2 and "look #3" in log.text("warning")
 
 

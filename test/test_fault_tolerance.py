@@ -51,6 +51,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import JointState, PointCloud2
 from trajectory_msgs.msg import JointTrajectory
 
+from humanoid_reach_ros.codes import ErrorCode
 from humanoid_reach_ros.io import exec_msgs, msgs
 from humanoid_reach_ros.perception.markers import camera_pose
 from humanoid_reach_ros.perception.voxel_map import PinholeCamera, depth_scan
@@ -60,8 +61,7 @@ from nodetools import REPO_ROOT, wait_for
 from test_reach_executor_node import DEEP, JUMP_PERIODS, Run, command_array, left_sole_offset, max_jump_ratio
 from test_reach_planner_node import LATCHED, Planner, status, valve_request
 
-R = ExecuteReach.Result
-E = PlanReach.Response
+R = E = ErrorCode   # one numbering for every interface (msg/ErrorCode)
 G = ExecuteReach.Goal
 PERIOD_S = 0.005                  # reach_executor period_s (config/reach_executor.yaml)
 BUDGET_S = 20.0                   # generous planning budget: correctness, not speed
@@ -213,7 +213,7 @@ def test_planner_restart_executor_holds_and_second_requests(start_node, ros_prob
 
             def answered(resend_at=resend_at):
                 done = [f.result() for f in futures if f.done()]
-                return next((r for r in done if r.error_code != E.BUSY), None) or time.monotonic() > resend_at
+                return next((r for r in done if r.error_code.val != E.BUSY), None) or time.monotonic() > resend_at
 
             resp = ros_probe.spin_until(answered, RESEND_S + 5.0, "a /plan_reach answer")
             if resp is not True:
@@ -227,9 +227,9 @@ def test_planner_restart_executor_holds_and_second_requests(start_node, ros_prob
         """A valve plan; retried while the planner has no current /joint_states yet (start-up)."""
         def attempt():
             resp = call(valve_request(time_budget_s=BUDGET_S, **kw))
-            return None if resp.error_code == E.NO_JOINT_STATES else resp
+            return None if resp.error_code.val == E.NO_JOINT_STATES else resp
         resp = ros_probe.spin_until(attempt, 60.0, "a /plan_reach answer with /joint_states", on_timeout=logs)
-        assert resp.success and resp.error_code == E.SUCCESS, (resp.error_code, resp.message)
+        assert resp.success and resp.error_code.val == E.SUCCESS, (resp.error_code.val, resp.message)
         return resp
 
     # --- a plan, then two concurrent /plan_reach: one is BUSY, the other planned ---------------
@@ -239,16 +239,16 @@ def test_planner_restart_executor_holds_and_second_requests(start_node, ros_prob
         f1 = planner.call_async(valve_request(time_budget_s=BUDGET_S, goal_count=40, seed=10 + attempt))
         f2 = planner.call_async(valve_request(time_budget_s=BUDGET_S, seed=20 + attempt))
         r1, r2 = planner.wait(f1, 90.0), planner.wait(f2, 90.0)
-        codes = sorted([r1.error_code, r2.error_code])
-        print(f"concurrent /plan_reach #{attempt + 1}: {r1.error_code} {r1.message!r} | "
-              f"{r2.error_code} {r2.message!r}")
+        codes = sorted([r1.error_code.val, r2.error_code.val])
+        print(f"concurrent /plan_reach #{attempt + 1}: {r1.error_code.val} {r1.message!r} | "
+              f"{r2.error_code.val} {r2.message!r}")
         assert codes.count(E.BUSY) <= 1, "both concurrent requests got BUSY"
         if E.BUSY in codes:
             busy = (r1, r2)
             break
         assert r1.success and r2.success, (r1.message, r2.message)   # served one after the other
     assert busy is not None, "no concurrent /plan_reach was answered BUSY in 3 attempts"
-    rb, rp = (busy[1], busy[0]) if busy[1].error_code == E.BUSY else busy
+    rb, rp = (busy[1], busy[0]) if busy[1].error_code.val == E.BUSY else busy
     assert "another /plan_reach request is being planned" in rb.message and len(rb.trajectory.points) == 0
     assert rp.success, rp.message
     assert planner_proc.log_lines(r"plan_reach #\d+: BUSY")
@@ -332,10 +332,11 @@ def test_planner_restart_executor_holds_and_second_requests(start_node, ros_prob
     g2 = Run(ros_probe, client, ExecuteReach.Goal(mode=G.MODE_TRAJECTORY, trajectory=forward,
                                                   arm=exec_msgs.ARM_AUTO))
     st1, res1 = g1.result(60.0)
-    assert st1 == GoalStatus.STATUS_ABORTED and res1.error_code == R.PREEMPTED, (st1, res1.error_code, res1.message)
+    assert st1 == GoalStatus.STATUS_ABORTED and res1.error_code.val == R.PREEMPTED, (st1, res1.error_code,
+                                                                                    res1.message)
     assert "preempted by goal" in res1.message and 0.2 <= g1.progress() < 1.0, res1.message
     st2, res2 = g2.result(90.0)
-    assert st2 == GoalStatus.STATUS_SUCCEEDED and res2.error_code == R.SUCCESS and res2.success, res2.message
+    assert st2 == GoalStatus.STATUS_SUCCEEDED and res2.error_code.val == R.SUCCESS and res2.success, res2.message
     assert res2.min_distance_m >= 0.0
     line = wait_log(ros_probe, ex, r"goal #2: SUCCESS at progress 1\.00")
     J, stamps = wait_held(ros_probe, commands, model, n1, log_time(line), "the robot held after the second goal", logs)
@@ -466,14 +467,14 @@ def test_point_cloud_flood_bounded_memory_planner_responsive(start_node, ros_pro
           f"({n_pub / flood_s:.0f} Hz published), {received} received, {dropped} dropped while busy; "
           f"mapper RSS {rss_before / 2**20:.1f} -> {rss_after / 2**20:.1f} MB (peak {rss_peak / 2**20:.1f}); "
           f"/plan_reach answered during the flood in {answered_in:.1f} s: "
-          f"{response.error_code} {response.message!r}")
+          f"{response.error_code.val} {response.message!r}")
 
     # the flood reached the node: queueing it would have exceeded the bound many times over
     assert received * cloud_bytes > FLOOD_VOLUME * RSS_GROWTH_BOUND, (received, cloud_bytes)
     assert rss_peak - rss_before < RSS_GROWTH_BOUND, (rss_before, rss_peak)
     assert rss_after - rss_before < RSS_GROWTH_BOUND, (rss_before, rss_after)
     # the planner stayed responsive: a plan on the measured map, not an error of the flood
-    assert response.success and response.error_code == E.SUCCESS, (response.error_code, response.message)
+    assert response.success and response.error_code.val == E.SUCCESS, (response.error_code.val, response.message)
     assert response.statistics.map_voxels > 0
     assert mapper.alive() and planner_proc.alive()
     st = status(diags, "voxel_mapper: map")

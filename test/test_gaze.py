@@ -12,6 +12,7 @@ import pinocchio as pin
 import pytest
 import yaml
 
+from humanoid_reach_ros.codes import ErrorCode
 from humanoid_reach_ros.control.gaze import DEFAULT_IMAGE, DEFAULT_MIN_RANGE_M, GazeCamera, GazeParams, GazeSolver
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.spec import load_robot_spec, robot_config_path
@@ -282,7 +283,7 @@ def test_look_goal_helpers() -> None:
     both = Look.Goal(yaw_rad=[0.1], pitch_rad=[0.2], gaze_points=[Point(x=1.0)])
     with pytest.raises(RequestError, match="not both") as e:
         exec_msgs.gaze_points(both)
-    assert e.value.code == Look.Result.INVALID_GOAL
+    assert e.value.code == ErrorCode.INVALID_REQUEST
     with pytest.raises(RequestError, match=r"gaze point 1 has NaN/inf"):
         exec_msgs.gaze_points(Look.Goal(gaze_points=[Point(x=1.0), Point(x=math.inf)]))
 
@@ -393,7 +394,7 @@ def test_without_a_neck_the_balanced_gaze_keeps_the_cog_and_the_feet(neckless) -
 
 def test_a_neckless_robots_look_requests(neckless) -> None:
     """The executor's look requests on a robot without a neck: head angles (a goal's, or the
-    scan pattern) are no head poses (INVALID_GOAL naming the robot and what to do instead) but
+    scan pattern) are no head poses (INVALID_REQUEST naming the robot and what to do instead) but
     directions: ``look_targets`` turns them into gaze points ``look_distance_m`` from the camera
     (the scan pattern too, and a look at yaw/pitch); a gaze at a point is planned (the chest aims
     the camera), its feedback angles the chest's."""
@@ -409,7 +410,7 @@ def test_a_neckless_robots_look_requests(neckless) -> None:
     for yaw, pitch in (([0.1], [0.2]), ([], [])):
         with pytest.raises(RequestError, match="robot 'hrp2' has no neck.*aim the camera at a point") as exc:
             req.head_poses(yaw, pitch)
-        assert exc.value.code == C.INVALID_GOAL
+        assert exc.value.code == C.INVALID_REQUEST
     j0 = robot.half_sitting_joints
     cam = robot.frame_pose(robot.config(j0, robot.base_on_feet(j0)), robot.camera_frame)
     # directions: yaw 0.1 rad to the left, pitch 0.2 rad down, look_distance_m from the camera
@@ -424,7 +425,7 @@ def test_a_neckless_robots_look_requests(neckless) -> None:
                               ([0.0], [1.7], "beyond \\+-90 deg")):
         with pytest.raises(RequestError, match=match) as exc:
             req.look_targets(yaw, pitch)
-        assert exc.value.code == C.INVALID_GOAL
+        assert exc.value.code == C.INVALID_REQUEST
     for k in range(len(scan)):   # every scan direction is looked at by a balanced gaze
         motion, g = req.gaze(2 + k, f"look #2 point {k}", scan[k], j0, "")
         assert g.balanced, (k, g)

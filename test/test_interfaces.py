@@ -10,6 +10,8 @@ from humanoid_reach_interfaces.action import ExecuteReach
 from humanoid_reach_interfaces.msg import ExecutorMetrics, PlanningStatistics, WorkspaceGoalRegion
 from humanoid_reach_interfaces.srv import PlanReach
 
+from humanoid_reach_ros.codes import ErrorCode
+
 pytestmark = pytest.mark.node
 
 # The valve region of Kanehiro et al. eq. (3), as offsets around the valve centre.
@@ -61,7 +63,7 @@ def test_service_round_trip(ros_probe):
     def handle(req: PlanReach.Request, resp: PlanReach.Response) -> PlanReach.Response:
         seen.append(req)
         resp.success = False
-        resp.error_code = PlanReach.Response.NO_MAP
+        resp.error_code.val = ErrorCode.NO_MAP
         resp.message = f"no map (arm {req.arm}, planner {req.planner})"
         resp.arm = req.arm
         resp.statistics.samples = 7
@@ -76,7 +78,7 @@ def test_service_round_trip(ros_probe):
     ros_probe.spin_until(future.done, timeout=10, what="service response")
     resp = future.result()
     assert seen and seen[0] == req
-    assert (resp.success, resp.error_code, resp.arm, resp.statistics.samples) == (False, 6, 2, 7)
+    assert (resp.success, resp.error_code.val, resp.arm, resp.statistics.samples) == (False, 6, 2, 7)
     assert resp.message == "no map (arm 2, planner rrt_connect)"
 
 

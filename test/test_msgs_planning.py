@@ -12,10 +12,12 @@ from humanoid_reach_interfaces.srv import PlanReach
 from sensor_msgs.msg import PointCloud2, PointField
 from visualization_msgs.msg import Marker
 
+from humanoid_reach_ros.codes import ErrorCode
 from humanoid_reach_ros.io import msgs
+from humanoid_reach_ros.planning.reach import MAX_GOAL_COUNT, MAX_TIME_BUDGET_S
 from humanoid_reach_ros.planning.wgr import valve_region
 
-E = PlanReach.Response
+E = ErrorCode
 H = math.pi / 2
 
 
@@ -168,8 +170,8 @@ def _quat(req):
     (_inf_lower, E.INVALID_REQUEST),
     (lambda r: setattr(r, "time_budget_s", math.nan), E.INVALID_REQUEST),
     (lambda r: setattr(r, "time_budget_s", -1.0), E.INVALID_REQUEST),
-    (lambda r: setattr(r, "time_budget_s", msgs.MAX_TIME_BUDGET_S + 1.0), E.INVALID_REQUEST),
-    (lambda r: setattr(r, "goal_count", msgs.MAX_GOAL_COUNT + 1), E.INVALID_REQUEST),
+    (lambda r: setattr(r, "time_budget_s", MAX_TIME_BUDGET_S + 1.0), E.INVALID_REQUEST),
+    (lambda r: setattr(r, "goal_count", MAX_GOAL_COUNT + 1), E.INVALID_REQUEST),
     (lambda r: setattr(r, "arm", 7), E.INVALID_REQUEST),
     (lambda r: setattr(r, "planner", "foo"), E.INVALID_REQUEST),
     (_quat, E.INVALID_REQUEST),

@@ -18,12 +18,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from humanoid_reach_ros.codes import ExecuteCode, PlanError
+from humanoid_reach_ros.codes import ExecuteCode, PlanError, code_name
 from humanoid_reach_ros.operator import session as sess
 from humanoid_reach_ros.operator.cli import parse_args, plan_inputs
 from humanoid_reach_ros.operator.goal_status import GOAL_DONE, GOAL_KNOWN, LOST_RESPONSE_GRACE_S, GoalStatuses
 from humanoid_reach_ros.operator.marker import MarkerSightings
-from humanoid_reach_ros.operator.report import EXIT, PLAN_CODES, Progress, exit_class
+from humanoid_reach_ros.operator.report import EXIT, Progress, exit_class
 from humanoid_reach_ros.operator.session import Canceled, Countdown, OperatorSession
 
 STATS = {"goal_sampling_time_s": 0.1, "goals_found": 3, "goals_requested": 4, "path_planning_time_s": 0.2,
@@ -34,12 +34,13 @@ TRAJECTORY = NS(points=[NS(time_from_start=NS(sec=0, nanosec=0)), NS(time_from_s
 
 
 def plan_response(code: int = PlanError.SUCCESS, unobserved: list[list[float]] = (), message: str = "the planner says"):
-    return NS(success=code == PlanError.SUCCESS, error_code=int(code), message=message, arm=1, trajectory=TRAJECTORY,
+    return NS(success=code == PlanError.SUCCESS, error_code=NS(val=int(code)), message=message, arm=1,
+              trajectory=TRAJECTORY,
               statistics=dict(STATS), unobserved_points=[NS(x=p[0], y=p[1], z=p[2]) for p in unobserved])
 
 
 def result(code: int = ExecuteCode.SUCCESS, message: str = "the executor says", steps: int = 10):
-    return NS(success=code == ExecuteCode.SUCCESS, error_code=int(code), message=message, duration_s=1.5,
+    return NS(success=code == ExecuteCode.SUCCESS, error_code=NS(val=int(code)), message=message, duration_s=1.5,
               steps=steps, overruns=0, max_com_error_m=1e-4, min_distance_m=0.05, final_hand_error_m=0.002,
               final_hand_error_rad=0.01, poses_done=1)
 
@@ -138,7 +139,7 @@ def test_looks_run_out_are_off_or_have_no_server_then_the_planner_answer_stands(
     unobserved = [plan_response(PlanError.UNOBSERVED_SPACE, [[0.3, 0.0, 1.0]], "look there")] * 3
     c = FakeClient(unobserved)
     code, summary, text, err = run(c, *TARGET, "--max-looks", "2")
-    assert code == EXIT["no_input"] == exit_class(PLAN_CODES, PlanError.UNOBSERVED_SPACE) and len(c.looks) == 2
+    assert code == EXIT["no_input"] == exit_class(PlanError.UNOBSERVED_SPACE) and len(c.looks) == 2
     assert "still unobserved after 2 automatic look(s) at [0.3, 0.0, 1.0]" in err
     assert "plan failed: UNOBSERVED_SPACE (12): look there\n" in err and summary["plan"]["error_name"] == \
         "UNOBSERVED_SPACE"
@@ -159,7 +160,7 @@ def test_a_failed_automatic_look_stops_with_its_exit_code() -> None:
                    look=("done", result(ExecuteCode.ABORTED, "stale joint states")))
     code, summary, _, err = run(c, *TARGET)
     assert code == EXIT["execution"] and summary["plan"] is None
-    assert "look failed: ABORTED (5): stale joint states" in err and summary["auto_looks"][0]["error_name"] == "ABORTED"
+    assert "look failed: ABORTED (22): stale joint states" in err and summary["auto_looks"][0]["error_name"] == "ABORTED"
 
 
 # ---------------------------------------------------------------- exit codes
@@ -169,7 +170,7 @@ def test_a_refused_plan_exits_with_its_class(code: int, exit_code: int) -> None:
     c = FakeClient([plan_response(code, message="why")])
     got, summary, _, err = run(c, *TARGET, "--execute")
     assert got == exit_code and not c.executed and summary["execution"] is None
-    name = PLAN_CODES.get(code, (f"UNKNOWN_CODE_{code}",))[0]
+    name = code_name(code)
     assert f"plan failed: {name} ({code}): why -- " in err and summary["plan"]["error_name"] == name
 
 
@@ -178,9 +179,9 @@ def test_a_refused_plan_exits_with_its_class(code: int, exit_code: int) -> None:
     ("unavailable", None, 3, None),
     ("timeout", None, 3, "execution: no answer from /execute_reach within the trajectory duration + 60 s"),
     ("rejected", None, 7, "execution failed: the goal was rejected by /execute_reach"),
-    ("done", result(ExecuteCode.ABORTED, "held"), 7, "execution failed: ABORTED (5): held -- the executor stopped"),
+    ("done", result(ExecuteCode.ABORTED, "held"), 7, "execution failed: ABORTED (22): held -- the executor stopped"),
     ("done", result(ExecuteCode.TARGET_NOT_REACHED, "off", steps=0), 7, "execution failed: TARGET_NOT_REACHED"),
-    ("canceled", result(ExecuteCode.CANCELED, "holding"), 130, "execution canceled: CANCELED (4): holding\n"),
+    ("canceled", result(ExecuteCode.CANCELED, "holding"), 130, "execution canceled: CANCELED (21): holding\n"),
     ("canceled", None, 130, None),
 ])
 def test_an_execution_exits_with_its_class(outcome: str, res: Any, exit_code: int, line: str | None) -> None:

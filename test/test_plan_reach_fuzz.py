@@ -13,14 +13,15 @@ import math
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from humanoid_reach_interfaces.srv import PlanReach
 
-from humanoid_reach_ros.io import msgs
+from humanoid_reach_ros.codes import ErrorCode
+from humanoid_reach_ros.planning.reach import MAX_GOAL_COUNT, MAX_TIME_BUDGET_S
+from humanoid_reach_ros.planning.space import PLANNER_NAMES
 from humanoid_reach_ros.planning.wgr import ANGLE_TOL
 from test_reach_planner_node import DRIVER_PARAMS, FAST_DIAG, PARAMS_FILE, READY, SUCCESS_BUDGET_S, Planner, \
     valve_request
 
-E = PlanReach.Response
+E = ErrorCode
 N_EXAMPLES = 1000
 NON_FINITE = st.sampled_from([math.nan, math.inf, -math.inf])
 POSITION = ("x", "y", "z")
@@ -65,12 +66,12 @@ MUTATIONS = [
     (st.tuples(st.just(setattr), st.just("time_budget_s"), NON_FINITE), E.INVALID_REQUEST),
     (st.tuples(st.just(setattr), st.just("arm"), st.integers(3, 255)), E.INVALID_REQUEST),
     (st.tuples(st.just(setattr), st.just("planner"),
-               st.text(TEXT, min_size=1, max_size=20).filter(lambda s: s.strip() and s.strip() not in msgs.PLANNERS)),
+               st.text(TEXT, min_size=1, max_size=20).filter(lambda s: s.strip() and s.strip() not in PLANNER_NAMES)),
      E.INVALID_REQUEST),
     (st.tuples(st.just(setattr), st.just("time_budget_s"),
-               st.one_of(st.floats(-1e300, -1e-9), st.floats(msgs.MAX_TIME_BUDGET_S + 1e-6, 1e300))),
+               st.one_of(st.floats(-1e300, -1e-9), st.floats(MAX_TIME_BUDGET_S + 1e-6, 1e300))),
      E.INVALID_REQUEST),
-    (st.tuples(st.just(setattr), st.just("goal_count"), st.integers(msgs.MAX_GOAL_COUNT + 1, 2**32 - 1)),
+    (st.tuples(st.just(setattr), st.just("goal_count"), st.integers(MAX_GOAL_COUNT + 1, 2**32 - 1)),
      E.INVALID_REQUEST),
     (st.tuples(st.just(lambda r, f: setattr(r.region.target.header, "frame_id", f)),
                st.text(TEXT, max_size=30).filter(lambda f: f not in ("", "world", "base_link"))),
@@ -101,7 +102,7 @@ def test_malformed_requests_get_errors_and_node_keeps_serving(start_node, ros_pr
     planner = Planner(ros_probe, proc)
     # a first valid request also waits for /joint_states to reach the node
     ros_probe.spin_until(lambda: planner.call(valve_request(goal_count=1, time_budget_s=SUCCESS_BUDGET_S))
-                         .error_code != E.NO_JOINT_STATES, 30.0, "reach_planner to receive /joint_states",
+                         .error_code.val != E.NO_JOINT_STATES, 30.0, "reach_planner to receive /joint_states",
                          on_timeout=proc.log_tail)
     seen: dict[int, int] = {}
 
@@ -111,8 +112,8 @@ def test_malformed_requests_get_errors_and_node_keeps_serving(start_node, ros_pr
     def check(case) -> None:
         req, expected, _ = case
         resp = planner.call(req)
-        assert not resp.success and resp.error_code in expected and resp.message, (resp.error_code, resp.message)
-        seen[resp.error_code] = seen.get(resp.error_code, 0) + 1
+        assert not resp.success and resp.error_code.val in expected and resp.message, (resp.error_code, resp.message)
+        seen[resp.error_code.val] = seen.get(resp.error_code.val, 0) + 1
 
     check()
     print(f"\nerror codes of {sum(seen.values())} malformed requests: {seen}")
@@ -120,7 +121,7 @@ def test_malformed_requests_get_errors_and_node_keeps_serving(start_node, ros_pr
     assert set(seen) == {E.INVALID_REQUEST, E.INVALID_BOUNDS, E.UNKNOWN_FRAME}
     # no marker target was ever published
     resp = planner.call(valve_request(use_marker_target=True))
-    assert resp.error_code == E.NO_TARGET, resp.message
+    assert resp.error_code.val == E.NO_TARGET, resp.message
     assert proc.alive()
     resp = planner.call(valve_request(time_budget_s=SUCCESS_BUDGET_S))
-    assert resp.success, (resp.error_code, resp.message)
+    assert resp.success, (resp.error_code.val, resp.message)

@@ -16,7 +16,7 @@ import yaml
 
 from humanoid_reach_ros.codes import ARM_RIGHT, PlanError, RequestError
 from humanoid_reach_ros.planning.reach import PlanOutcome
-from humanoid_reach_ros.planning.service import ERROR_NAMES, OK, WARN, PlanningService, PlanningServiceConfig, \
+from humanoid_reach_ros.planning.service import OK, WARN, PlanningService, PlanningServiceConfig, \
     PlanReply
 from humanoid_reach_ros.planning.wgr import valve_region
 from nodetools import REPO_ROOT
@@ -94,10 +94,9 @@ def test_config_from_the_node_parameters() -> None:
     assert PlanningServiceConfig.refusal("target_timeout_s", 3.0) == ""
 
 
-def test_error_names_are_the_plan_errors() -> None:
-    assert ERROR_NAMES[0] == "SUCCESS" and ERROR_NAMES[99] == "INTERNAL_ERROR" and len(ERROR_NAMES) == len(PlanError)
+def test_a_reply_without_a_message_is_named_by_its_code() -> None:
     assert PlanReply(PlanError.NO_MAP).response_message == "NO_MAP"
-    assert PlanReply(123).response_message == "unknown error"
+    assert PlanReply(123).response_message == "UNKNOWN_CODE_123"
 
 
 # ---------------------------------------------------------------- inputs

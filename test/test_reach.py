@@ -220,7 +220,7 @@ def test_prm_planners(planner, region, name):
     """Both roadmap planners, by the names the /plan_reach service accepts. (The budget is
     for correctness on a loaded machine: the plain PRM needs ~4 s of CPU here, which the
     fixture's 5 s did not always cover while other jobs shared the cores.)"""
-    from humanoid_reach_ros.io.msgs import PLANNERS
+    from humanoid_reach_ros.planning.space import PLANNER_NAMES as PLANNERS
 
     assert name in PLANNERS
     o = planner.plan(planner.robot.half_sitting_joints,

@@ -24,6 +24,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState, PointCloud2
 from trajectory_msgs.msg import JointTrajectory
 
+from humanoid_reach_ros.codes import ErrorCode
 from humanoid_reach_ros.io import exec_msgs, msgs
 from humanoid_reach_ros.io.exec_msgs import ExecInputError
 from humanoid_reach_ros.nodes import reach_executor
@@ -34,7 +35,7 @@ from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.sim.scene import load_scene
 from nodetools import REPO_ROOT
 
-R = ExecuteReach.Result
+R = ErrorCode   # one numbering for every interface (msg/ErrorCode)
 G = ExecuteReach.Goal
 PARAMS_FILE = "config/reach_executor.yaml"
 DRIVER_PARAMS = "config/joint_driver.yaml"
@@ -180,7 +181,7 @@ def test_reference_validation_in_process(valve_plan, model) -> None:
     for name, (traj, word) in bad_trajectories(valve_plan, model).items():
         with pytest.raises(ExecInputError, match=word) as info:
             exec_msgs.reference_from_trajectory(traj, model)
-        assert info.value.code == R.INVALID_GOAL, name
+        assert info.value.code == R.INVALID_REQUEST, name
     travel = exec_msgs.arm_motion(model, ref.positions)
     assert travel["right"].joint_travel_rad > 1.0 and travel["left"].joint_travel_rad == 0.0
     assert travel["right"].hand_travel_m > travel["left"].hand_travel_m > 0.0  # the trunk moves the left hand too
@@ -289,13 +290,13 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
     ros_probe.spin_until(client.server_is_ready, 20.0, "/execute_reach server", on_timeout=ex.log_tail)
     forward, backward = trajectory(valve_plan), trajectory(valve_plan, reverse=True)
 
-    # no joint driver yet: NO_JOINT_STATES; a dual-arm goal without targets (empty frame_id): INVALID_GOAL
+    # no joint driver yet: NO_JOINT_STATES; a dual-arm goal without targets (empty frame_id): INVALID_REQUEST
     # (targets are checked before the joint states; dual-arm mode itself: test_dual_arm_node.py)
     st, res = Run(ros_probe, client, goal(forward)).result()
-    assert res.error_code == R.NO_JOINT_STATES and "no /joint_states" in res.message, res.message
+    assert res.error_code.val == R.NO_JOINT_STATES and "no /joint_states" in res.message, res.message
     assert st == GoalStatus.STATUS_ABORTED and not res.success
     st, res = Run(ros_probe, client, ExecuteReach.Goal(mode=G.MODE_DUAL_ARM)).result()
-    assert res.error_code == R.INVALID_GOAL and "DUAL_ARM" in res.message, res.message
+    assert res.error_code.val == R.INVALID_REQUEST and "DUAL_ARM" in res.message, res.message
     assert len(commands) == 0  # nothing commanded yet
 
     driver = start_node("joint_driver", params_file=DRIVER_PARAMS, ready_log=r"simulated hrp2")
@@ -303,7 +304,7 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
                          and msgs.diagnostic_level(s) == msgs.LEVEL_OK, 20.0, "executor to see /joint_states",
                          on_timeout=ex.log_tail)
 
-    # every bad goal: INVALID_GOAL with a message naming the defect; nothing is commanded
+    # every bad goal: INVALID_REQUEST with a message naming the defect; nothing is commanded
     bad = {name: goal(t) for name, (t, _) in bad_trajectories(valve_plan, model).items()}
     bad["arm 7"] = goal(forward, arm=7)
     bad["wrong arm"] = goal(forward, arm=exec_msgs.ARM_LEFT)
@@ -317,7 +318,7 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
         runs = {name: Run(ros_probe, client, bad[name]) for name in names[i:i + 5]}
         for name, run in runs.items():
             st, res = run.result()
-            assert res.error_code == R.INVALID_GOAL and st == GoalStatus.STATUS_ABORTED, (name, res.message)
+            assert res.error_code.val == R.INVALID_REQUEST and st == GoalStatus.STATUS_ABORTED, (name, res.message)
             assert words[name] in res.message, (name, res.message)
             print(f"{name}: {res.message}")
     assert ex.alive() and len(commands) == 0
@@ -332,7 +333,7 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
         ros_probe.spin_until(lambda i=i: (s := status(diags, ": execution")) is not None
                              and int(msgs.diagnostic_values(s)["trajectories_rejected"]) == i + 1, 20.0,
                              f"rejection {i + 1} in /diagnostics", on_timeout=ex.log_tail)
-    wait_log(ros_probe, ex, r"rejected /reach_trajectory #1 \(INVALID_GOAL\): .*NO_SUCH_JOINT")
+    wait_log(ros_probe, ex, r"rejected /reach_trajectory #1 \(INVALID_REQUEST\): .*NO_SUCH_JOINT")
     values = msgs.diagnostic_values(status(diags, ": execution"))
     assert int(values["goals_rejected"]) == 2 + len(bad) and "/reach_trajectory #3" in values["last_rejection"]
     assert len(commands) == 0
@@ -357,10 +358,10 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
     ros_probe.spin_until(lambda: g1.progress() >= 0.25, 30.0, "G1 progress", on_timeout=ex.log_tail)
     g2 = Run(ros_probe, client, goal(forward, arm=exec_msgs.ARM_AUTO))
     st1, r1 = g1.result()
-    assert r1.error_code == R.PREEMPTED and st1 == GoalStatus.STATUS_ABORTED and "preempted by goal" in r1.message
+    assert r1.error_code.val == R.PREEMPTED and st1 == GoalStatus.STATUS_ABORTED and "preempted by goal" in r1.message
     assert r1.steps > 0 and 0.25 <= g1.progress() < 1.0
     st2, r2 = g2.result(60.0)
-    assert r2.success and r2.error_code == R.SUCCESS and st2 == GoalStatus.STATUS_SUCCEEDED, r2.message
+    assert r2.success and r2.error_code.val == R.SUCCESS and st2 == GoalStatus.STATUS_SUCCEEDED, r2.message
     print(f"\nG2: {r2.message}: {r2.steps} steps, {r2.overruns} overruns, {r2.duration_s:.2f} s, min distance "
           f"{r2.min_distance_m:.4f} m, max COG error {r2.max_com_error_m * 1e3:.3f} mm, final hand error "
           f"{r2.final_hand_error_m * 1e3:.3f} mm")
@@ -412,7 +413,7 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
     cancel = handle.cancel_goal_async()
     ros_probe.spin_until(cancel.done, 20.0, "cancel response")
     st3, r3 = g3.result()
-    assert st3 == GoalStatus.STATUS_CANCELED and r3.error_code == R.CANCELED, r3.message
+    assert st3 == GoalStatus.STATUS_CANCELED and r3.error_code.val == R.CANCELED, r3.message
     assert 0 < r3.steps and r3.min_distance_m >= 0.0
     assert wait_log(ros_probe, ex, r"goal #\d+: CANCELED at progress")
 
@@ -460,7 +461,7 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
     ros_probe.spin_until(lambda: g4.progress() >= 0.05, 30.0, "G4 progress", on_timeout=ex.log_tail)
     driver.stop()
     st4, r4 = g4.result()
-    assert st4 == GoalStatus.STATUS_ABORTED and r4.error_code == R.ABORTED and "stale" in r4.message, r4.message
+    assert st4 == GoalStatus.STATUS_ABORTED and r4.error_code.val == R.ABORTED and "stale" in r4.message, r4.message
     assert g4.progress() < 0.9
     # the commands sent after the result (not those of the motion still queued at the probe): held
     t_abort = time.time()
@@ -472,13 +473,13 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
     Js = np.array([m.position for m in held_since_abort()])
     assert np.max(np.abs(Js[-10:] - Js[-1])) < 1e-6   # holding still
     st, res = Run(ros_probe, client, goal(forward)).result()
-    assert res.error_code == R.NO_JOINT_STATES and "stale" in res.message, res.message
+    assert res.error_code.val == R.NO_JOINT_STATES and "stale" in res.message, res.message
     assert ex.alive()
 
 
 def test_dual_arm_requests_need_a_torso_model(model, tmp_path) -> None:
     """A robot whose description names no torso regression model: dual-arm goals and the
-    sequential service are refused with INVALID_GOAL naming what to do (the node starts its
+    sequential service are refused with INVALID_REQUEST naming what to do (the node starts its
     loop without a dual-arm engine)."""
     import yaml
 
@@ -500,7 +501,7 @@ def test_dual_arm_requests_need_a_torso_model(model, tmp_path) -> None:
                  lambda: req.sequential(2, "seq", 3, 0, model.half_sitting_joints, "")):
         with pytest.raises(RequestError, match="no dual-arm torso regression model") as e:
             call()
-        assert e.value.code == ExecuteCode.INVALID_GOAL
+        assert e.value.code == ExecuteCode.INVALID_REQUEST
     assert ExecutionRequests(model, p).dual_arm_model() == model.spec.torso_regression
 
 

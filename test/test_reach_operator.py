@@ -17,6 +17,7 @@ import pytest
 from humanoid_reach_interfaces.action import ExecuteReach
 from humanoid_reach_interfaces.srv import PlanReach
 
+from humanoid_reach_ros.codes import CODE_INFO, ErrorCode
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes import reach_operator as op
 from humanoid_reach_ros.planning.wgr import matrix_rpy, valve_region
@@ -25,40 +26,33 @@ from nodetools import REPO_ROOT, wait_for
 MODULE = "humanoid_reach_ros.nodes.reach_operator"
 
 
-def constants(cls) -> dict[int, str]:
-    return {getattr(cls, n): n for n in dir(cls) if n.isupper() and not n.startswith("_")
-            and isinstance(getattr(cls, n), int) and not n.startswith(("ARM_", "MODE_"))}
-
-
 # ---------------------------------------------------------------- units
 def test_every_error_code_has_a_name_class_and_hint() -> None:
-    plan = constants(PlanReach.Response)
-    assert {k: v[0] for k, v in op.PLAN_CODES.items()} == plan
-    execute = constants(ExecuteReach.Result)
-    assert {k: v[0] for k, v in op.EXECUTE_CODES.items()} == execute
-    # no hint of the operator's own where the server's message says what to do (said once)
-    own_words = {("plan", PlanReach.Response.NO_GOAL_FOUND), ("execute", ExecuteReach.Result.CANCELED),
-                 ("plan", PlanReach.Response.START_IN_COLLISION), ("plan", PlanReach.Response.UNOBSERVED_SPACE),
-                 ("plan", PlanReach.Response.UNOBSERVABLE_SPACE)}
-    for kind, codes in (("plan", op.PLAN_CODES), ("execute", op.EXECUTE_CODES)):
-        for code, (name, cls, hint) in codes.items():
-            assert cls in op.EXIT, name
-            assert not hint or (kind, code) not in own_words, (name, hint)
-            text = op.code_text(codes, code, "server says why")
-            assert text.startswith(f"{name} ({code}): server says why")
-            assert (" -- " in text) == bool(hint and code != 0)
-            assert (op.exit_class(codes, code) == 0) == (code == 0)
-    cancel = op.code_text(op.EXECUTE_CODES, ExecuteReach.Result.CANCELED, "canceled by the client; holding the last "
-                          "command")
-    assert cancel == "CANCELED (4): canceled by the client; holding the last command"
+    """One numbering (msg/ErrorCode, codes.ErrorCode): every code has an exit class and a hint in
+    codes.CODE_INFO, none of the operator's own where the server's message says what to do."""
+    from humanoid_reach_interfaces.msg import ErrorCode as ErrorCodeMsg
+    generated = {getattr(ErrorCodeMsg, n): n for n in dir(ErrorCodeMsg) if n.isupper() and isinstance(getattr(ErrorCodeMsg, n), int)}
+    assert {int(c): c.name for c in ErrorCode} == generated
+    assert set(CODE_INFO) == set(ErrorCode)
+    own_words = {ErrorCode.NO_GOAL_FOUND, ErrorCode.CANCELED, ErrorCode.START_IN_COLLISION, ErrorCode.UNOBSERVED_SPACE,
+                 ErrorCode.UNOBSERVABLE_SPACE}
+    for code, (cls, hint) in CODE_INFO.items():
+        assert cls in op.EXIT, code.name
+        assert not hint or code not in own_words, (code.name, hint)
+        text = op.code_text(code, "server says why")
+        assert text.startswith(f"{code.name} ({int(code)}): server says why")
+        assert (" -- " in text) == bool(hint and code != 0)
+        assert (op.exit_class(code) == 0) == (code == 0)
+    cancel = op.code_text(ErrorCode.CANCELED, "canceled by the client; holding the last command")
+    assert cancel == "CANCELED (21): canceled by the client; holding the last command"
     # failure classes are told apart by the exit code
-    assert op.exit_class(op.PLAN_CODES, PlanReach.Response.INVALID_BOUNDS) == 4
-    assert op.exit_class(op.PLAN_CODES, PlanReach.Response.NO_PATH) == 5
-    assert op.exit_class(op.PLAN_CODES, PlanReach.Response.NO_TARGET) == 6
-    assert op.exit_class(op.PLAN_CODES, PlanReach.Response.INTERNAL_ERROR) == 1
-    assert op.exit_class(op.EXECUTE_CODES, ExecuteReach.Result.ABORTED) == 7
-    assert op.exit_class(op.EXECUTE_CODES, ExecuteReach.Result.CANCELED) == 130
-    assert "UNKNOWN_CODE_42" in op.code_text(op.PLAN_CODES, 42, "") and op.exit_class(op.PLAN_CODES, 42) == 1
+    assert op.exit_class(ErrorCode.INVALID_BOUNDS) == op.exit_class(ErrorCode.INVALID_REQUEST) == 4
+    assert op.exit_class(ErrorCode.NO_PATH) == 5
+    assert op.exit_class(ErrorCode.NO_TARGET) == op.exit_class(ErrorCode.NO_JOINT_STATES) == 6
+    assert op.exit_class(ErrorCode.INTERNAL_ERROR) == 1
+    assert op.exit_class(ErrorCode.ABORTED) == op.exit_class(ErrorCode.TARGET_NOT_REACHED) == 7
+    assert op.exit_class(ErrorCode.CANCELED) == 130
+    assert "UNKNOWN_CODE_42" in op.code_text(42, "") and op.exit_class(42) == 1
 
 
 def test_progress_bar_and_printer() -> None:
@@ -196,7 +190,8 @@ def test_help_documents_the_degree_flags(capsys) -> None:
 
 
 def test_execution_summary_handles_non_finite() -> None:
-    r = ExecuteReach.Result(success=False, error_code=5, message="stale", duration_s=1.0, steps=3,
+    r = ExecuteReach.Result(success=False, error_code=msgs.error_code(ErrorCode.ABORTED), message="stale",
+                            duration_s=1.0, steps=3,
                             min_distance_m=math.inf)
     s = op.execution_summary("done", r)
     assert s["error_name"] == "ABORTED" and s["min_distance_m"] is None
@@ -295,7 +290,7 @@ def test_execute_with_progress_and_cancel(start_node, ros_env, tmp_path: Path) -
     if e["success"]:
         assert r.returncode == 0 == summary["exit_code"] and e["error_name"] == "SUCCESS", r.stderr
     else:  # the executor's verdict (e.g. ABORTED on an overloaded machine), reported by name and class
-        assert r.returncode == op.exit_class(op.EXECUTE_CODES, e["error_code"]) == summary["exit_code"] == 7
+        assert r.returncode == op.exit_class(e["error_code"]) == summary["exit_code"] == 7
         assert f"execution failed: {e['error_name']} ({e['error_code']}): {e['message']}" in r.stderr
         print(f"\nNOTE: the executor did not succeed: {e['error_name']}: {e['message']}")
     print(f"\n{bars[-1]}\nexecution: {e}")
@@ -314,7 +309,7 @@ def test_execute_with_progress_and_cancel(start_node, ros_env, tmp_path: Path) -
         if proc.poll() is None:
             proc.kill()
     text = log.read_text()
-    assert "Ctrl-C: canceling the goal" in text and "execution canceled: CANCELED (4)" in text
+    assert "Ctrl-C: canceling the goal" in text and "execution canceled: CANCELED (21)" in text
     summary = json.loads((tmp_path / "operator.out").read_text())
     assert summary["exit_code"] == 130 and summary["execution"]["error_name"] == "CANCELED"
 
@@ -337,10 +332,10 @@ class _SlowLookGraph:
             time.monotonic() - self.t0 >= self.look_after_s)})()
 
     def plan(self, req):
-        resp = PlanReach.Response(error_code=PlanReach.Response.UNOBSERVED_SPACE)
+        resp = PlanReach.Response(error_code=msgs.error_code(ErrorCode.UNOBSERVED_SPACE))
         resp.unobserved_points = msgs.points_list(np.array([[0.25, -0.29, 0.66]])) if not self.looks else []
         if self.looks:
-            resp.error_code = PlanReach.Response.SUCCESS
+            resp.error_code.val = ErrorCode.SUCCESS
         return resp
 
 
@@ -356,7 +351,7 @@ def test_an_automatic_look_waits_for_a_slowly_discovered_look_server(monkeypatch
     slow = _SlowLookGraph(look_after_s=4.0, timeout_s=20.0)
     text = io.StringIO()
     resp, code = op.OperatorSession(slow, args, text, slow.err, {}).plan_with_looks(PlanReach.Request())
-    assert code == 0 and resp.error_code == PlanReach.Response.SUCCESS, slow.err.getvalue()
+    assert code == 0 and resp.error_code.val == ErrorCode.SUCCESS, slow.err.getvalue()
     assert len(slow.looks) == 1 and np.allclose(slow.looks[0], [[0.25, -0.29, 0.66]])
     assert "automatic look 1/3" in text.getvalue()
     assert "waiting for /look (reach_executor, for an automatic look; --no-auto-look skips it) ... 1" in (
@@ -364,7 +359,7 @@ def test_an_automatic_look_waits_for_a_slowly_discovered_look_server(monkeypatch
 
     never = _SlowLookGraph(look_after_s=None, timeout_s=2.5)
     resp, code = op.OperatorSession(never, args, io.StringIO(), never.err, {}).plan_with_looks(PlanReach.Request())
-    assert code == 0 and resp.error_code == PlanReach.Response.UNOBSERVED_SPACE and not never.looks
+    assert code == 0 and resp.error_code.val == ErrorCode.UNOBSERVED_SPACE and not never.looks
     assert "/look not available after 2.5 s (is reach_executor running? --no-auto-look plans without looking): " \
            "no automatic look at [0.25, -0.29, 0.66]" in never.err.getvalue(), never.err.getvalue()
 
@@ -372,7 +367,7 @@ def test_an_automatic_look_waits_for_a_slowly_discovered_look_server(monkeypatch
     off = _SlowLookGraph(look_after_s=None, timeout_s=30.0)
     resp, code = op.OperatorSession(off, op.parse_args(["--target", "0.45", "-0.35", "0.50", "--no-auto-look"]),
                                     io.StringIO(), off.err, {}).plan_with_looks(PlanReach.Request())
-    assert resp.error_code == PlanReach.Response.UNOBSERVED_SPACE and not off.looks and time.monotonic() - t0 < 5.0
+    assert resp.error_code.val == ErrorCode.UNOBSERVED_SPACE and not off.looks and time.monotonic() - t0 < 5.0
 
 
 def test_a_lost_goal_response_is_recovered_from_the_goal_status(ros_env) -> None:
@@ -394,7 +389,7 @@ def test_a_lost_goal_response_is_recovered_from_the_goal_status(ros_env) -> None
 
     def execute(goal_handle):
         goal_handle.succeed()
-        return Look.Result(error_code=Look.Result.SUCCESS, message="looked")
+        return Look.Result(error_code=msgs.error_code(ErrorCode.SUCCESS), message="looked")
     server = ActionServer(node, Look, "/look", execute_callback=execute)
 
     class DropGoalResponses:   # the server's handle, but its goal responses are lost

@@ -20,6 +20,7 @@ from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import Marker, MarkerArray
 
 from humanoid_reach_ros.geometry.voxels import without_target
+from humanoid_reach_ros.codes import ErrorCode, code_name
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.nodes import reach_planner
 from humanoid_reach_ros.planning.wgr import valve_region
@@ -27,7 +28,7 @@ from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.sim.scene import load_scene
 from nodetools import REPO_ROOT
 
-E = PlanReach.Response
+E = ErrorCode
 PARAMS_FILE = "config/reach_planner.yaml"
 DRIVER_PARAMS = "config/joint_driver.yaml"
 READY = r"reach planner ready"
@@ -141,7 +142,7 @@ def test_valve_plan_execute_markers_and_bad_requests(start_node, ros_probe, mode
 
     # the valve WGR of eq. 3
     resp = planner.call(valve_request(time_budget_s=SUCCESS_BUDGET_S))
-    assert resp.success and resp.error_code == E.SUCCESS, (resp.error_code, resp.message)
+    assert resp.success and resp.error_code.val == E.SUCCESS, (resp.error_code.val, resp.message)
     traj = check_trajectory(resp, model, model.half_sitting_joints)
     assert resp.arm in (PlanReach.Request.ARM_RIGHT, PlanReach.Request.ARM_LEFT) and resp.message
     s = resp.statistics
@@ -204,9 +205,9 @@ def test_valve_plan_execute_markers_and_bad_requests(start_node, ros_probe, mode
         req = valve_request()
         mutate(req)
         resp = planner.call(req)
-        assert not resp.success and resp.error_code == code, (mutate.__name__, resp.error_code, resp.message)
+        assert not resp.success and resp.error_code.val == code, (mutate.__name__, resp.error_code.val, resp.message)
         assert resp.message and len(resp.trajectory.points) == 0
-        print(f"{mutate.__name__}: {reach_planner.ERROR_NAMES[resp.error_code]}: {resp.message}")
+        print(f"{mutate.__name__}: {code_name(resp.error_code.val)}: {resp.message}")
 
     # use_marker_target with a current /target_pose: the marker pose replaces region.target
     target_pub = ros_probe.node.create_publisher(PoseStamped, "/target_pose", 10)
@@ -219,7 +220,7 @@ def test_valve_plan_execute_markers_and_bad_requests(start_node, ros_probe, mode
     def marker_plan():
         target_pub.publish(valve_pose)
         resp = planner.call(req)
-        return None if resp.error_code == E.NO_TARGET else resp
+        return None if resp.error_code.val == E.NO_TARGET else resp
 
     resp = ros_probe.spin_until(marker_plan, 20.0, "a plan to the /target_pose")
     assert resp.success, resp.message
@@ -258,14 +259,14 @@ def test_voxel_map_switch_collision_busy_and_malformed(start_node, ros_probe, mo
 
     # no joint_driver yet
     resp = planner.call(valve_request())
-    assert resp.error_code == E.NO_JOINT_STATES, resp.message
+    assert resp.error_code.val == E.NO_JOINT_STATES, resp.message
     st = ros_probe.spin_until(lambda: status(diags, ": map"), 5.0, "map diagnostic")
     assert msgs.diagnostic_level(st) == msgs.LEVEL_WARN and "no map" in st.message
 
     start_driver(start_node, ros_probe)
     wait_inputs_ok(ros_probe, diags, proc)
     resp = planner.call(valve_request())
-    assert resp.error_code == E.NO_MAP, resp.message
+    assert resp.error_code.val == E.NO_MAP, resp.message
 
     map_pub = ros_probe.node.create_publisher(PointCloud2, "/voxel_map", LATCHED)
 
@@ -277,26 +278,26 @@ def test_voxel_map_switch_collision_busy_and_malformed(start_node, ros_probe, mo
     # unobserved space (unobserved_space: occupied, the default): a /voxel_map without the mapper's
     # unobserved layers cannot tell observed from unobserved space; a target inside an unobserved block
     resp = planner.call(valve_request())
-    assert resp.error_code == E.UNOBSERVED_SPACE and "no /voxel_map/unobserved" in resp.message, resp.message
+    assert resp.error_code.val == E.UNOBSERVED_SPACE and "no /voxel_map/unobserved" in resp.message, resp.message
     frontier_pub = ros_probe.node.create_publisher(PointCloud2, "/voxel_map/unobserved", LATCHED)
     blocks_pub = ros_probe.node.create_publisher(PointCloud2, "/voxel_map/unobserved_blocks", LATCHED)
     target = valve_region().target_p
     frontier_pub.publish(msgs.cloud_from_points(np.empty((0, 3)), "world"))
     blocks_pub.publish(msgs.cloud_from_points(np.array([target + 0.03, [5.0, 5.0, 5.0]]), "world"))
-    resp = ros_probe.spin_until(lambda: (r := planner.call(valve_request())).error_code == E.UNOBSERVED_SPACE
+    resp = ros_probe.spin_until(lambda: (r := planner.call(valve_request())).error_code.val == E.UNOBSERVED_SPACE
                                 and "lies in space the head has not observed" in r.message and r, 20.0,
                                 "the unobserved target refused", on_timeout=proc.log_tail)
     assert "scan (--scan)" in resp.message and "0.1 m block around" in resp.message, resp.message
     assert len(resp.unobserved_points) == 1, resp.unobserved_points   # where to look
     blocks_pub.publish(msgs.cloud_from_points(np.array([[5.0, 5.0, 5.0]]), "world"))   # the target is observed
-    resp = ros_probe.spin_until(lambda: (r := planner.call(valve_request())).error_code != E.UNOBSERVED_SPACE
+    resp = ros_probe.spin_until(lambda: (r := planner.call(valve_request())).error_code.val != E.UNOBSERVED_SPACE
                                 and r, 20.0, "the target observed", on_timeout=proc.log_tail)
-    assert resp.error_code == E.START_IN_COLLISION, resp.message
+    assert resp.error_code.val == E.START_IN_COLLISION, resp.message
     assert resp.statistics.map_voxels == len(inside)
     broken = msgs.cloud_from_points(np.ones((4, 3)), "map")                          # wrong frame: kept the old one
     blocks_pub.publish(broken)
     planner.wait_log_count(r"rejected /voxel_map/unobserved_blocks: frame_id 'map'", 1)
-    assert planner.call(valve_request()).error_code == E.START_IN_COLLISION
+    assert planner.call(valve_request()).error_code.val == E.START_IN_COLLISION
     st = ros_probe.spin_until(lambda: (s := status(diags, ": map")) and "/voxel_map" in s.message and s,
                               5.0, "map diagnostic from /voxel_map")
     assert int(msgs.diagnostic_values(st)["voxels"]) == len(inside)
@@ -308,7 +309,7 @@ def test_voxel_map_switch_collision_busy_and_malformed(start_node, ros_probe, mo
     planner.wait_log_count(r"rejected /voxel_map .*no z field.*keeping the previous map", 1)
     assert proc.alive()
     resp = planner.call(valve_request())
-    assert resp.error_code == E.START_IN_COLLISION and resp.statistics.map_voxels == len(inside)
+    assert resp.error_code.val == E.START_IN_COLLISION and resp.statistics.map_voxels == len(inside)
 
     # the plant scene with a wall between the robot and the valve -> no reach; a second
     # request during that plan gets BUSY
@@ -324,11 +325,11 @@ def test_voxel_map_switch_collision_busy_and_malformed(start_node, ros_probe, mo
     first = planner.call_async(valve_request(time_budget_s=1.5))
     second = planner.call_async(valve_request())
     r1, r2 = planner.wait(first), planner.wait(second)
-    codes = sorted([r1.error_code, r2.error_code])
-    print(f"\nwall: {r1.error_code} {r1.message!r}; concurrent: {r2.error_code} {r2.message!r}")
+    codes = sorted([r1.error_code.val, r2.error_code.val])
+    print(f"\nwall: {r1.error_code.val} {r1.message!r}; concurrent: {r2.error_code.val} {r2.message!r}")
     assert E.BUSY in codes, codes
-    blocked = r1 if r2.error_code == E.BUSY else r2
-    assert blocked.error_code in (E.NO_GOAL_FOUND, E.NO_PATH), blocked.message
+    blocked = r1 if r2.error_code.val == E.BUSY else r2
+    assert blocked.error_code.val in (E.NO_GOAL_FOUND, E.NO_PATH), blocked.message
     # the voxels around the valve target are left out (target_exclusion_radius_m)
     kept = without_target(walled, valve_region().target_p, 0.15)
     assert len(kept) < len(walled) and blocked.statistics.map_voxels == len(kept)
@@ -365,7 +366,7 @@ def test_exception_in_planning_is_internal_error(ros_env) -> None:
 
         real_plan, node.planner.plan = node.planner.plan, broken
         resp = node._on_plan_reach(valve_request(), PlanReach.Response())
-        assert resp.error_code == E.INTERNAL_ERROR and not resp.success and "boom" in resp.message
+        assert resp.error_code.val == E.INTERNAL_ERROR and not resp.success and "boom" in resp.message
         assert calls and calls[0].arm == "auto" and calls[0].seed is None
         node.planner.plan = real_plan
         resp = node._on_plan_reach(valve_request(goal_count=3), PlanReach.Response())
@@ -393,7 +394,7 @@ def test_a_refused_retreat_logs_every_retreat_tried(ros_env) -> None:
                 return lambda text, **_: lines.append((level, text))
         node.get_logger = lambda: Recorder()
         resp = node._on_plan_reach(valve_request(), PlanReach.Response())
-        assert resp.error_code == E.START_IN_COLLISION and resp.message == message
+        assert resp.error_code.val == E.START_IN_COLLISION and resp.message == message
         every = [text for level, text in lines if "retreats tried" in text]
         assert len(every) == 1 and "the 9 retreats tried: 1) direction 0" in every[0], lines
         assert all(f"{k + 1}) {why}" in every[0] for k, why in enumerate(tried))
@@ -411,9 +412,9 @@ def test_stale_inputs_in_order(ros_env) -> None:
         node.joint_states.put(msgs.joint_state(model.joint_names, model.half_sitting_joints),
                               time.monotonic() - 2.0 * node._p["joint_states_timeout_s"])
         resp = node._on_plan_reach(valve_request(), PlanReach.Response())
-        assert resp.error_code == E.NO_JOINT_STATES and "stale" in resp.message, resp.message
+        assert resp.error_code.val == E.NO_JOINT_STATES and "stale" in resp.message, resp.message
         resp = node._on_plan_reach(valve_request(use_marker_target=True), PlanReach.Response())
-        assert resp.error_code == E.NO_TARGET and "/target_pose" in resp.message, resp.message
+        assert resp.error_code.val == E.NO_TARGET and "/target_pose" in resp.message, resp.message
         node.joint_states.put(msgs.joint_state(model.joint_names, model.half_sitting_joints))
         joints, reason = node.current_joints()
         assert reason == "" and np.allclose(joints, model.half_sitting_joints)
@@ -433,7 +434,7 @@ def test_measured_map_leaves_the_target_object_out(ros_env) -> None:
         node._on_map(msgs.cloud_from_points(full, "world"))
         target = valve_region().target_p
         resp = node._on_plan_reach(valve_request(time_budget_s=SUCCESS_BUDGET_S), PlanReach.Response())
-        assert resp.success, (resp.error_code, resp.message)
+        assert resp.success, (resp.error_code.val, resp.message)
         kept = without_target(full, target, 0.15)
         # (+-few: voxels exactly at the radius, and the target's float round trip through the message)
         assert len(full) - len(kept) > 100 and abs(resp.statistics.map_voxels - len(kept)) <= 4

@@ -377,7 +377,7 @@ def test_readme_service_call_plans_on_a_running_planner(start_node, ros_probe) -
     client = ros_probe.node.create_client(PlanReach, srv)
     ros_probe.spin_until(client.service_is_ready, 30.0, srv, on_timeout=proc.log_tail)
     wait_inputs_ok(ros_probe, diags, proc)
-    E = PlanReach.Response
+    from humanoid_reach_ros.codes import ErrorCode as E
     # A loaded 2-core machine may run out of the payload's 2 s budget (or starve the joint-state
     # stream for a moment): those are retried, a request the planner refuses as wrong never is.
     resp = None
@@ -385,11 +385,11 @@ def test_readme_service_call_plans_on_a_running_planner(start_node, ros_probe) -
         future = client.call_async(service_request(typ, payload))
         resp = ros_probe.spin_until(lambda future=future: future.done() and future.result(), 60.0,
                                     "a /plan_reach response", on_timeout=proc.log_tail)
-        assert resp.error_code not in (E.INVALID_REQUEST, E.INVALID_BOUNDS, E.UNKNOWN_FRAME), resp.message
-        if resp.error_code not in (E.NO_JOINT_STATES, E.NO_GOAL_FOUND, E.NO_PATH):
+        assert resp.error_code.val not in (E.INVALID_REQUEST, E.INVALID_BOUNDS, E.UNKNOWN_FRAME), resp.message
+        if resp.error_code.val not in (E.NO_JOINT_STATES, E.NO_GOAL_FOUND, E.NO_PATH):
             break
         wait_inputs_ok(ros_probe, diags, proc)
-    assert resp is not None and resp.success and resp.error_code == E.SUCCESS, (resp.error_code, resp.message)
+    assert resp is not None and resp.success and resp.error_code.val == E.SUCCESS, (resp.error_code.val, resp.message)
     assert resp.arm in (PlanReach.Request.ARM_RIGHT, PlanReach.Request.ARM_LEFT)
     assert len(resp.trajectory.points) >= 2 and len(resp.trajectory.joint_names) == 30
 

@@ -117,9 +117,9 @@ def test_a_start_off_the_manifold_goes_by_home_whatever_the_longer_retreats_say(
     def fake_plan(joints, request, stats, t0, snap, collisions=None, force_retreat=False, min_retreat_m=None):
         calls.append(min_retreat_m)
         if min_retreat_m is None:
-            raise reach_mod._Failure(PlanError.START_IN_COLLISION, "the start posture cannot be moved to the "
+            raise reach_mod._failure(PlanError.START_IN_COLLISION, "the start posture cannot be moved to the "
                                      "planning manifold without collision (right arm: pre_segment)")
-        raise reach_mod._Failure(PlanError.START_IN_COLLISION, "the right hand touches the map and no retreat "
+        raise reach_mod._failure(PlanError.START_IN_COLLISION, "the right hand touches the map and no retreat "
                                  "of 120-250 mm frees it")
 
     def fake_via_home(joints, request, snap, t0, failed):

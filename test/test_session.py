@@ -11,7 +11,7 @@ process with its own parameter file; plant scene):
 
 each a separate process (``--json``). Every step succeeds; the two that start with the hand on
 something plan a retreat first (the planner's message: "first a retreat ..."); no execution or
-look is refused (INVALID_GOAL); at the end the measured joints are at half-sitting, and Ctrl-C
+look is refused (INVALID_REQUEST); at the end the measured joints are at half-sitting, and Ctrl-C
 stops every node with exit code 0 within ``STOP_DEADLINE_S`` (3 s). On the way, bad head
 requests are refused with a reason and nothing stops (a pose outside the head's limits from
 the command line; mismatched pose lists through the action), a target given before the scan
@@ -35,6 +35,7 @@ from humanoid_reach_interfaces.action import Look
 from rclpy.action import ActionClient
 from sensor_msgs.msg import JointState
 
+from humanoid_reach_ros.codes import ErrorCode
 from humanoid_reach_ros.demo import SIM_JOINT_STATES_ABORT_S, SIM_JOINT_STATES_TIMEOUT_S
 from humanoid_reach_ros.graph import STOP_DEADLINE_S
 from humanoid_reach_ros.io import exec_msgs, msgs
@@ -78,7 +79,7 @@ def refused(out: dict) -> list[str]:
     """Every refused execution or look of one reach_operator summary."""
     results = [out.get("execution"), out.get("look"), *(out.get("auto_looks") or [])]
     return [f"{r.get('error_name')}: {r.get('message')}" for r in results
-            if r and (r.get("error_name") == "INVALID_GOAL" or r.get("outcome") == "rejected")]
+            if r and (r.get("error_name") == "INVALID_REQUEST" or r.get("outcome") == "rejected")]
 
 
 def test_a_session_of_reaches_ends_at_half_sitting(start_node, ros_env, ros_probe) -> None:
@@ -110,11 +111,11 @@ def test_a_session_of_reaches_ends_at_half_sitting(start_node, ros_env, ros_prob
 
     # bad head requests are refused with a reason, nothing stops
     code, out, err = operator(ros_env, "--look", "0", "200")
-    assert code == 7 and out["look"]["error_name"] == "INVALID_GOAL" and "HEAD_JOINT1" in err, (code, out, err)
+    assert code == 4 and out["look"]["error_name"] == "INVALID_REQUEST" and "HEAD_JOINT1" in err, (code, out, err)
     client = ActionClient(ros_probe.node, Look, "/look")
     ros_probe.spin_until(client.server_is_ready, 30.0, "/look")
     res = look_result(ros_probe, client, Look.Goal(yaw_rad=[0.1, 0.2], pitch_rad=[0.3]), 30.0)
-    assert res.error_code == Look.Result.INVALID_GOAL and "one pitch per yaw" in res.message, res.message
+    assert res.error_code.val == ErrorCode.INVALID_REQUEST and "one pitch per yaw" in res.message, res.message
     # a target before the scan: the head has not seen it
     code, out, err = operator(ros_env, "--target", "0.71", "0.03", "0.90", "--no-auto-look")
     assert code == 6 and out["plan"]["error_name"] == "UNOBSERVED_SPACE" and "scan (--scan)" in err, (code, out, err)
@@ -133,7 +134,7 @@ def test_a_session_of_reaches_ends_at_half_sitting(start_node, ros_env, ros_prob
     for goal, words in ((Look.Goal(gaze_points=[Point(x=math.nan, z=1.0)]), "gaze point 0 has NaN/inf"),
                         (Look.Goal(yaw_rad=[0.1], pitch_rad=[0.2], gaze_points=[Point(x=0.7, z=0.9)]), "not both")):
         res = look_result(ros_probe, client, goal)
-        assert res.error_code == Look.Result.INVALID_GOAL and words in res.message, res.message
+        assert res.error_code.val == ErrorCode.INVALID_REQUEST and words in res.message, res.message
     res = look_result(ros_probe, client, exec_msgs.look_goal_at([[0.71, 0.03, 0.90], [6.0, 0.0, 1.3]], dwell_s=0.2))
     print(f"gaze: {res.message} [{res.duration_s:.1f} s, max COG error {res.max_com_error_m * 1e3:.3f} mm]")
     assert res.success and res.poses_done == 2 and res.max_com_error_m < 1e-3, res.message

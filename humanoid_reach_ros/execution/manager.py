@@ -35,14 +35,13 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from humanoid_reach_ros.codes import ARM_AUTO, ExecuteCode as C, RequestError
+from humanoid_reach_ros.codes import ARM_AUTO, ExecuteCode as C, RequestError, code_name
 from humanoid_reach_ros.execution.config import MAX_SEQUENTIAL, ExecutionConfig
 from humanoid_reach_ros.execution.messages import (LogLine, LoopCommand, LoopEvent, LoopExited, LoopStatus,
                                                    MotionFinished, MotionStarted, SetMap, StartMotion, StopMotion)
 from humanoid_reach_ros.execution.requests import ExecutionRequests
 from humanoid_reach_ros.execution.supervisor import IDLE, Motion
 
-RESULT_NAMES = {int(c): c.name for c in C}
 LEVEL_OK, LEVEL_WARN, LEVEL_ERROR = 0, 1, 2      # diagnostic levels (diagnostic_msgs' numbering)
 
 
@@ -209,12 +208,12 @@ class MotionTracker:
         pend.code, pend.message, pend.summary = code, message, s.as_dict()
         self.last_result = pend
         c = self.counters
-        c.last_result = f"{pend.label}: {RESULT_NAMES.get(code, code)}"
+        c.last_result = f"{pend.label}: {code_name(code)}"
         c.successes += int(code == C.SUCCESS)
-        if code == C.INVALID_GOAL and message.startswith("infeasible"):
+        if code == C.INVALID_REQUEST and message.startswith("infeasible"):
             c.dual_arm_infeasible += 1
             c.last_infeasible = f"{pend.label}: {message}"
-        line = (f"{pend.label}: {RESULT_NAMES.get(code, code)} at progress {event.progress:.2f}: "
+        line = (f"{pend.label}: {code_name(code)} at progress {event.progress:.2f}: "
                 f"{message} [{s.duration_s:.2f} s, "
                 f"{s.steps} steps, {s.overruns} overruns, max COG error "
                 f"{s.max_com_error_m * 1e3:.2f} mm, min distance {s.min_distance_m:.4f} m, "
@@ -310,7 +309,7 @@ class ExecutionManager:
         ERROR); returns its code (``ABORTED`` for an internal error)."""
         known = isinstance(exc, RequestError)
         code = exc.code if known else C.ABORTED
-        what = RESULT_NAMES.get(code, code) if known else "internal error"
+        what = code_name(code) if known else "internal error"
         c = self.counters
         setattr(c, counter, getattr(c, counter) + 1)
         c.last_rejection = f"{label}: {what}: {exc}"
@@ -375,7 +374,7 @@ class ExecutionManager:
             dwell = float(goal.dwell_s) if math.isfinite(goal.dwell_s) and goal.dwell_s > 0 else \
                 self.config.scan_dwell_s
             if dwell > 60.0:
-                raise RequestError(C.INVALID_GOAL, f"dwell_s {dwell:g} s is longer than 60 s")
+                raise RequestError(C.INVALID_REQUEST, f"dwell_s {dwell:g} s is longer than 60 s")
         except Exception as exc:
             code = self.reject("goals_rejected", label, exc)
             return Outcome(code, str(exc))
@@ -419,7 +418,7 @@ class ExecutionManager:
         elif out.success:
             out.message = (f"{counted(count, 'gaze points')} looked at and held {dwell:g} s each"
                            + (f"; {'; '.join(unseen)}" if unseen else ": every point in view"))
-        line = (f"{label}: {RESULT_NAMES.get(out.code, out.code)}: {out.message} "
+        line = (f"{label}: {code_name(out.code)}: {out.message} "
                 f"[{out.duration_s:.1f} s, max COG error {out.max_com_error_m * 1e3:.2f} mm]")
         if out.code in (C.SUCCESS, C.CANCELED):   # one severity per call site (rclpy's rule)
             self.log.info(line)
@@ -474,10 +473,10 @@ class ExecutionManager:
         t0 = time.perf_counter()
         try:
             if not 1 <= count <= MAX_SEQUENTIAL:
-                raise RequestError(C.INVALID_GOAL, f"dual_arm_sequential_count must be in 1..{MAX_SEQUENTIAL}, "
+                raise RequestError(C.INVALID_REQUEST, f"dual_arm_sequential_count must be in 1..{MAX_SEQUENTIAL}, "
                                                    f"got {count}")
             if seed < 0:
-                raise RequestError(C.INVALID_GOAL, f"dual_arm_sequential_seed must be >= 0, got {seed}")
+                raise RequestError(C.INVALID_REQUEST, f"dual_arm_sequential_seed must be >= 0, got {seed}")
             motion = self.requests.sequential(next(self._motion_ids), label, count, seed, *self.joints())
         except Exception as exc:
             self.reject("goals_rejected", "~/dual_arm_sequential", exc)
@@ -566,5 +565,5 @@ class ExecutionManager:
 
 
 __all__ = ["ExecutionManager", "MotionTracker", "Pending", "LoopWindow", "GoalPort", "TrajectoryGoal",
-           "DualArmGoal", "LookGoal", "LookProgress", "Outcome", "RESULT_NAMES", "LEVEL_OK", "LEVEL_WARN",
+           "DualArmGoal", "LookGoal", "LookProgress", "Outcome", "LEVEL_OK", "LEVEL_WARN",
            "LEVEL_ERROR", "counted"]

@@ -78,7 +78,7 @@ def resolve_arm(code: int, motion: dict[str, ArmMotion]) -> str:
     1 / 2 = right / left, refused as the wrong arm when that arm's joints stay (almost) still
     while the other arm's joints move (less than ``WRONG_ARM_RATIO`` of its travel, which
     exceeds ``WRONG_ARM_MIN_TRAVEL_RAD``)."""
-    bad = C.INVALID_GOAL
+    bad = C.INVALID_REQUEST
     if code == ARM_AUTO:
         return max(("right", "left"), key=lambda a: (round(motion[a].joint_travel_rad, 6), motion[a].hand_travel_m))
     if code not in ARM_NAMES:
@@ -257,7 +257,7 @@ class ExecutionRequests:
         """A whole-body executor motion along ``ref`` (an ``exec_msgs.Reference``)."""
         from humanoid_reach_ros.execution.supervisor import Motion
         if frame_id not in ("", self.config.map_frame):
-            raise RequestError(C.INVALID_GOAL, f"trajectory frame_id {frame_id!r} is not the map frame "
+            raise RequestError(C.INVALID_REQUEST, f"trajectory frame_id {frame_id!r} is not the map frame "
                                                f"{self.config.map_frame!r}")
         with self._fk_lock:
             arm = resolve_arm(int(arm_code), arm_motion(self.robot, ref.positions))
@@ -283,8 +283,8 @@ class ExecutionRequests:
 
     def _requested_angles(self, yaw: list[float], pitch: list[float]) -> tuple[np.ndarray, str, bool]:
         """``(poses (K, 2) [rad], what, scan)``: the goal's yaw/pitch pairs, or the scan pattern
-        (``scan_poses_deg``) for an empty goal; INVALID_GOAL for unpaired or NaN/inf angles."""
-        bad = C.INVALID_GOAL
+        (``scan_poses_deg``) for an empty goal; INVALID_REQUEST for unpaired or NaN/inf angles."""
+        bad = C.INVALID_REQUEST
         if len(yaw) != len(pitch):
             raise RequestError(bad, f"{len(yaw)} yaw angles but {len(pitch)} pitch angles: give one pitch per yaw")
         scan = len(yaw) == 0
@@ -304,8 +304,8 @@ class ExecutionRequests:
         within the head joints' limits; an empty request is the scan pattern (``scan_poses_deg``,
         a parameter for any robot: its poses are clamped into this robot's head limits, where a
         goal's poses outside them are refused). A robot without a neck has no head angles
-        (INVALID_GOAL): :meth:`look_targets` turns its looks into gaze points."""
-        bad = C.INVALID_GOAL
+        (INVALID_REQUEST): :meth:`look_targets` turns its looks into gaze points."""
+        bad = C.INVALID_REQUEST
         try:
             self.robot.spec.require_neck("a look at head angles (yaw_rad/pitch_rad, or the scan's scan_poses_deg)")
         except ValueError as exc:
@@ -329,13 +329,13 @@ class ExecutionRequests:
         point ``look_distance_m`` from the camera at the reference posture (half-sitting on the
         stance feet) in that direction. This is how a robot without a neck (its camera turns only
         with the body) takes the scan pattern and a look at angles: the same directions the
-        head's angles give a robot whose camera looks level at zero head angles. INVALID_GOAL
+        head's angles give a robot whose camera looks level at zero head angles. INVALID_REQUEST
         for unpaired or NaN/inf angles or a pitch beyond +-90 deg."""
         poses, what, _ = self._requested_angles(yaw, pitch)
         steep = np.abs(poses[:, 1]) > math.pi / 2
         if steep.any():
             k = int(np.argmax(steep))
-            raise RequestError(C.INVALID_GOAL, f"pose {k} of {what}: pitch {math.degrees(poses[k, 1]):.1f} deg is "
+            raise RequestError(C.INVALID_REQUEST, f"pose {k} of {what}: pitch {math.degrees(poses[k, 1]):.1f} deg is "
                                                "beyond +-90 deg (straight down or up)")
         with self._fk_lock:
             hs = self.robot.half_sitting_joints
@@ -397,7 +397,7 @@ class ExecutionRequests:
         the arms' joints held. The executor runs it like :meth:`look` (feet and exact COG at
         level 2, the right hand at level 3, the posture carrying the gaze at level 4), timed by
         :meth:`_look_spline`. A point no gaze brings into view is still looked at (the best
-        effort; ``Gaze.visible`` False). ``INVALID_GOAL`` for a NaN/inf or malformed point,
+        effort; ``Gaze.visible`` False). ``INVALID_REQUEST`` for a NaN/inf or malformed point,
         ``NO_JOINT_STATES`` without joints."""
         from humanoid_reach_ros.execution.supervisor import Motion
         q0 = self.measured_start(joints, reason)
@@ -406,7 +406,7 @@ class ExecutionRequests:
             with _GAZE_LOCK:
                 g = self.gaze_solver().balanced(start, point)
         except ValueError as exc:
-            raise RequestError(C.INVALID_GOAL, f"gaze point {point!r}: {exc}") from None
+            raise RequestError(C.INVALID_REQUEST, f"gaze point {point!r}: {exc}") from None
         share, why = self.look_clearance(start, g.joints)
         if share < 1.0:   # the body would come too near the map or itself: turn only part of the way
             with _GAZE_LOCK:
@@ -498,7 +498,7 @@ class ExecutionRequests:
 
     def _need_dual_arm(self) -> None:
         if not self.dual_arm_model():
-            raise RequestError(C.INVALID_GOAL, f"robot {self.robot.name!r} has no dual-arm torso regression model "
+            raise RequestError(C.INVALID_REQUEST, f"robot {self.robot.name!r} has no dual-arm torso regression model "
                                                "(robot.yaml torso_regression: tools/train_torso_regression.py "
                                                f"--robot {self.robot.name}; or the dual_arm_regression parameter)")
 

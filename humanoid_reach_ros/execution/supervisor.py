@@ -367,7 +367,7 @@ class ExecutionSupervisor:
             if not plan.feasible:
                 with self._cond:
                     self._starting = False
-                    self._finish(motion, C.INVALID_GOAL, f"infeasible target pair: {plan.reason}; holding")
+                    self._finish(motion, C.INVALID_REQUEST, f"infeasible target pair: {plan.reason}; holding")
                     if previous is not None:
                         self._finish(previous, C.PREEMPTED, f"preempted by {motion.label}, which is infeasible; "
                                                             "stopping smoothly and holding")

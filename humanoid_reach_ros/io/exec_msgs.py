@@ -45,11 +45,12 @@ from humanoid_reach_interfaces.msg import ExecutorMetrics
 from trajectory_msgs.msg import JointTrajectory
 
 from humanoid_reach_ros.codes import ARM_AUTO, ARM_LEFT, ARM_NAMES, ARM_RIGHT  # noqa: F401 (re-exported)
-from humanoid_reach_ros.codes import RequestError as ExecInputError
+from humanoid_reach_ros.codes import ErrorCode, RequestError as ExecInputError
 from humanoid_reach_ros.execution.engines import DualArmMetrics  # noqa: F401 (re-exported)
 from humanoid_reach_ros.execution.requests import (ArmMotion, HandTarget, arm_motion, needs_waist,  # noqa: F401
                                                    resolve_arm, targets_in_world)
 from humanoid_reach_ros.io import msgs
+from humanoid_reach_ros.io.msgs import error_code
 from humanoid_reach_ros.geometry.trajectory import SplineTrajectory
 from humanoid_reach_ros.robot.model import RobotModel
 
@@ -74,13 +75,13 @@ def reference_from_trajectory(msg: JointTrajectory, robot: RobotModel, limit_tol
                               what: str = "trajectory") -> Reference:
     """Validate ``msg`` and build the executor reference (see the module docstring).
 
-    Raises :class:`ExecInputError` (``INVALID_GOAL``) with a message naming the defect.
+    Raises :class:`ExecInputError` (``INVALID_REQUEST``) with a message naming the defect.
     Velocities / accelerations, when present, are checked for NaN/inf but not used: the
     monotone cubic through the positions is the reference (at rest at both ends). The joint
     limits (``limit_tol_rad``) are checked at the points, then on that cubic between them,
     exactly (extrema of each segment from the roots of its derivative, not by sampling).
     """
-    bad = ExecuteReach.Result.INVALID_GOAL
+    bad = ErrorCode.INVALID_REQUEST
     names = list(msg.joint_names)
     if not msg.points:
         raise ExecInputError(bad, f"{what} is empty (no points)")
@@ -182,7 +183,7 @@ def execute_feedback(m) -> ExecuteReach.Feedback:
 def result_message(code: int, message: str, summary: dict[str, float] | None = None) -> ExecuteReach.Result:
     """``ExecuteReach.Result`` with ``code``/``message`` and the figures of ``summary``
     (keys: the result's float/int fields; missing ones stay 0)."""
-    r = ExecuteReach.Result(success=code == ExecuteReach.Result.SUCCESS, error_code=int(code), message=message)
+    r = ExecuteReach.Result(success=code == ErrorCode.SUCCESS, error_code=error_code(code), message=message)
     for key, value in (summary or {}).items():
         if key in ("steps", "overruns"):
             setattr(r, key, int(value))
@@ -207,8 +208,8 @@ def hand_target(pose: Pose, frame_id: str, what: str) -> HandTarget:
     """Validate one hand target: frame 'world' or 'base_link' (explicit: "" is refused, an
     unset header means the targets were never filled in), finite position and
     orientation, unit quaternion (|norm - 1| <= 1e-3, then normalised). ``ExecInputError``
-    (``INVALID_GOAL``) naming ``what`` and the defect otherwise."""
-    bad = ExecuteReach.Result.INVALID_GOAL
+    (``INVALID_REQUEST``) naming ``what`` and the defect otherwise."""
+    bad = ErrorCode.INVALID_REQUEST
     if frame_id not in TARGET_FRAMES:
         raise ExecInputError(bad, f"{what} frame_id {frame_id!r} is unknown; use 'world' or 'base_link'")
     try:
@@ -229,7 +230,7 @@ def array_hand_targets(msg: PoseArray) -> tuple[HandTarget, HandTarget]:
     """The (right, left) targets of a ``/dual_arm/targets`` ``PoseArray``: exactly 2 poses,
     right then left, both in ``msg.header.frame_id``."""
     if len(msg.poses) != 2:
-        raise ExecInputError(ExecuteReach.Result.INVALID_GOAL,
+        raise ExecInputError(ErrorCode.INVALID_REQUEST,
                              f"PoseArray has {len(msg.poses)} poses; exactly 2 are required (right hand, left hand)")
     frame = msg.header.frame_id
     return (hand_target(msg.poses[0], frame, "poses[0] (right hand)"),
@@ -252,7 +253,7 @@ def look_goal_at(points, dwell_s: float = 0.0) -> Look.Goal:
     ``control/gaze.py``), holding each ``dwell_s`` (<= 0: the executor's ``scan_dwell_s``).
     ``yaw_rad`` / ``pitch_rad`` stay empty, as the action requires. ``ValueError`` for no points,
     a shape other than (K, 3) (one point (3,) is taken as K = 1) or NaN/inf: the executor would
-    refuse such a goal (``INVALID_GOAL``)."""
+    refuse such a goal (``INVALID_REQUEST``)."""
     P = _point_rows(points)
     if P.ndim == 1 and P.shape == (3,):
         P = P[None]
@@ -268,11 +269,11 @@ def look_goal_at(points, dwell_s: float = 0.0) -> Look.Goal:
 
 def gaze_points(goal: Look.Goal) -> np.ndarray | None:
     """The ``gaze_points`` (K, 3) [m, world] of a ``Look`` goal, None when it has none (a head
-    pose goal). ``ExecInputError`` (``INVALID_GOAL``) when it also gives ``yaw_rad`` /
+    pose goal). ``ExecInputError`` (``INVALID_REQUEST``) when it also gives ``yaw_rad`` /
     ``pitch_rad`` (one or the other) or a point has NaN/inf coordinates, naming the point."""
     if not goal.gaze_points:
         return None
-    bad = Look.Result.INVALID_GOAL
+    bad = ErrorCode.INVALID_REQUEST
     if len(goal.yaw_rad) or len(goal.pitch_rad):
         raise ExecInputError(bad, f"the goal gives {len(goal.gaze_points)} gaze_points and {len(goal.yaw_rad)} yaw / "
                                   f"{len(goal.pitch_rad)} pitch angles: give gaze_points or yaw_rad/pitch_rad, "

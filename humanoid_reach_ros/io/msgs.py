@@ -336,15 +336,20 @@ def diagnostic_values(status: DiagnosticStatus) -> dict[str, str]:
 # planning markers. Message types are imported here, not at the top, so the sections
 # above stay usable on their own.
 from builtin_interfaces.msg import Duration  # noqa: E402
-from humanoid_reach_interfaces.msg import PlanningStatistics  # noqa: E402
+from humanoid_reach_interfaces.msg import ErrorCode as ErrorCodeMsg, PlanningStatistics  # noqa: E402
 from humanoid_reach_interfaces.srv import PlanReach  # noqa: E402
 from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E402
 from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
-from humanoid_reach_ros.planning.path import PLANNER_NAMES  # noqa: E402
-from humanoid_reach_ros.codes import ARM_REQUESTS, RequestError  # noqa: E402  (a PlanReach refusal: PlanError codes)
+from humanoid_reach_ros.planning.reach import check_plan_values  # noqa: E402
+from humanoid_reach_ros.codes import ARM_REQUESTS, ErrorCode, RequestError  # noqa: E402
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion  # noqa: E402
+
+
+def error_code(code: int) -> ErrorCodeMsg:
+    """The ``msg/ErrorCode`` every interface embeds (``codes.ErrorCode`` value ``code``)."""
+    return ErrorCodeMsg(val=int(code))
 
 
 # ---------------------------------------------------------------- durations
@@ -523,7 +528,6 @@ def parse_joint_trajectory(msg: JointTrajectory) -> TrajectoryArrays:
 # ---------------------------------------------------------------- PlanReach requests
 REQUEST_FRAMES = ("", "world", "base_link")
 ARM_NAMES = {code: name for name, code in ARM_REQUESTS.items()}   # PlanReach.Request.ARM_* -> name
-PLANNERS = PLANNER_NAMES  # the planners ReachPlanner knows, one list for node and planner
 
 
 @dataclass(frozen=True)
@@ -554,7 +558,7 @@ def target_in_world(target: PoseStamped, waist: pin.SE3 | None, what: str = "reg
     (``waist`` = the current waist pose in world). ``RequestError`` with UNKNOWN_FRAME for
     any other frame, INVALID_REQUEST for a non-finite pose or non-unit quaternion,
     NO_JOINT_STATES when a base_link target comes without a waist pose."""
-    E = PlanReach.Response
+    E = ErrorCode
     frame = target.header.frame_id
     if frame not in REQUEST_FRAMES:
         raise RequestError(E.UNKNOWN_FRAME, f"{what} frame_id {frame!r} is unknown; use 'world' (or '') or "
@@ -571,23 +575,19 @@ def target_in_world(target: PoseStamped, waist: pin.SE3 | None, what: str = "reg
     return pose
 
 
-# Caps of one request: an operator asking for more is a typo, and the node must stay responsive.
-MAX_GOAL_COUNT = 1000
-MAX_TIME_BUDGET_S = 60.0
-
-
 def reach_request(req: PlanReach.Request, waist: pin.SE3 | None = None) -> ReachRequest:
     """Validate and convert a ``PlanReach`` request (``RequestError`` with the response code).
 
-    Checks, in order: NaN/inf anywhere -> INVALID_REQUEST; arm not 0/1/2, unknown planner,
-    time budget outside [0, MAX_TIME_BUDGET_S], goal_count above MAX_GOAL_COUNT -> INVALID_REQUEST;
+    Checks, in order: NaN/inf anywhere -> INVALID_REQUEST; arm not 0/1/2 -> INVALID_REQUEST; the
+    values the planner's one validator checks (``planning.reach.check_plan_values``: planner,
+    goal_count, time budget) -> INVALID_REQUEST;
     target frame not world/""/base_link ->
     UNKNOWN_FRAME (skipped with ``use_marker_target``: the marker's pose replaces it);
     lower > upper or rotation bounds beyond +-pi by more than ``wgr.ANGLE_TOL`` -> INVALID_BOUNDS
     (bounds within it are clamped to +-pi).
     ``waist`` is the current waist pose in world, needed for a ``base_link`` target.
     """
-    E = PlanReach.Response
+    E = ErrorCode
     lower = np.asarray(req.region.lower, dtype=float)
     upper = np.asarray(req.region.upper, dtype=float)
     values = {"region.target.pose": _pose_arrays(req.region.target.pose), "region.lower": lower,
@@ -598,15 +598,7 @@ def reach_request(req: PlanReach.Request, waist: pin.SE3 | None = None) -> Reach
     if req.arm not in ARM_NAMES:
         raise RequestError(E.INVALID_REQUEST, f"arm {req.arm} is unknown; use 0 (auto), 1 (right) or 2 (left)")
     planner = req.planner.strip()
-    if planner and planner not in PLANNERS:
-        raise RequestError(E.INVALID_REQUEST, f"planner {req.planner!r} is unknown; use one of "
-                                              f"{', '.join(PLANNERS)} (empty = node default)")
-    if not 0.0 <= req.time_budget_s <= MAX_TIME_BUDGET_S:
-        raise RequestError(E.INVALID_REQUEST, f"time_budget_s must be in [0, {MAX_TIME_BUDGET_S:g}] s "
-                                              f"(0 = node default), got {req.time_budget_s}")
-    if req.goal_count > MAX_GOAL_COUNT:
-        raise RequestError(E.INVALID_REQUEST, f"goal_count must be at most {MAX_GOAL_COUNT} (0 = node default), "
-                                              f"got {req.goal_count}")
+    check_plan_values(ARM_NAMES[req.arm], planner, int(req.goal_count), float(req.time_budget_s))
     if req.home:   # the way back to the rest posture: no region, no marker
         region = None
     elif req.use_marker_target:

@@ -18,7 +18,7 @@ node's callbacks never share an interpreter lock with the 5 ms deadlines. This n
   is ABORTED and the last command held);
 * the results, feedback and ``/diagnostics``.
 
-Bad inputs never stop the node: an invalid goal gets ``INVALID_GOAL`` (or ``NO_JOINT_STATES``)
+Bad inputs never stop the node: an invalid goal gets ``INVALID_REQUEST`` (or ``NO_JOINT_STATES``)
 with a message and does not disturb the running motion; an invalid topic message gets a
 throttled warning and a diagnostic.
 
@@ -90,7 +90,7 @@ def _execute_goal(req: ExecuteReach.Goal, robot) -> TrajectoryGoal | DualArmGoal
         except RequestError as exc:
             raise RequestError(exc.code, f"MODE_DUAL_ARM goal: {exc}") from None
     if req.mode != ExecuteReach.Goal.MODE_TRAJECTORY:
-        raise RequestError(C.INVALID_GOAL, f"mode {req.mode} is unknown; use 0 (TRAJECTORY) or 1 (DUAL_ARM)")
+        raise RequestError(C.INVALID_REQUEST, f"mode {req.mode} is unknown; use 0 (TRAJECTORY) or 1 (DUAL_ARM)")
     return TrajectoryGoal(exec_msgs.reference_from_trajectory(req.trajectory, robot), req.trajectory.header.frame_id,
                           req.arm, req.disable_collision_avoidance, req.disable_com_compensation, req.smooth_reshaping)
 
@@ -194,8 +194,8 @@ class ReachExecutorNode(Node):
         out = self.manager.look(lambda: LookGoal(tuple(req.yaw_rad), tuple(req.pitch_rad),
                                                  exec_msgs.gaze_points(req), float(req.dwell_s)), port)
         port.close(out.code)
-        return Look.Result(success=out.success, error_code=out.code, message=out.message, poses_done=out.poses_done,
-                           duration_s=out.duration_s, max_com_error_m=out.max_com_error_m)
+        return Look.Result(success=out.success, error_code=msgs.error_code(out.code), message=out.message,
+                           poses_done=out.poses_done, duration_s=out.duration_s, max_com_error_m=out.max_com_error_m)
 
     def _on_sequential(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         response.success, response.message = self.manager.sequential()

@@ -19,11 +19,11 @@ from humanoid_reach_ros.operator.cli import parse_args, plan_inputs
 from humanoid_reach_ros.operator.goal_status import GOAL_DONE, GOAL_KNOWN, GoalStatuses
 from humanoid_reach_ros.operator.marker import MarkerSightings
 from humanoid_reach_ros.operator.report import (
-    EXECUTE_CODES, EXIT, PLAN_CODES, Progress, ProgressPrinter, code_text, execution_report, execution_summary,
+    EXIT, Progress, ProgressPrinter, code_text, execution_report, execution_summary,
     exit_class, progress_bar, trajectory_duration)
 from humanoid_reach_ros.operator.session import Canceled, Countdown, OperatorSession
 
-__all__ = ["EXECUTE_CODES", "EXIT", "PLAN_CODES", "Operator", "OperatorSession", "Progress", "ProgressPrinter",
+__all__ = ["EXIT", "Operator", "OperatorSession", "Progress", "ProgressPrinter",
            "code_text", "execution_report", "execution_summary", "exit_class", "main", "parse_args", "plan_request",
            "progress_bar"]   # the names tests and benches use
 
@@ -194,7 +194,7 @@ class Operator:
                                           self.timeout_s + poses * ((dwell_s or 1.0) + 5.0))
             # right after the graph came up the executor may not have taken a /joint_states yet (bench/session,
             # a --scan at once after start-up: NO_JOINT_STATES): ask again, for a few seconds only
-            if result is None or result.error_code != ExecuteCode.NO_JOINT_STATES or time.monotonic() > deadline:
+            if result is None or result.error_code.val != ExecuteCode.NO_JOINT_STATES or time.monotonic() > deadline:
                 return outcome, result
             self.spin_until(lambda: False, 0.5)   # a pause that Ctrl-C ends (Canceled)
 

@@ -61,11 +61,12 @@ from humanoid_reach_ros.io.endpoints import LATCHED, RELIABLE_LATEST, LatestOnDe
 from humanoid_reach_ros.nodes.common import declare_parameters, run_node
 from humanoid_reach_ros.params import ParamSpec
 from humanoid_reach_ros.planning.reach import PlannerParams
-from humanoid_reach_ros.planning.service import ERROR_NAMES, PlanningService, PlanningServiceConfig, PlanReply
+from humanoid_reach_ros.planning.space import PLANNER_NAMES
+from humanoid_reach_ros.planning.service import PlanningService, PlanningServiceConfig, PlanReply
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 
 NODE_NAME = "reach_planner"
-__all__ = ["ERROR_NAMES", "NODE_PARAMETERS", "PARAMETERS", "PLANNER_PARAMETERS", "PlannerParams", "ReachPlannerNode",
+__all__ = ["NODE_PARAMETERS", "PARAMETERS", "PLANNER_PARAMETERS", "PlannerParams", "ReachPlannerNode",
            "main"]
 
 # Defaults match config/reach_planner.yaml (checked by test_reach_planner_node).
@@ -81,7 +82,7 @@ PLANNER_PARAMETERS: dict[str, ParamSpec] = {
                                  "executor's security_distance_m", (0.0, 0.5)),
     "goal_count": ParamSpec(_D.goal_count, "goal postures sampled per request (a request's goal_count > 0 overrides)"),
     "planner": ParamSpec(_D.planner, "default path planner (a request's non-empty planner overrides)",
-                         constraints=f"one of {', '.join(msgs.PLANNERS)}"),
+                         constraints=f"one of {', '.join(PLANNER_NAMES)}"),
     "time_budget_s": ParamSpec(_D.time_budget_s, "default wall-time budget of one request [s]", (0.01, 600.0)),
     "joint_velocity_rad_s": ParamSpec(_D.joint_velocity_rad_s, "joint speed used to time the trajectory [rad/s]",
                                       (0.01, 10.0)),
@@ -233,7 +234,7 @@ class ReachPlannerNode(Node):
 
     def _fill_response(self, resp: PlanReach.Response, reply: PlanReply, total_s: float) -> None:
         out, stamp = reply.outcome, self.get_clock().now().to_msg()
-        resp.error_code = reply.code
+        resp.error_code = msgs.error_code(reply.code)
         resp.success = reply.success
         resp.message = reply.response_message
         resp.statistics = msgs.planning_statistics(self.service.statistics(reply, total_s))

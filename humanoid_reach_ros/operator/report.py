@@ -1,12 +1,12 @@
 """What ``reach_operator`` says: code texts, exit classes, the progress bar, summaries and reports.
 
-Every ``PlanReach`` error code and every ``ExecuteReach`` result code is printed by name with
-the server's message and a hint (``PLAN_CODES``, ``EXECUTE_CODES``). Exit codes by failure
-class (``EXIT``): 0 success; 1 internal error of a node; 2 bad command line (argparse); 3 a
-server is not available or did not answer within ``--timeout``; 4 the request was refused as
-invalid; 5 no motion exists (out of reach, start in collision, no path, timed out); 6 the
-planner lacks an input or is busy (no map, no marker target, no joint states, busy); 7
-execution failed (goal rejected, invalid, aborted, preempted); 130 canceled with Ctrl-C.
+Every error code (``msg/ErrorCode``: one numbering for ``PlanReach``, ``ExecuteReach`` and
+``Look``) is printed by name with the server's message and a hint; its exit class comes from
+``codes.CODE_INFO`` too (``EXIT``): 0 success; 1 internal error of a node; 2 bad command line
+(argparse); 3 a server is not available or did not answer within ``--timeout``; 4 the request
+was refused as invalid; 5 no motion exists (out of reach, start in collision, no path, timed
+out); 6 a node lacks an input or is busy (no map, no marker target, no joint states, busy); 7
+execution failed (goal rejected, aborted, preempted, target not reached); 130 canceled with Ctrl-C.
 ROS-free: responses, results and feedback are read by attribute (a message or a stand-in).
 """
 from __future__ import annotations
@@ -16,66 +16,26 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, TextIO
 
-from humanoid_reach_ros.codes import ARM_REQUESTS, ExecuteCode, PlanError
+from humanoid_reach_ros.codes import ARM_REQUESTS, CODE_INFO, EXIT, code_name
 
-EXIT = {"success": 0, "internal": 1, "usage": 2, "unavailable": 3, "invalid": 4, "no_motion": 5,
-        "no_input": 6, "execution": 7, "canceled": 130}
 ARM_LABELS = {code: name for name, code in ARM_REQUESTS.items()}
 
-# PlanReach.Response codes (codes.PlanError): exit class and hint per code.
-_PLAN_HINTS = {
-    PlanError.SUCCESS: ("success", "planned"),
-    PlanError.INVALID_REQUEST: ("invalid", "a NaN/inf value, or an unknown arm or planner: check the arguments"),
-    PlanError.INVALID_BOUNDS: ("invalid", "WGR lower > upper, or a rotation bound outside [-pi, pi] (+-180 deg): "
-        "check --wgr-deg / --wgr"),
-    PlanError.UNKNOWN_FRAME: ("invalid", "the target frame is not known to the planner: use --frame world or "
-        "base_link"),
-    PlanError.TARGET_OUT_OF_REACH: ("no_motion", "proven out of the arms' reach from any stance-keeping trunk pose: "
-        "move the target closer (or the robot nearer)"),
-    # the planner's message names the links, the nearest voxels and the retreats it tried
-    PlanError.START_IN_COLLISION: ("no_motion", ""),
-    PlanError.NO_MAP: ("no_input", "the planner has no environment model: start voxel_mapper (or give reach_planner "
-        "a scene_file)"),
-    PlanError.TIMED_OUT: ("no_motion", "the time budget ran out: raise --budget"),
-    PlanError.NO_PATH: ("no_motion", "goal postures were found but no path to them: raise --budget or --goals"),
-    PlanError.NO_TARGET: ("no_input", "no recent /target_pose from the marker: is marker_localizer running and the "
-        "marker in view? Or give --target"),
-    PlanError.NO_JOINT_STATES: ("no_input", "no recent /joint_states: is joint_driver running?"),
-    PlanError.BUSY: ("no_input", "another request is being planned: try again"),
-    # the planner's message names the place and the remedies (the automatic look ran out, or was off)
-    PlanError.UNOBSERVED_SPACE: ("no_input", ""),
-    PlanError.UNOBSERVABLE_SPACE: ("no_motion", ""),
-    # the planner's message says which arms were tried and what to change: no hint of our own
-    PlanError.NO_GOAL_FOUND: ("no_motion", ""),
-    PlanError.INTERNAL_ERROR: ("internal", "the planner failed internally: see its log"),
-}
 
-# ExecuteReach.Result codes (codes.ExecuteCode)
-_EXECUTE_HINTS = {
-    ExecuteCode.SUCCESS: ("success", "executed"),
-    ExecuteCode.INVALID_GOAL: ("execution", "the executor refused the trajectory or targets"),
-    ExecuteCode.NO_JOINT_STATES: ("execution", "the executor has no current /joint_states: is joint_driver running?"),
-    ExecuteCode.PREEMPTED: ("execution", "replaced by a newer goal or /reach_trajectory"),
-    ExecuteCode.CANCELED: ("canceled", ""),   # the executor's message says it holds the last command
-    ExecuteCode.ABORTED: ("execution", "the executor stopped the motion and holds the robot (e.g. stale joint states)"),
-    ExecuteCode.TARGET_NOT_REACHED: ("execution", "the hand was held off the trajectory's end (a collision damper or a "
-        "joint limit); the robot holds there: plan again from here"),
-}
-PLAN_CODES: dict[int, tuple[str, str, str]] = {int(c): (c.name, *v) for c, v in _PLAN_HINTS.items()}
-EXECUTE_CODES: dict[int, tuple[str, str, str]] = {int(c): (c.name, *v) for c, v in _EXECUTE_HINTS.items()}
-
-
-def code_text(codes: dict[int, tuple[str, str, str]], code: int, message: str) -> str:
-    """``NAME (code): server message -- hint`` (no hint where the server's message gives it)."""
-    name, _, hint = codes.get(code, (f"UNKNOWN_CODE_{code}", "internal", "a code this client does not know"))
-    text = f"{name} ({code})"
+def code_text(code: int, message: str) -> str:
+    """``NAME (code): server message -- hint`` (no hint where the server's message gives it;
+    ``codes.CODE_INFO``)."""
+    info = CODE_INFO.get(code)
+    hint = info[1] if info else "a code this client does not know"
+    text = f"{code_name(code)} ({code})"
     if message:
         text += f": {message}"
     return text if code == 0 or not hint else f"{text} -- {hint}"
 
 
-def exit_class(codes: dict[int, tuple[str, str, str]], code: int) -> int:
-    return EXIT[codes.get(code, ("", "internal", ""))[1]]
+def exit_class(code: int) -> int:
+    """The exit code of a failure with ``code`` (``codes.CODE_INFO``; unknown: internal)."""
+    info = CODE_INFO.get(code)
+    return EXIT[info[0] if info else "internal"]
 
 
 # ---------------------------------------------------------------- progress
@@ -164,8 +124,8 @@ def statistics_fields(st: Any) -> dict[str, Any]:
 
 
 def plan_summary(resp: Any) -> dict[str, Any]:
-    name = PLAN_CODES.get(resp.error_code, (f"UNKNOWN_CODE_{resp.error_code}",))[0]
-    return {"success": bool(resp.success), "error_code": int(resp.error_code), "error_name": name,
+    return {"success": bool(resp.success), "error_code": int(resp.error_code.val),
+            "error_name": code_name(resp.error_code.val),
             "message": resp.message, "arm": ARM_LABELS.get(resp.arm, str(resp.arm)),
             "trajectory": trajectory_summary(resp.trajectory), "statistics": statistics_fields(resp.statistics)}
 
@@ -180,8 +140,8 @@ def execution_summary(outcome: str, result: Any, fields: tuple[str, ...] = RESUL
     non-finite numbers become null."""
     out: dict[str, Any] = {"outcome": outcome}
     if result is not None:
-        name = EXECUTE_CODES.get(result.error_code, (f"UNKNOWN_CODE_{result.error_code}",))[0]
-        out.update({"success": bool(result.success), "error_code": int(result.error_code), "error_name": name,
+        out.update({"success": bool(result.success), "error_code": int(result.error_code.val),
+                    "error_name": code_name(result.error_code.val),
                     "message": result.message})
         out.update({k: getattr(result, k) for k in fields})
         out = {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in out.items()}

@@ -19,7 +19,7 @@ import numpy as np
 
 from humanoid_reach_ros.codes import ExecuteCode, PlanError
 from humanoid_reach_ros.operator.report import (
-    EXECUTE_CODES, EXIT, LOOK_FIELDS, PLAN_CODES, Progress, ProgressPrinter, code_text, execution_report,
+    EXIT, LOOK_FIELDS, Progress, ProgressPrinter, code_text, execution_report,
     execution_summary, exit_class, head_pose_line, plan_report, plan_summary)
 from humanoid_reach_ros.operator.marker import MarkerWatch
 
@@ -112,9 +112,9 @@ class OperatorSession:
         if resp is None:
             return code
         self.summary["plan"] = plan_summary(resp)
-        if not resp.success or resp.error_code != 0:
-            self.err.write(f"plan failed: {code_text(PLAN_CODES, resp.error_code, resp.message)}\n")
-            return exit_class(PLAN_CODES, resp.error_code) or EXIT["internal"]
+        if not resp.success or resp.error_code.val != 0:
+            self.err.write(f"plan failed: {code_text(resp.error_code.val, resp.message)}\n")
+            return exit_class(resp.error_code.val) or EXIT["internal"]
         self.text.write(plan_report(self.summary["plan"]) + "\n")
         return self.execute(resp) if a.execute else EXIT["success"]
 
@@ -137,16 +137,16 @@ class OperatorSession:
             self.err.write("execution failed: the goal was rejected by /execute_reach\n")
             return EXIT["execution"]
         if result is not None:
-            if result.error_code == 0 and result.success:
+            if result.error_code.val == 0 and result.success:
                 self.text.write(execution_report(e) + "\n")
             else:
                 self.err.write(f"execution {'canceled' if outcome == 'canceled' else 'failed'}: "
-                               f"{code_text(EXECUTE_CODES, result.error_code, result.message)}\n")
+                               f"{code_text(result.error_code.val, result.message)}\n")
                 if result.steps:
                     self.err.write(execution_report(e) + "\n")
         if outcome == "canceled":
             return EXIT["canceled"]
-        return (exit_class(EXECUTE_CODES, result.error_code) if result.success or result.error_code
+        return (exit_class(result.error_code.val) if result.success or result.error_code.val
                 else EXIT["execution"])
 
     def look(self, gaze_points: np.ndarray | None = None) -> int:
@@ -175,13 +175,13 @@ class OperatorSession:
             return EXIT["execution"]
         if result is None:
             return EXIT["canceled"]
-        if result.success and result.error_code == 0:
+        if result.success and result.error_code.val == 0:
             self.say(f"look: {result.message} [{result.duration_s:.1f} s, max COG drift "
                      f"{result.max_com_error_m * 1e3:.2f} mm]")
             return EXIT["success"]
         self.err.write(f"look {'canceled' if outcome == 'canceled' else 'failed'}: "
-                       f"{code_text(EXECUTE_CODES, result.error_code, result.message)}\n")
-        return EXIT["canceled"] if outcome == "canceled" else (exit_class(EXECUTE_CODES, result.error_code)
+                       f"{code_text(result.error_code.val, result.message)}\n")
+        return EXIT["canceled"] if outcome == "canceled" else (exit_class(result.error_code.val)
                                                                or EXIT["execution"])
 
     def wait_for_look(self, owner: str) -> bool:
@@ -201,7 +201,7 @@ class OperatorSession:
                 return None, EXIT["canceled"]
             if resp is None:
                 return None, EXIT["unavailable"]
-            if resp.error_code != PlanError.UNOBSERVED_SPACE or not resp.unobserved_points:
+            if resp.error_code.val != PlanError.UNOBSERVED_SPACE or not resp.unobserved_points:
                 return resp, EXIT["success"]
             pts = np.array([[p.x, p.y, p.z] for p in resp.unobserved_points], dtype=float)
             where = ", ".join(str(np.round(p, 2).tolist()) for p in pts)
@@ -289,11 +289,11 @@ class OperatorSession:
         self.say(f"no /target_pose within {MARKER_FRESH_WAIT_S:g} s (the marker is out of view): turning the head "
                  f"{where} ...")
         outcome, result = client.look([math.radians(yaw)], [math.radians(pitch)], MARKER_LOOK_DWELL_S, lambda fb: None)
-        if outcome == "canceled" or (result is not None and result.error_code == ExecuteCode.CANCELED):
+        if outcome == "canceled" or (result is not None and result.error_code.val == ExecuteCode.CANCELED):
             self.err.write("reach_operator: canceled while turning the head toward the marker\n")
             return EXIT["canceled"]
         if outcome != "done" or result is None or not result.success:
-            why = code_text(EXECUTE_CODES, result.error_code, result.message) if result is not None else outcome
+            why = code_text(result.error_code.val, result.message) if result is not None else outcome
             self.err.write(f"look toward the marker failed: {why}\n")
             return EXIT["unavailable"] if outcome in ("unavailable", "timeout") else EXIT["execution"]
         wait_s = self.args.marker_wait

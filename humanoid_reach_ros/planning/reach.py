@@ -55,7 +55,7 @@ from humanoid_reach_ros.planning.path import (
 )
 from humanoid_reach_ros.planning.plan_check import PlanChecker
 from humanoid_reach_ros.planning.retreat import Retreat, RetreatParams, RetreatPlanner
-from humanoid_reach_ros.codes import ARM_CODES, ARM_LEFT, ARM_NAMES, ARM_REQUESTS, ARM_RIGHT, PlanError
+from humanoid_reach_ros.codes import ARM_CODES, ARM_LEFT, ARM_NAMES, ARM_REQUESTS, ARM_RIGHT, PlanError, RequestError
 from humanoid_reach_ros.planning.projector import LEGS, Projector, quat_xyzw_matrix
 from humanoid_reach_ros.geometry.trajectory import SplineTrajectory, TrajectoryOptions
 from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion, matrix_rpy
@@ -245,12 +245,35 @@ def _finite(a) -> bool:
         return False
 
 
-class _Failure(Exception):
-    def __init__(self, error: PlanError, message: str, **extra) -> None:
-        super().__init__(message)
-        self.error = error
-        self.message = message
-        self.extra = extra
+#: caps of one request: an operator asking for more is a typo, and the node must stay responsive
+MAX_GOAL_COUNT = 1000
+MAX_TIME_BUDGET_S = 60.0
+
+
+def check_plan_values(arm, planner, goal_count, time_budget_s, seed=None) -> None:
+    """The one validator of a plan request's values, for ``ReachPlanner.plan`` and the
+    ``PlanReach`` conversion alike (``io/msgs.reach_request``): ``RequestError``
+    (``INVALID_REQUEST``) naming the value. ``None`` (or ``""``, ``0`` but for ``seed``): the
+    planner's default."""
+    def bad(text: str) -> RequestError:
+        return RequestError(PlanError.INVALID_REQUEST, text, source="planner")
+    if arm not in (None, "") and arm not in ARM_REQUESTS:
+        raise bad(f"arm must be one of {tuple(ARM_REQUESTS)}, got {arm!r}")
+    if planner not in (None, "") and planner not in PLANNER_NAMES:
+        raise bad(f"planner {planner!r} is unknown; use one of {', '.join(PLANNER_NAMES)} (empty = node default)")
+    if goal_count not in (None, 0) and not (isinstance(goal_count, (int, np.integer)) and
+                                            1 <= goal_count <= MAX_GOAL_COUNT):
+        raise bad(f"goal_count must be an integer in [1, {MAX_GOAL_COUNT}] (0 = node default), got {goal_count!r}")
+    if time_budget_s not in (None, 0) and not (isinstance(time_budget_s, (int, float, np.floating)) and
+                                               0.0 < time_budget_s <= MAX_TIME_BUDGET_S):
+        raise bad(f"time_budget_s must be in [0, {MAX_TIME_BUDGET_S:g}] s (0 = node default), got {time_budget_s!r}")
+    if seed is not None and not (isinstance(seed, (int, np.integer)) and seed >= 0):
+        raise bad(f"seed must be a non-negative integer, got {seed!r}")
+
+
+def _failure(error: PlanError, message: str, **extra) -> RequestError:
+    """A plan that cannot be made: the core's one error type, from the planner."""
+    return RequestError(error, message, source="planner", **extra)
 
 
 #: ReachPlanner's default ``retreat`` (one frozen instance, shared by every planner)
@@ -372,16 +395,16 @@ class ReachPlanner:
 
     def _validate_joints(self, start_joints) -> np.ndarray:
         if not _finite(start_joints):
-            raise _Failure(PlanError.INVALID_REQUEST, "start joint positions contain NaN/inf or are not numbers")
+            raise _failure(PlanError.INVALID_REQUEST, "start joint positions contain NaN/inf or are not numbers")
         j = np.asarray(start_joints, dtype=float).reshape(-1)
         if j.shape[0] != self.robot.n_joints:
-            raise _Failure(PlanError.INVALID_REQUEST,
+            raise _failure(PlanError.INVALID_REQUEST,
                            f"start must have {self.robot.n_joints} joint positions, got {j.shape[0]}")
         tol = self.params.start_limit_tolerance_rad
         bad = np.flatnonzero((j < self.robot.lower - tol) | (j > self.robot.upper + tol))
         if bad.size:
             names = ", ".join(f"{self.robot.joint_names[i]}={j[i]:.3f}" for i in bad[:5])
-            raise _Failure(PlanError.INVALID_REQUEST, f"start joints outside their limits: {names}")
+            raise _failure(PlanError.INVALID_REQUEST, f"start joints outside their limits: {names}")
         return np.clip(j, self.robot.lower, self.robot.upper)
 
     def colliding_shapes(self, q: np.ndarray, collision: RobotCollision | None = None) -> list[str]:
@@ -413,7 +436,7 @@ class ReachPlanner:
                 shapes = self.colliding_shapes(q, collision)
                 return False, "start posture in collision: " + (", ".join(shapes) if shapes else "unknown shapes")
             return True, "start posture valid"
-        except _Failure as e:
+        except RequestError as e:
             return False, e.message
 
     # ------------------------------------------------------------ planning space
@@ -594,8 +617,8 @@ class ReachPlanner:
                 snap = self.scene.snapshot()   # the plan and its unobserved-space check use this one
                 try:
                     outcome = self._plan(joints, request, stats, t0, snap)
-                except _Failure as e:
-                    outcome = self._fail(e.error, e.message, stats, t0, **e.extra)
+                except RequestError as e:
+                    outcome = self._fail(e.code, e.message, stats, t0, **e.extra)
                 manifold = outcome.error == PlanError.START_IN_COLLISION and "pre_segment" in outcome.message
                 for farther in (0.12, 0.2) if manifold else ():
                     # the start (or the retreat's end) is clear but the way onto the planning manifold
@@ -605,24 +628,24 @@ class ReachPlanner:
                     try:
                         outcome = self._plan(joints, request, _empty_stats(), t0, snap, force_retreat=True,
                                              min_retreat_m=farther)
-                    except _Failure as e:
-                        outcome = self._fail(e.error, e.message, stats, t0, **e.extra)
+                    except RequestError as e:
+                        outcome = self._fail(e.code, e.message, stats, t0, **e.extra)
                     if outcome.error != PlanError.START_IN_COLLISION or "pre_segment" not in outcome.message:
                         break   # planned, or no retreat that long (a longer one is no easier)
                 if manifold and not request.home and outcome.error == PlanError.START_IN_COLLISION:
                     # whatever the longer retreats answered (bench/session: "no retreat of 50-250 mm
                     # frees it" ended the reach, while the way home from the same posture planned)
                     outcome = self._via_home(joints, request, snap, t0, outcome)
-            except _Failure as e:
-                outcome = self._fail(e.error, e.message, stats, t0, **e.extra)
+            except RequestError as e:
+                outcome = self._fail(e.code, e.message, stats, t0, **e.extra)
             if snap is not None:
                 outcome = self._unobserved_check(outcome, start_joints, request, t0, snap)
                 outcome.scene_version = snap.version
             if outcome.success:
                 self._remember_end(outcome)
             return outcome
-        except _Failure as e:
-            return self._fail(e.error, e.message, stats, t0, **e.extra)
+        except RequestError as e:
+            return self._fail(e.code, e.message, stats, t0, **e.extra)
         except Exception as e:  # noqa: BLE001 -- the service must answer
             return self._fail(PlanError.INTERNAL_ERROR,
                               f"internal error: {type(e).__name__}: {e} ({traceback.format_exc(limit=3)!r})", stats, t0)
@@ -641,7 +664,7 @@ class ReachPlanner:
         rest = np.asarray(home.positions[-1], float)
         try:
             reach = self._plan(rest, replace(request, approach=None), _empty_stats(), time.perf_counter(), snap)
-        except _Failure:
+        except RequestError:
             return failed
         if not reach.success:
             return failed
@@ -748,7 +771,7 @@ class ReachPlanner:
         check = replace(request, time_budget_s=self.params.unobserved_check_budget_s)
         try:
             other = self._plan(joints, check, _empty_stats(), time.perf_counter(), snap, collisions=(known, None))
-        except _Failure:
+        except RequestError:
             return outcome
         if not other.success:
             return outcome
@@ -834,33 +857,24 @@ class ReachPlanner:
     def _request_values(self, request: PlanRequest):
         p = self.params
         if not isinstance(request, PlanRequest):
-            raise _Failure(PlanError.INVALID_REQUEST, "request must be a PlanRequest")
+            raise _failure(PlanError.INVALID_REQUEST, "request must be a PlanRequest")
         region = request.region
         if request.approach is not None and not (_finite(request.approach) and np.shape(request.approach) == (3,)):
-            raise _Failure(PlanError.INVALID_REQUEST, "request.approach must be a finite 3-vector or None")
+            raise _failure(PlanError.INVALID_REQUEST, "request.approach must be a finite 3-vector or None")
         if request.home:
             region = None
         elif not isinstance(region, WorkspaceGoalRegion):
-            raise _Failure(PlanError.INVALID_REQUEST, "request.region must be a WorkspaceGoalRegion")
+            raise _failure(PlanError.INVALID_REQUEST, "request.region must be a WorkspaceGoalRegion")
         elif not all(_finite(a) for a in (region.target_p, region.target_R, region.lower, region.upper)):
-            raise _Failure(PlanError.INVALID_REQUEST, "target region contains NaN/inf")
+            raise _failure(PlanError.INVALID_REQUEST, "target region contains NaN/inf")
         elif np.any(np.asarray(region.lower) > np.asarray(region.upper)):
-            raise _Failure(PlanError.INVALID_BOUNDS, "target region has lower > upper")
+            raise _failure(PlanError.INVALID_BOUNDS, "target region has lower > upper")
+        check_plan_values(request.arm, request.planner, request.goal_count, request.time_budget_s, request.seed)
         arm = "auto" if request.arm in (None, "") else request.arm
-        if arm not in ARM_REQUESTS:
-            raise _Failure(PlanError.INVALID_REQUEST, f"arm must be one of {tuple(ARM_REQUESTS)}, got {arm!r}")
         planner = p.planner if request.planner in (None, "") else request.planner
-        if planner not in PLANNER_NAMES:
-            raise _Failure(PlanError.INVALID_REQUEST, f"planner must be one of {PLANNER_NAMES}, got {planner!r}")
         n_goals = p.goal_count if request.goal_count in (None, 0) else request.goal_count
-        if not isinstance(n_goals, (int, np.integer)) or n_goals < 1 or n_goals > 10_000:
-            raise _Failure(PlanError.INVALID_REQUEST, f"goal_count must be an integer in [1, 10000], got {n_goals!r}")
         budget = p.time_budget_s if request.time_budget_s in (None, 0) else request.time_budget_s
-        if not (isinstance(budget, (int, float)) and math.isfinite(budget) and budget > 0):
-            raise _Failure(PlanError.INVALID_REQUEST, f"time_budget_s must be finite and > 0, got {budget!r}")
         seed = p.seed if request.seed is None else request.seed
-        if not isinstance(seed, (int, np.integer)) or seed < 0:
-            raise _Failure(PlanError.INVALID_REQUEST, f"seed must be a non-negative integer, got {seed!r}")
         return region, arm, planner, int(n_goals), float(budget), int(seed)
 
     def _plan(self, start_joints, request: PlanRequest, stats: dict, t0: float, snap: SceneSnapshot,
@@ -875,20 +889,20 @@ class ReachPlanner:
         if region is not None:
             out_of_reach = self.trunk_region.out_of_reach(region, arm_req)
             if out_of_reach:
-                raise _Failure(PlanError.TARGET_OUT_OF_REACH,
+                raise _failure(PlanError.TARGET_OUT_OF_REACH,
                                f"target out of reach ({out_of_reach}): move the target closer or walk the robot nearer")
         stats["map_voxels"] = int(len(snap.occupied))
         if not snap.has_map:
-            raise _Failure(PlanError.NO_MAP, "no map received yet")
+            raise _failure(PlanError.NO_MAP, "no map received yet")
         if region is not None and collisions is None:
             why = snap.unobserved_target(region.target_p)
             if why and not snap.knows_unobserved:
-                raise _Failure(PlanError.UNOBSERVED_SPACE, why)
+                raise _failure(PlanError.UNOBSERVED_SPACE, why)
             if why:
                 block = snap.unobserved_block_at(region.target_p)
                 pts = np.asarray(region.target_p, float)[None] if block is None else block[None]
                 out = self._unobserved_failure(joints, pts, why, "", stats, t0)
-                raise _Failure(out.error, out.message, unobserved_points=out.unobserved_points)
+                raise _failure(out.error, out.message, unobserved_points=out.unobserved_points)
         if collisions is None:
             collision, known, build_s = self._scene_collision(snap, None if region is None else region.target_p)
         else:
@@ -945,7 +959,7 @@ class ReachPlanner:
             hint = (f"all {gs.n_in_collision} postures the IK found collide: the target may be enclosed "
                     "(check /voxel_map there) or the region too tight (--wgr-deg)" if gs.n_in_collision else
                     f"widen the region (--wgr-deg){other} or raise --budget")
-            raise _Failure(PlanError.NO_GOAL_FOUND,
+            raise _failure(PlanError.NO_GOAL_FOUND,
                            f"no balanced, collision-free goal posture for {tried} found in "
                            f"{stats['goal_sampling_time_s']:.2f} s "
                            f"({gs.n_samples} samples over {trunk.describe()}; IK failures arm right/left "
@@ -1004,7 +1018,7 @@ class ReachPlanner:
         why = "; ".join(f"{a} arm: {s.value if isinstance(s, PlanStatus) else s}" for a, s in failures)
         if any(str(s).startswith(("start_projection", "pre_segment")) for _, s in failures) and not any(
                 isinstance(s, PlanStatus) for _, s in failures):
-            raise _Failure(PlanError.START_IN_COLLISION,
+            raise _failure(PlanError.START_IN_COLLISION,
                            f"the start posture cannot be moved to the planning manifold (trunk above COG_approx, "
                            f"other joints at the reference) without collision or leg IK failure ({why})")
         timed_out = any(s is PlanStatus.TIMED_OUT for _, s in failures) or time.perf_counter() >= deadline
@@ -1039,20 +1053,20 @@ class ReachPlanner:
                 contact, tree = contact_w, wc.tree
         if hit is not None:
             more = f"; also {contact.describe()}" if contact is not None else ""
-            raise _Failure(PlanError.START_IN_COLLISION,
+            raise _failure(PlanError.START_IN_COLLISION,
                            f"start posture in collision: {hit.describe()}{more}. Only a hand may rest on the map "
                            "(a retreat is planned for it); move the robot clear (e.g. reach_executor with "
                            "--no-collision-avoidance is NOT a remedy: check /voxel_map there)")
         if contact is None:
             if not collision.check(q_start):
                 shapes = self.colliding_shapes(q_start, collision)
-                raise _Failure(PlanError.START_IN_COLLISION,
+                raise _failure(PlanError.START_IN_COLLISION,
                                "start posture in collision: " + (", ".join(shapes) if shapes else "unknown shapes"))
             return None, joints
         retreat, reasons = self.retreat_planner.plan(joints, contact, tree, margin, approach,
                                                      self._reverse_of_last(joints), min_retreat_m)
         if retreat is None:
-            raise _Failure(PlanError.START_IN_COLLISION,
+            raise _failure(PlanError.START_IN_COLLISION,
                            f"{contact.describe()} and no retreat of "
                            f"{1e3 * self.retreat_planner.params.min_distance_m:.0f}"
                            f"-{1e3 * self.retreat_planner.params.max_distance_m:.0f} mm frees it: "
@@ -1062,7 +1076,7 @@ class ReachPlanner:
         end = retreat.joints[-1]
         if not collision.check(self.start_config(end)):
             shapes = self.colliding_shapes(self.start_config(end), collision)
-            raise _Failure(PlanError.START_IN_COLLISION,
+            raise _failure(PlanError.START_IN_COLLISION,
                            f"{contact.describe()}; the retreat's end still collides ({', '.join(shapes)})")
         return retreat, end
 

@@ -33,7 +33,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import pinocchio as pin
 
-from humanoid_reach_ros.codes import ARM_CODES, ARM_NAMES, ARM_NONE, ARMS, PlanError, RequestError
+from humanoid_reach_ros.codes import ARM_CODES, ARM_NAMES, ARM_NONE, ARMS, PlanError, RequestError, code_name
 from humanoid_reach_ros.control.gaze import GazeSolver
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner
@@ -44,7 +44,6 @@ from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 from humanoid_reach_ros.scene.planning_scene import UNOBSERVED_POLICIES, PlanningScene, SceneParams
 from humanoid_reach_ros.sim.scene import load_scene
 
-ERROR_NAMES: dict[int, str] = {int(e): e.name for e in PlanError}   # PlanReach.Response's constants
 HAND_LIMBS = {"right": "right_arm", "left": "left_arm"}
 OK, WARN, ERROR = 0, 1, 2          # diagnostic_msgs/DiagnosticStatus levels
 Log = Callable[..., None]          # log(level, text, throttled=False)
@@ -137,7 +136,7 @@ class PlanReply:
 
     @property
     def response_message(self) -> str:
-        return self.message or ERROR_NAMES.get(int(self.code), "unknown error")
+        return self.message or code_name(self.code)
 
     @property
     def arm_code(self) -> int:
@@ -353,7 +352,7 @@ class PlanningService:
         self.successes += int(reply.success)
         self.last, self.last_total_s = reply, total_s
         code = int(reply.code)
-        head = f"plan_reach #{n}: {ERROR_NAMES.get(code, str(code))} ({code}) in {total_s * 1e3:.0f} ms"
+        head = f"plan_reach #{n}: {code_name(code)} ({code}) in {total_s * 1e3:.0f} ms"
         out = reply.outcome
         if out is not None:
             s = self.statistics(reply, total_s)
@@ -447,14 +446,14 @@ class PlanningService:
         if last is None:
             level, message = OK, "no request yet"
         else:
-            code_name = ERROR_NAMES.get(int(last.code), str(last.code))
+            name = code_name(last.code)
             st = last.stats
-            values.update({"last_result": code_name, "last_error_code": last.code, "last_message": last.message,
+            values.update({"last_result": name, "last_error_code": last.code, "last_message": last.message,
                            "last_total_time_s": self.last_total_s,
                            "last_goal_sampling_time_s": float(st.get("goal_sampling_time_s", 0.0) or 0.0),
                            "last_path_planning_time_s": float(st.get("path_planning_time_s", 0.0) or 0.0)})
             level = ERROR if last.code == PlanError.INTERNAL_ERROR else OK
-            message = f"last request: {code_name} in {self.last_total_s * 1e3:.0f} ms"
+            message = f"last request: {name} in {self.last_total_s * 1e3:.0f} ms"
         statuses.append(("planning", level, message, values))
 
         values = {"joint_states_age_s": joint_states_age_s if math.isfinite(joint_states_age_s) else "never",
