@@ -160,7 +160,8 @@ def test_a_failed_automatic_look_stops_with_its_exit_code() -> None:
                    look=("done", result(ExecuteCode.ABORTED, "stale joint states")))
     code, summary, _, err = run(c, *TARGET)
     assert code == EXIT["execution"] and summary["plan"] is None
-    assert "look failed: ABORTED (22): stale joint states" in err and summary["auto_looks"][0]["error_name"] == "ABORTED"
+    assert "look failed: ABORTED (22): stale joint states" in err
+    assert summary["auto_looks"][0]["error_name"] == "ABORTED"
 
 
 # ---------------------------------------------------------------- exit codes

@@ -31,7 +31,8 @@ def test_every_error_code_has_a_name_class_and_hint() -> None:
     """One numbering (msg/ErrorCode, codes.ErrorCode): every code has an exit class and a hint in
     codes.CODE_INFO, none of the operator's own where the server's message says what to do."""
     from humanoid_reach_interfaces.msg import ErrorCode as ErrorCodeMsg
-    generated = {getattr(ErrorCodeMsg, n): n for n in dir(ErrorCodeMsg) if n.isupper() and isinstance(getattr(ErrorCodeMsg, n), int)}
+    generated = {getattr(ErrorCodeMsg, n): n for n in dir(ErrorCodeMsg)
+                 if n.isupper() and isinstance(getattr(ErrorCodeMsg, n), int)}
     assert {int(c): c.name for c in ErrorCode} == generated
     assert set(CODE_INFO) == set(ErrorCode)
     own_words = {ErrorCode.NO_GOAL_FOUND, ErrorCode.CANCELED, ErrorCode.START_IN_COLLISION, ErrorCode.UNOBSERVED_SPACE,
