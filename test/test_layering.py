@@ -24,7 +24,7 @@ PKG_DIR = Path(__file__).resolve().parents[1] / PKG
 
 #: lowest first; units of one layer do not import each other
 LAYERS: list[tuple[str, ...]] = [
-    ("", "codes", "paths", "yaml_checks", "params"),  # "" is the package itself (__init__: __version__)
+    ("", "codes", "paths", "yaml_checks", "params", "counters"),  # "" is the package itself (__version__)
     ("robot",),
     ("kinematics",),                     # limb IK: the solver protocol, registry and solvers
     ("geometry",),
@@ -243,3 +243,14 @@ def test_the_rest_of_the_package_uses_kinematics_through_its_api():
            for imp in imports_of(mod, path, modules)
            if imp.imported.startswith(f"{PKG}.kinematics.")]
     assert not bad, "import the kinematics package's API, not its modules:\n" + "\n".join(bad)
+
+
+def test_no_class_name_is_defined_twice() -> None:
+    """One concept, one name: no two top-level classes of the package share a name (issue 25)."""
+    seen: dict[str, list[str]] = defaultdict(list)
+    for module, path in module_files().items():
+        for node in ast.parse(path.read_text()).body:
+            if isinstance(node, ast.ClassDef):
+                seen[node.name].append(module)
+    twice = {name: modules for name, modules in seen.items() if len(modules) > 1}
+    assert not twice, twice

@@ -160,7 +160,7 @@ def test_one_request_at_a_time(service, log) -> None:
     assert n2 == 2 and busy.code == PlanError.BUSY and "being planned" in busy.message
     assert log.texts("warning") == [f"plan_reach #2: BUSY ({busy.message})"]
     service.end()
-    assert not service.plan_lock.locked() and (service.requests, service.busy_rejections) == (2, 1)
+    assert not service.plan_lock.locked() and (service.counters.requests, service.counters.busy_rejections) == (2, 1)
     assert service.begin()[1] is None
     service.end()
 
@@ -220,7 +220,7 @@ def test_a_plan_its_statistics_log_markers_and_diagnostics(log) -> None:
     line = log.texts("info")[-1]
     assert line.startswith(f"plan_reach #{n}: SUCCESS (0) in 1500 ms [goal sampling ")
     assert "/3 goals; path " in line and "; right arm, " in line and ", published on reach_trajectory: " in line
-    assert (service.requests, service.successes, service.last) == (1, 1, reply)
+    assert (service.counters.requests, service.counters.successes, service.last) == (1, 1, reply)
 
     poses = service.goal_hand_poses(reply)
     assert len(poses) == int(stats["goals_found"]) and all(isinstance(p, pin.SE3) for p in poses)
@@ -267,7 +267,7 @@ def test_refused_answers_log_and_diagnose(service, log) -> None:
                                      "RuntimeError: boom"
     statuses = {s[0]: s for s in service.diagnostics(None, 0.0, 0.0)}
     assert statuses["planning"][1] == 2 and statuses["planning"][3]["last_error_code"] == 99
-    assert (service.successes, service.last_total_s) == (0, 0.001)
+    assert (service.counters.successes, service.last_total_s) == (0, 0.001)
 
 
 def test_scene_policies_follow_reconfigure(service) -> None:

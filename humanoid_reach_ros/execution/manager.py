@@ -208,11 +208,11 @@ class MotionTracker:
         pend.code, pend.message, pend.summary = code, message, s.as_dict()
         self.last_result = pend
         c = self.counters
-        c.last_result = f"{pend.label}: {code_name(code)}"
-        c.successes += int(code == C.SUCCESS)
+        c.set(last_result=f"{pend.label}: {code_name(code)}")
+        c.count("successes", int(code == C.SUCCESS))
         if code == C.INVALID_REQUEST and message.startswith("infeasible"):
-            c.dual_arm_infeasible += 1
-            c.last_infeasible = f"{pend.label}: {message}"
+            c.count("dual_arm_infeasible")
+            c.set(last_infeasible=f"{pend.label}: {message}")
         line = (f"{pend.label}: {code_name(code)} at progress {event.progress:.2f}: "
                 f"{message} [{s.duration_s:.2f} s, "
                 f"{s.steps} steps, {s.overruns} overruns, max COG error "
@@ -311,8 +311,8 @@ class ExecutionManager:
         code = exc.code if known else C.ABORTED
         what = code_name(code) if known else "internal error"
         c = self.counters
-        setattr(c, counter, getattr(c, counter) + 1)
-        c.last_rejection = f"{label}: {what}: {exc}"
+        c.count(counter)
+        c.set(last_rejection=f"{label}: {what}: {exc}")
         if known and counter == "goals_rejected":
             self.log.warning(f"{label} rejected ({what}): {exc}")
         elif known:   # topics: throttled (a flood must not flood the log)
@@ -322,7 +322,8 @@ class ExecutionManager:
         return int(code)
 
     def _goal_label(self, kind: str) -> str:
-        self.counters.goals = max(self.counters.goals, n := next(self._goal_ids))
+        n = next(self._goal_ids)
+        self.counters.set(goals=max(self.counters.goals, n))
         return f"{kind} #{n}"
 
     # ------------------------------------------------------------ /execute_reach
@@ -351,7 +352,7 @@ class ExecutionManager:
                 motion = self.requests.dual(next(self._motion_ids), label, goal.targets, *joints)
             except RequestError as exc:
                 raise RequestError(exc.code, f"MODE_DUAL_ARM goal: {exc}") from None
-            self.counters.dual_arm_goals += 1
+            self.counters.count("dual_arm_goals")
             return motion
         return self.requests.trajectory(next(self._motion_ids), label, goal.reference, goal.frame_id, goal.arm,
                                         goal.no_collision_avoidance, goal.no_com_compensation,
@@ -429,7 +430,7 @@ class ExecutionManager:
     # ------------------------------------------------------------ topics and services
     def trajectory_topic(self, build: Callable[[], TrajectoryGoal]) -> bool:
         """``/reach_trajectory``: executed like a goal with ``arm = 0``; nobody waits for it."""
-        self.counters.trajectories = n = next(self._trajectory_ids)
+        self.counters.set(trajectories=(n := next(self._trajectory_ids)))
         label = f"/reach_trajectory #{n}"
         try:
             motion = self._motion(build(), label)
@@ -444,12 +445,12 @@ class ExecutionManager:
         """``/dual_arm/targets`` (right, left): followed while ``dual_arm_follow``; targets that
         did not move past the retarget thresholds are dropped."""
         c = self.counters
-        c.target_messages = n = next(self._follow_ids)
+        c.set(target_messages=(n := next(self._follow_ids)))
         label = f"/dual_arm/targets #{n}"
         try:
             targets = build()
             if not self.config.dual_arm_follow:
-                c.target_messages_ignored += 1
+                c.count("target_messages_ignored")
                 self.log.info(f"{label} ignored: dual_arm_follow is false (set it true to follow the targets)",
                               throttle_duration_sec=self.config.warn_throttle_s)
                 return False
@@ -458,7 +459,7 @@ class ExecutionManager:
             self.reject("target_messages_rejected", label, exc)
             return False
         if self.requests.unchanged(motion.targets, self.tracker.status.dual_targets):
-            c.target_messages_unchanged += 1
+            c.count("target_messages_unchanged")
             return False
         self.log.info(f"{label}: accepted: {self.requests.describe(motion)}",
                       throttle_duration_sec=self.config.warn_throttle_s)
@@ -528,10 +529,9 @@ class ExecutionManager:
         rate, steps and overruns since the last call, step times) and the inputs (joint states,
         map); ``period_s``: the nominal control period."""
         st, c = self.tracker.status, self.counters          # one status (frozen): consistent values
-        counters = dataclasses.asdict(c)
         values: dict[str, Any] = {"state": st.mode, "motion": st.motion_label, "progress": st.progress,
                                   "engine": st.engine, "dual_arm_follow": bool(self.config.dual_arm_follow),
-                                  **{k: v for k, v in counters.items() if not k.startswith("map")}}
+                                  **c.values(exclude="map")}
         message = f"{values['state']}" + (f": {values['motion']}" if values["motion"] else "")
         if c.last_rejection:
             message += f"; last rejection: {c.last_rejection}"
@@ -558,7 +558,7 @@ class ExecutionManager:
         values = {"joint_states_age_s": age if math.isfinite(age) else "never",
                   "tracking_error_rad": float(np.max(np.abs(joints - last)))
                   if joints is not None and last is not None else 0.0,
-                  **{k: v for k, v in counters.items() if k.startswith("map")}}
+                  **c.values(prefix="map")}
         level, message = (LEVEL_OK, "joint_states current") if joints is not None else (LEVEL_WARN, reason)
         out.append(("inputs", level, message, values))
         return out

@@ -32,6 +32,7 @@ from typing import Any, Callable
 import numpy as np
 import pinocchio as pin
 
+from humanoid_reach_ros.counters import Counters
 from humanoid_reach_ros.execution.config import ExecutionConfig
 from humanoid_reach_ros.codes import ARM_AUTO, ARM_NAMES, ExecuteCode as C, RequestError
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree
@@ -122,7 +123,9 @@ def targets_in_world(targets: tuple[HandTarget, HandTarget], waist: pin.SE3 | No
 
 
 @dataclass
-class RequestCounters:
+class RequestCounters(Counters):
+    """What the executor's requests and maps did (its ``/diagnostics``)."""
+
     goals: int = 0
     goals_rejected: int = 0
     trajectories: int = 0
@@ -183,9 +186,9 @@ class ExecutionRequests:
             self.scene.set_params(wanted)
         snap = self.scene.snapshot()
         tree, dt = snap.tree(exclude if snap.source == "/voxel_map" else None)
-        self.counters.map_voxels = int(tree.n_spheres)
+        self.counters.set(map_voxels=int(tree.n_spheres))
         if dt > 0:
-            self.counters.map_build_ms = dt * 1e3
+            self.counters.set(map_build_ms=dt * 1e3)
         self._tree_cache = tree
         return tree
 
@@ -197,7 +200,7 @@ class ExecutionRequests:
                           "/voxel_map arrives")
         self.scene.set_occupied(voxels, source=f"scene file {path}")
         tree = self._tree(None)
-        self.counters.map_source = f"scene file {path}"
+        self.counters.set(map_source=f"scene file {path}")
         return tree, (f"map source: scene file {path} ({len(voxels)} voxels without groups "
                       f"{list(self.config.scene_exclude_groups)}, sphere tree built in "
                       f"{self.counters.map_build_ms:.1f} ms); a /voxel_map replaces it")
@@ -211,15 +214,15 @@ class ExecutionRequests:
             tree = self._tree(self._target_p)
         c = self.counters
         previous, changed = c.map_source, c.map_source != "/voxel_map"
-        c.maps_received += 1
-        c.map_source = "/voxel_map"
+        c.count("maps_received")
+        c.set(map_source="/voxel_map")
         dropped = f", {cloud.dropped_nonfinite} NaN/inf points dropped" if cloud.dropped_nonfinite else ""
         return tree, (f"map source: /voxel_map ({len(cloud.points)} voxels{dropped}, sphere tree built in "
                       f"{c.map_build_ms:.1f} ms; replaces {previous})"), changed
 
     def reject_map(self, exc: Exception) -> None:
-        self.counters.maps_rejected += 1
-        self.counters.last_rejection = f"/voxel_map: {type(exc).__name__}: {exc}"
+        self.counters.count("maps_rejected")
+        self.counters.set(last_rejection=f"/voxel_map: {type(exc).__name__}: {exc}")
 
     def _aim_map_at(self, positions: np.ndarray, arm: str, log: Callable[[str], None] | None) -> None:
         """Before a motion: leave the voxels around its hand's start and final positions out of

@@ -139,9 +139,7 @@ class SceneSim(Node):
         self.hardware_id = self.model.name + " head sensors"
         self._images: tuple = ()         # the last frame's Image messages (reused, new stamp, while it is)
         self._last_stamp_ns: int | None = None
-        self.frames = 0
-        self.bad_joint_states = 0
-        self.last_bad_reason = ""
+        self.counters = self.sensors.counters
         self._window = RenderWindow()
 
         sensor = qos_profile_sensor_data
@@ -208,9 +206,9 @@ class SceneSim(Node):
             return  # no new joint state since the last frame: nothing new to stamp
         joints, reason = msgs.model_joints(msg, self.model)
         if joints is None:
-            self.bad_joint_states += 1
-            self.last_bad_reason = reason
-            self.get_logger().warning(f"skipping /joint_states ({self.bad_joint_states} so far): {reason}",
+            n = self.counters.count("bad_joint_states")
+            self.counters.set(last_bad_joint_states=reason)
+            self.get_logger().warning(f"skipping /joint_states ({n} so far): {reason}",
                                       throttle_duration_sec=self._p["warn_throttle_s"])
             self._last_stamp_ns = stamp_ns
             return
@@ -218,7 +216,6 @@ class SceneSim(Node):
         t0 = time.perf_counter()
         self.publish_frame(camera_pose(self.model, joints, self._p["camera_frame_id"]), msg.header.stamp)
         self._window.add(time.perf_counter() - t0)
-        self.frames += 1
 
     def publish_frame(self, T_wc: np.ndarray, stamp) -> None:
         """Render and publish one frame of every enabled sensor at camera pose ``T_wc``."""
@@ -246,11 +243,12 @@ class SceneSim(Node):
     def _publish_diagnostics(self) -> None:
         w, name, p = self._window.report(), self.get_name(), self._p
         age, rate = self.joint_states.age_s(), w["rate_hz"]
-        values = {"frames_total": self.frames, "rate_hz": rate, "nominal_rate_hz": 1.0 / p["period_s"],
+        c = self.counters.snapshot()
+        values = {"frames_total": c.frames, "rate_hz": rate, "nominal_rate_hz": 1.0 / p["period_s"],
                   "mean_render_ms": w["mean_render_ms"], "max_render_ms": w["max_render_ms"],
                   "joint_states_age_s": age if math.isfinite(age) else "never",
-                  "bad_joint_states_total": self.bad_joint_states, "frames_from_cache": self.sensors.reused_frames,
-                  "last_bad_joint_states": self.last_bad_reason,
+                  "bad_joint_states_total": c.bad_joint_states, "frames_from_cache": c.reused_frames,
+                  "last_bad_joint_states": c.last_bad_joint_states,
                   "disabled_primitives": ",".join(n for n in p["disabled_primitives"] if n) or "none",
                   "width": self.camera.width, "height": self.camera.height}
         level, message = msgs.LEVEL_OK, f"publishing at {rate:.1f} Hz"
@@ -258,8 +256,8 @@ class SceneSim(Node):
             level, message = msgs.LEVEL_WARN, "no /joint_states yet: camera pose unknown, nothing published"
         elif age > p["joint_states_timeout_s"]:
             level, message = msgs.LEVEL_WARN, f"/joint_states stale ({age:.1f} s): nothing published"
-        elif self.bad_joint_states and w["frames"] == 0:
-            level, message = msgs.LEVEL_WARN, f"skipping malformed /joint_states: {self.last_bad_reason}"
+        elif c.bad_joint_states and w["frames"] == 0:
+            level, message = msgs.LEVEL_WARN, f"skipping malformed /joint_states: {c.last_bad_joint_states}"
         status = msgs.diagnostic_status(f"{name}: sensors", level, message, values, self.hardware_id)
         self.diagnostics_pub.publish(msgs.diagnostic_array([status], self.get_clock().now().to_msg()))
 

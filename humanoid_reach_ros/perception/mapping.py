@@ -59,6 +59,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 
+from humanoid_reach_ros.counters import Counters
 from humanoid_reach_ros.geometry.camera import CameraCalibration
 from humanoid_reach_ros.perception.markers import JointStateBuffer, camera_pose, same_camera_pose
 from humanoid_reach_ros.perception.stereo import StereoCalibration, StereoMatcher, StereoParams
@@ -108,8 +109,8 @@ class MappingConfig:
 
 
 @dataclass
-class MapperCounters:
-    """What happened to the inputs (diagnostics)."""
+class MapperCounters(Counters):
+    """What happened to the inputs (diagnostics; updated under the pipeline's state lock)."""
 
     clouds_received: int = 0
     clouds_integrated: int = 0
@@ -134,9 +135,6 @@ class MapperCounters:
     last_problem_time: float = -1e9
     clears: int = 0
     problems: dict[str, int] = field(default_factory=dict)
-
-    def copy(self) -> MapperCounters:
-        return dataclasses.replace(self, problems=dict(self.problems))
 
 
 @dataclass(frozen=True)
@@ -234,7 +232,7 @@ class MappingPipeline:
         with self._state_lock:
             c = self.counters
             if counter:
-                setattr(c, counter, getattr(c, counter) + amount)
+                c.count(counter, amount)
             c.problems[kind] = c.problems.get(kind, 0) + 1
             c.last_problem, c.last_problem_time = f"{kind}: {text}", now
             if now - self._last_warn.get(kind, -1e9) < self.config.warn_throttle_s:
@@ -245,7 +243,7 @@ class MappingPipeline:
 
     def count(self, counter: str, amount: int = 1) -> None:
         with self._state_lock:
-            setattr(self.counters, counter, getattr(self.counters, counter) + amount)
+            self.counters.count(counter, amount)
 
     # ------------------------------------------------------------ joint states
     def add_joint_state(self, stamp_s: float, joints: np.ndarray) -> None:
@@ -455,7 +453,7 @@ class MappingPipeline:
             occupied, depth_maps = m.occupied_count(), m.depth_maps
             version, published = m.version, self.published_version
         with self._state_lock:
-            c = self.counters.copy()
+            c = self.counters.snapshot()
             buffered = len(self.joint_buffer)
             gap_ms, self.js_gap_ms = self.js_gap_ms, 0.0   # between stamps seen
         recent = self._clock() - c.last_problem_time < self.config.problem_hold_s

@@ -33,6 +33,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import pinocchio as pin
 
+from humanoid_reach_ros.counters import Counters
 from humanoid_reach_ros.codes import ARM_CODES, ARM_NAMES, ARM_NONE, ARMS, PlanError, RequestError, code_name
 from humanoid_reach_ros.control.gaze import GazeSolver
 from humanoid_reach_ros.paths import config_path
@@ -53,6 +54,15 @@ _COUNTS = ("goals_found", "goals_requested", "path_waypoints", "collision_checks
 
 def _no_log(level: str, text: str, throttled: bool = False) -> None:
     pass
+
+
+@dataclass
+class ServiceCounters(Counters):
+    """The planner's requests (its ``/diagnostics``)."""
+
+    requests: int = 0
+    successes: int = 0
+    busy_rejections: int = 0
 
 
 @dataclass(frozen=True)
@@ -168,7 +178,7 @@ class PlanningService:
                                     observable=lambda joints, points: gaze.observable(joints, points))
         self.plan_lock = threading.Lock()   # one request at a time; a second one gets BUSY
         self.map_info = MapInfo()
-        self.requests = self.successes = self.busy_rejections = 0
+        self.counters = ServiceCounters()
         self.last: PlanReply | None = None
         self.last_total_s = 0.0
 
@@ -280,11 +290,10 @@ class PlanningService:
     def begin(self) -> tuple[int, PlanReply | None]:
         """A request arrives: its number, and a BUSY reply when another one is planning (else
         the plan lock is held until :meth:`end`)."""
-        self.requests += 1
-        n = self.requests
+        n = self.counters.count("requests")
         if self.plan_lock.acquire(blocking=False):
             return n, None
-        self.busy_rejections += 1
+        self.counters.count("busy_rejections")
         reply = PlanReply(PlanError.BUSY, "another /plan_reach request is being planned; try again when it is done")
         self.log("warning", f"plan_reach #{n}: BUSY ({reply.message})")
         return n, reply
@@ -349,7 +358,7 @@ class PlanningService:
     def finish(self, n: int, reply: PlanReply, total_s: float, published: bool) -> None:
         """Request ``n`` answered with ``reply`` (``published``: its trajectory went out): counters, the
         last result, one INFO line (ERROR for INTERNAL_ERROR), and every retreat tried by a refused start."""
-        self.successes += int(reply.success)
+        self.counters.count("successes", int(reply.success))
         self.last, self.last_total_s = reply, total_s
         code = int(reply.code)
         head = f"plan_reach #{n}: {code_name(code)} ({code}) in {total_s * 1e3:.0f} ms"
@@ -441,7 +450,7 @@ class PlanningService:
         statuses = [("map", level, message, values)]
 
         last = self.last
-        values = {"requests": self.requests, "successes": self.successes, "busy_rejections": self.busy_rejections,
+        values = {**self.counters.values(),
                   "planning": self.plan_lock.locked()}
         if last is None:
             level, message = OK, "no request yet"

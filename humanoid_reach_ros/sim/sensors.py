@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 
+from humanoid_reach_ros.counters import Counters
 from humanoid_reach_ros.sim import camera as cam
 from humanoid_reach_ros.sim.scene import Scene
 
@@ -56,7 +57,7 @@ class HeadSensors:
         self.scene = scene
         self.disabled: list[str] = []
         self._cache: tuple | None = None       # (key, hits, image, stereo images)
-        self.reused_frames = 0
+        self.counters = SensorCounters()
 
     def without(self, names: list[str]) -> Scene:
         """The scene without the primitives ``names`` (empty strings ignored); KeyError naming
@@ -75,7 +76,7 @@ class HeadSensors:
         reused = self._cache is not None and self._cache[0] == key
         if reused:
             _, hits, image, stereo = self._cache
-            self.reused_frames += 1
+            self.counters.count("reused_frames")
         else:
             hits = cam.cast(scene, self.camera, T_wc, max_range_m=100.0, threads=s.threads)
             image = cam.render_image(scene, hits, self.marker, s.style, s.encoding)
@@ -91,7 +92,18 @@ class HeadSensors:
             points = cam.depth_points(hits, s.noise, self.rng)
             if s.points_in_world:
                 points = points @ T_wc[:3, :3].T + T_wc[:3, 3]
+        self.counters.count("frames")
         return SensorFrame(image, points, stereo, reused)
+
+
+@dataclasses.dataclass
+class SensorCounters(Counters):
+    """What the head sensors did (``scene_sim``'s ``/diagnostics``)."""
+
+    frames: int = 0
+    reused_frames: int = 0
+    bad_joint_states: int = 0
+    last_bad_joint_states: str = ""
 
 
 class RenderWindow:
@@ -115,4 +127,4 @@ class RenderWindow:
         return out
 
 
-__all__ = ["HeadSensors", "SensorSettings", "SensorFrame", "RenderWindow"]
+__all__ = ["HeadSensors", "SensorSettings", "SensorFrame", "SensorCounters", "RenderWindow"]
