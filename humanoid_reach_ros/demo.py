@@ -67,7 +67,7 @@ class DemoClient:
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import qos_profile_sensor_data
 
-        from humanoid_reach_ros.nodes.common import LATCHED
+        from humanoid_reach_ros.io.endpoints import LATCHED
         from sensor_msgs.msg import JointState, PointCloud2
 
         self.graph = graph
