@@ -40,17 +40,13 @@ def warm_up_all() -> dict[str, float]:
     t = time.perf_counter()
     from humanoid_reach_ros.dual_arm.controller import ControllerConfig, DualArmReachController
     from humanoid_reach_ros.dual_arm.torso_regression import ReachWorkspace, TorsoRegression
+    from humanoid_reach_ros.execution.process import warm_up_dual
 
     robot = RobotModel()
     ctl = DualArmReachController(robot, TorsoRegression.load(robot.spec.torso_regression),
                                  ReachWorkspace.for_robot(robot),
                                  ControllerConfig())
-    ctl.reset(robot.half_sitting())
-    ws = ctl.ws
-    pair = ws.targets(0.5 * (ws.right_lower + ws.right_upper), 0.5 * (ws.left_lower + ws.left_upper))
-    ctl.set_targets(pair.p_right, pair.R_right, pair.p_left, pair.R_left)
-    for _ in range(3):
-        ctl.step()
+    warm_up_dual(ctl, robot)
     from humanoid_reach_ros import kinematics
     kinematics.warm_up()   # every limb solver's kernels and a 7-joint arm's control step (Talos's)
     times["dual_arm"] = time.perf_counter() - t

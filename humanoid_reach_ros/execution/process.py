@@ -310,7 +310,7 @@ def _build(config: LoopConfig, out: queue.SimpleQueue, make_output):
                                      ReachWorkspace.load(d["workspace"]),
                                      ControllerConfig(period_s=config.supervisor.period_s,
                                                       max_speed_mps=d["max_speed_mps"]))
-        _warm_up_dual(ctl, robot)
+        warm_up_dual(ctl, robot)
         dual = DualArmEngine(ctl, RobotModel(config.robot_config))
     warm_s = time.perf_counter() - t0
 
@@ -359,7 +359,7 @@ def _warm_up_cluttered(executor, robot) -> None:
         executor.step()
 
 
-def _warm_up_dual(ctl, robot) -> None:
+def warm_up_dual(ctl, robot) -> None:
     """One target pair planned and stepped on the dual-arm controller (first-call costs)."""
     ctl.reset(robot.half_sitting())
     ws = ctl.ws
