@@ -217,6 +217,9 @@ def test_robot_body_is_swept_into_observed_free_space(rig) -> None:
     rig.pending.append((T0 + 1, rig.joints() + 1e-4))      # the same posture: no new mark
     assert p.layers_to_publish() is None and p.map.swept_count == swept
     assert p.clear() == 0 and p.counters.clears == 1 and p.map.swept_count == 0
+    rig.pending.append((T0 + 2, rig.joints()))            # still: the body is swept again after a clear
+    p.layers_to_publish()
+    assert p.map.swept_count == swept
 
 
 def test_stereo_pair_becomes_points_in_the_left_optical_frame(rig) -> None:

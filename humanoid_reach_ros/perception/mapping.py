@@ -392,10 +392,12 @@ class MappingPipeline:
         return False
 
     def clear(self) -> int:
-        """Forget the map; returns the occupied voxels forgotten."""
+        """Forget the map (the body's swept space too: the next publish sweeps the body at its
+        posture then, moved or not); returns the occupied voxels forgotten."""
         with self._map_lock:
             n = self.map.occupied_count()
             self.map.clear()
+            self._swept_joints = None
         self.count("clears")
         return n
 
