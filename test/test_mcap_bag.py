@@ -81,7 +81,7 @@ def test_full_definitions_with_nested_types() -> None:
     assert "unique_identifier_msgs/msg/UUID" in fb
     assert "float64 progress" in fb["humanoid_reach_interfaces/action/ExecuteReach_Feedback"]
     res = sections(message_definition("humanoid_reach_interfaces/srv/PlanReach_Response"))
-    assert "int32 NO_TARGET=9" in res[""]
+    assert "ErrorCode error_code" in res[""] and "int32 NO_TARGET=9" in res["humanoid_reach_interfaces/msg/ErrorCode"]
     assert "humanoid_reach_interfaces/msg/PlanningStatistics" in res
     assert "trajectory_msgs/msg/JointTrajectoryPoint" in res and "builtin_interfaces/msg/Duration" in res
 

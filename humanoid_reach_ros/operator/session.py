@@ -265,8 +265,10 @@ class OperatorSession:
             return EXIT["success"]
         if watch.publishers() == 0:
             return EXIT["success"]   # no marker_localizer: the planner answers (NO_TARGET and its hint)
-        t_diag = time.monotonic() + MARKER_DIAGNOSTICS_WAIT_S   # its diagnostics (1 Hz) hold the last position
-        client.spin_until(lambda: watch.diagnostics or watch.pose_t >= t0 or time.monotonic() > t_diag, None)
+        # its diagnostics (1 Hz) hold the last position: wait for one that does, up to the deadline (a fresh
+        # CLI on a busy machine once heard a status without it first, and looked at marker_look_deg instead)
+        t_diag = time.monotonic() + MARKER_DIAGNOSTICS_WAIT_S
+        client.spin_until(lambda: watch.last is not None or watch.pose_t >= t0 or time.monotonic() > t_diag, None)
         if watch.pose_t >= t0:
             report["fresh"] = True
             return EXIT["success"]
