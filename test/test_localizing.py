@@ -109,7 +109,7 @@ def test_skips_in_order_with_their_reasons(model: RobotModel) -> None:
     assert image(loc, 10.0, gray_calls=grays) is None
     assert log[-1][3].startswith("no camera pose at the image stamp: no /joint_states received yet")
     assert grays == [] and det.calls == 0                 # never converted nor detected
-    assert loc.counts["images"] == 5 and loc.counts["image"] == 5
+    assert loc.counters.images == 5 and loc.counters.skipped_image == 5
     assert loc.last_skip_reason.startswith("image: no camera pose")
     level, message, values = loc.diagnostics()
     assert level == WARN and message.startswith("skipping input: image: no camera pose")
@@ -140,8 +140,8 @@ def test_the_pose_chain_at_the_image_stamp(model: RobotModel) -> None:
     np.testing.assert_allclose(out.markers[0], R_T_C @ C_T_M(), atol=1e-12)
     np.testing.assert_allclose(out.targets[0], R_T_C @ C_T_M() @ TABLE.markers[7].M_T_O, atol=1e-12)
     np.testing.assert_allclose(loc.last_target, out.targets[0][:3, 3])
-    assert log == [("rejected", "id 9: unknown id")] and loc.counts["rejected"] == 1
-    assert loc.counts["localized"] == 1 and loc.last_error_px == 0.25
+    assert log == [("rejected", "id 9: unknown id")] and loc.counters.rejected == 1
+    assert loc.counters.localized == 1 and loc.last_error_px == 0.25
     loc.processed(0.012)
     level, message, values = loc.diagnostics()
     assert level == OK and message.startswith("localizing at")
@@ -159,14 +159,14 @@ def test_still_camera_skips_detection_until_the_period_passes(model: RobotModel)
     assert image(loc, 10.0, gray_calls=grays) is not None
     clock.now += 0.2
     assert image(loc, 10.1, gray_calls=grays) is None           # same head pose, 0.2 s later
-    assert loc.counts["skipped_still"] == 1 and grays == [10.0]
+    assert loc.counters.skipped_still == 1 and grays == [10.0]
     clock.now += 0.4
     assert image(loc, 10.2, gray_calls=grays) is not None       # 0.6 s since the last detection
     # the head moved: detect at once
     loc.add_joint_states(joints_at(model, np.arange(11.0, 12.0, 0.01), offset=0.05))
     clock.now += 0.1
     assert image(loc, 11.5, gray_calls=grays) is not None
-    assert grays == [10.0, 10.2, 11.5] and loc.counts["skipped_still"] == 1
+    assert grays == [10.0, 10.2, 11.5] and loc.counters.skipped_still == 1
 
 
 def test_still_skip_off_with_period_zero_and_with_hand_markers(model: RobotModel) -> None:
@@ -176,7 +176,7 @@ def test_still_skip_off_with_period_zero_and_with_hand_markers(model: RobotModel
         loc.add_joint_states(joints_at(model, np.arange(9.0, 11.0, 0.01)))
         for s in (10.0, 10.01, 10.02):
             image(loc, s)
-        assert det.calls == 3 and loc.counts["skipped_still"] == 0
+        assert det.calls == 3 and loc.counters.skipped_still == 0
 
 
 def test_hand_pairs(model: RobotModel) -> None:
@@ -193,7 +193,7 @@ def test_hand_pairs(model: RobotModel) -> None:
     np.testing.assert_allclose(out.hands[0].rotation, np.eye(3))      # the workspace rule's orientation
     np.testing.assert_allclose(loc.last_hands[0], right[:3, 3], atol=1e-9)
     out = image(loc, 10.01)
-    assert out.hands is None and loc.counts["hand_pair_incomplete"] == 1 and loc.counts["hand_pairs"] == 1
+    assert out.hands is None and loc.counters.hand_pair_incomplete == 1 and loc.counters.hand_pairs == 1
     _, _, values = loc.diagnostics()
     assert values["hand_pairs_total"] == 1 and values["hand_pair_incomplete_total"] == 1
 
@@ -218,7 +218,7 @@ def test_diagnostics_messages_without_skips(model: RobotModel) -> None:
     loc.set_intrinsics(CAL, 10.0)
     loc.add_joint_states(joints_at(model, [9.9, 10.1]))
     det.script = [([], [(7, "reprojection error 3.1 px > 1 px")])]
-    assert image(loc, 10.0) is None and loc.counts["no_marker"] == 1
+    assert image(loc, 10.0) is None and loc.counters.no_marker == 1
     clock.now += 1.0
     level, message, values = loc.diagnostics()
     assert level == WARN

@@ -19,13 +19,14 @@ from __future__ import annotations
 
 import math
 import time
-from collections import Counter
+
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable
 
 import numpy as np
 import pinocchio as pin
 
+from humanoid_reach_ros.counters import Counters
 from humanoid_reach_ros.geometry.camera import CameraCalibration
 from humanoid_reach_ros.perception.markers import (JointStateBuffer, MarkerDetector, MarkerTable, camera_pose,
                                                    object_pose, same_camera_pose)
@@ -57,6 +58,23 @@ class Localization:
     hands: list[pin.SE3] | None = None
 
 
+@dataclass
+class LocalizerCounters(Counters):
+    """What happened to the images (the localizer's ``/diagnostics``)."""
+
+    images: int = 0
+    localized: int = 0
+    no_marker: int = 0
+    rejected: int = 0
+    skipped_still: int = 0
+    hand_pairs: int = 0
+    hand_pair_incomplete: int = 0
+    skipped_image: int = 0
+    skipped_camera_info: int = 0
+    skipped_joint_states: int = 0
+    skipped_hand_targets: int = 0
+
+
 class MarkerLocalizing:
     """The per-image pipeline and its bookkeeping (counts, windows, last values)."""
 
@@ -79,7 +97,7 @@ class MarkerLocalizing:
         self.joints = JointStateBuffer(joint_buffer_s)
         self.intrinsics: CameraCalibration | None = None
         self._info_stamp_s = -math.inf
-        self.counts: Counter[str] = Counter()   # images, localized, no_marker, skipped, rejected, ...
+        self.counters = LocalizerCounters()
         self.last_skip_reason = ""
         self.last_rejection = ""
         self.last_error_px = math.nan
@@ -98,9 +116,9 @@ class MarkerLocalizing:
     # ------------------------------------------------------------ inputs
     def skip(self, what: str, reason: str) -> None:
         """Count a skipped input (``image``, ``camera_info``, ``joint_states``, ``hand targets``)."""
-        self.counts[what] += 1
+        n = self.counters.count("skipped_" + what.replace(" ", "_"))
         self.last_skip_reason = f"{what}: {reason}"
-        self.on_skip(what, self.counts[what], reason)
+        self.on_skip(what, n, reason)
 
     def add_joint_states(self, samples: Iterable[JointSample]) -> None:
         """Buffer joint states (a None sample is skipped with its reason), tracking the largest stamp gap."""
@@ -124,7 +142,7 @@ class MarkerLocalizing:
         """One image: ``image_size()`` its ``(height, width)`` (``ValueError`` for a malformed one),
         ``gray()`` its grey pixels, ``joint_states()`` what arrived since the last call. None when
         the image was skipped or showed no accepted marker."""
-        self.counts["images"] += 1
+        self.counters.count("images")
         self._window["images"] += 1
         cam = self.intrinsics
         if cam is None:
@@ -149,15 +167,15 @@ class MarkerLocalizing:
             return None
         R_T_C = camera_pose(self.model, joints, self.camera_frame_id)
         if self._still(R_T_C):
-            self.counts["skipped_still"] += 1
+            self.counters.count("skipped_still")
             return None
         result = self.detector.detect(gray(), cam.K, cam.D)
         for mid, why in result.rejected:
-            self.counts["rejected"] += 1
+            self.counters.count("rejected")
             self.last_rejection = f"id {mid}: {why}"
             self.on_rejection(self.last_rejection)
         if not result.detections:
-            self.counts["no_marker"] += 1
+            self.counters.count("no_marker")
             return None
         out = Localization()
         hands: dict[int, np.ndarray] = {}
@@ -170,7 +188,7 @@ class MarkerLocalizing:
                 R_T_O = object_pose(R_T_C, det.C_T_M, self.table.markers[det.marker_id].M_T_O)
                 out.targets.append(R_T_O)
                 self.last_target = R_T_O[:3, 3].copy()
-                self.counts["localized"] += 1
+                self.counters.count("localized")
                 self._window["localized"] += 1
         if self.hand_ids is not None:
             out.hands = self._hands(hands)
@@ -193,14 +211,14 @@ class MarkerLocalizing:
     def _hands(self, hands: dict[int, np.ndarray]) -> list[pin.SE3] | None:
         """[right, left] hand targets when both hand markers are in this image."""
         if not all(i in hands for i in self.hand_ids):
-            self.counts["hand_pair_incomplete"] += 1
+            self.counters.count("hand_pair_incomplete")
             return None
         try:
             out = hand_target_poses([hands[i] for i in self.hand_ids], self.workspace)
         except ValueError as exc:       # e.g. a marker at the shoulder: no orientation rule
             self.skip("hand targets", str(exc))
             return None
-        self.counts["hand_pairs"] += 1
+        self.counters.count("hand_pairs")
         self.last_hands = np.array([M.translation for M in out])
         return out
 
@@ -210,12 +228,12 @@ class MarkerLocalizing:
         now = self.clock()
         w, self._window = self._window, self._new_window(now)
         dt = max(now - w["start"], 1e-9)
-        c = self.counts
-        skipped = c["image"] + c["camera_info"] + c["joint_states"]
-        values = {"images_total": c["images"], "localized_total": c["localized"], "no_marker_total": c["no_marker"],
-                  "rejected_total": c["rejected"], "skipped_images_total": c["image"],
-                  "still_skipped_images_total": c["skipped_still"],
-                  "bad_camera_info_total": c["camera_info"], "bad_joint_states_total": c["joint_states"],
+        c = self.counters.snapshot()
+        skipped = c.skipped_image + c.skipped_camera_info + c.skipped_joint_states
+        values = {"images_total": c.images, "localized_total": c.localized, "no_marker_total": c.no_marker,
+                  "rejected_total": c.rejected, "skipped_images_total": c.skipped_image,
+                  "still_skipped_images_total": c.skipped_still,
+                  "bad_camera_info_total": c.skipped_camera_info, "bad_joint_states_total": c.skipped_joint_states,
                   "image_rate_hz": w["images"] / dt, "localization_rate_hz": w["localized"] / dt,
                   "max_process_ms": 1e3 * w["max_process_s"], "last_reprojection_error_px": self.last_error_px,
                   "last_skip_reason": self.last_skip_reason, "last_rejection": self.last_rejection,
@@ -223,8 +241,8 @@ class MarkerLocalizing:
                   "joint_states_max_gap_ms_since_start": self._js_gap_ms_total}
         self._js_gap_ms = 0.0
         if self.hand_ids is not None:
-            values.update({"hand_pairs_total": c["hand_pairs"], "hand_pair_incomplete_total": c["hand_pair_incomplete"],
-                           "skipped_hand_targets_total": c["hand targets"]})
+            values.update({"hand_pairs_total": c.hand_pairs, "hand_pair_incomplete_total": c.hand_pair_incomplete,
+                           "skipped_hand_targets_total": c.skipped_hand_targets})
         if self.last_target is not None:
             values.update({"target_x_m": self.last_target[0], "target_y_m": self.last_target[1],
                            "target_z_m": self.last_target[2]})
