@@ -5,6 +5,8 @@ ENV := . tools/env.sh &&
 PYTEST_ARGS ?=
 # make test runs the test files on this many pytest-xdist workers (one file stays on one worker,
 # so its module fixtures are built once); TEST_WORKERS=0 runs them in this process, one by one.
+# The files go out in collection order, heaviest first (test/conftest.py HEAVY_FIRST): xdist's own
+# order (most tests first) left the one-test graph files, the longest, for the end.
 # Two on two cores: three took 7:01 instead of 8:56 on a fresh clone (the graph tests wait on
 # real-time motions), but the load made two graph tests fail in two runs (both since made robust)
 TEST_WORKERS ?= 2
@@ -17,7 +19,7 @@ setup:
 # the linter first (ruff.toml); a finding stops make before the tests
 test: setup
 	@$(ENV) ruff check .
-	@$(ENV) python -m pytest test $(if $(filter-out 0,$(TEST_WORKERS)),-n $(TEST_WORKERS) --dist loadfile) $(PYTEST_ARGS)
+	@$(ENV) python -m pytest test $(if $(filter-out 0,$(TEST_WORKERS)),-n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder) $(PYTEST_ARGS)
 
 lint: setup
 	@$(ENV) ruff check .

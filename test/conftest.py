@@ -31,9 +31,10 @@ from nodetools import REPO_ROOT, NodeProcess, RosProbe, allocate_domain, graph_e
 
 
 #: the test files that take longest (seconds summed over their tests, a fresh clone, 2026-11-27),
-#: heaviest first: ``make test``'s pytest-xdist ``loadfile`` hands files out in collection order, so
-#: these go first and the short ones fill the gaps (longest processing time first: the two
-#: workers end together; alphabetical order left one idle for ~30 s, 466 vs 450 s simulated)
+#: heaviest first: ``make test``'s pytest-xdist ``loadfile --no-loadscope-reorder`` hands files out
+#: in collection order, so these go first and the short ones fill the gaps (longest processing time
+#: first: the two workers end together. xdist's default order, most tests first, ran these one-test
+#: graph files last, one worker idle meanwhile)
 HEAVY_FIRST = ("test_session.py", "test_operator_marker.py", "test_hosts.py", "test_bag_replay.py",
                "test_fault_tolerance.py", "test_voxel_mapper_node.py", "test_reach_operator.py", "test_demo.py",
                "test_perception_graph.py", "test_joint_driver_node.py", "test_reach_executor_node.py",
