@@ -206,3 +206,29 @@ def test_a_way_in_through_the_object_is_not_a_way_out(planner) -> None:
     assert planner._reverse_of_last(reach.positions[-1]) is not None
     home = planner.plan(reach.positions[-1], PlanRequest(None, home=True, seed=4, time_budget_s=5.0))
     assert home.success and "retreat" in home.message and "back along" not in home.message, home.message
+
+
+# Where bench/session s15 (plant, seed 1) left HRP-2: the right hand on the passage pipe after a
+# touch, the lower body crouched and turned, the left forearm 1 cm from the waist. The retreat
+# that brought the chest home swung that forearm into the waist; the planner refused the
+# retreat's end and both the next reach and the way home failed (START_IN_COLLISION).
+ON_THE_PASSAGE_PIPE = [0.0528, -0.0873, -0.0159, -0.01, 0.2299, -0.1351, -0.102, -0.6008, -0.0005, -0.0208, -0.1745,
+                       0.2307, 0.1353, 0.2461, -1.641, 0.1033, 0.2827, 0.1745, 0.1385, 0.2201, -1.0437, 1.8993,
+                       -0.8842, -0.1055, 0.1381, 0.2051, -1.0566, 1.7927, -0.7647, -0.0905]
+
+
+def test_a_retreat_never_brings_the_robot_into_itself() -> None:
+    planner = ReachPlanner(params=PlannerParams(time_budget_s=10.0))
+    planner.set_map(scene_file_voxels(str(config_path("scenes/plant.yaml")), 0.02, ("valve",)))
+    j = np.array(ON_THE_PASSAGE_PIPE)
+    out = planner.plan(j, PlanRequest(None, arm="auto", home=True, seed=105))
+    assert out.success and "first a retreat" in out.message, out.message
+    cm, margin = planner.collision_model, planner.collision.self_margin_m
+    for joints in out.positions:                     # the whole way, the retreat first
+        P0, P1, _ = cm.world_shapes(planner.start_config(joints))
+        assert not cm.colliding_pairs(P0, P1, margin=margin - 1e-9)
+    # the retreat planner names the pair it refused
+    contact, _ = planner.retreat_planner.classify_start(planner.start_config(j), planner.collision.tree, 0.0)
+    _, reasons = planner.retreat_planner.plan(j, contact, planner.collision.tree, 0.0, self_margin_m=margin)
+    assert any("chest home: l_hand<->l_thigh would come within the self-collision margin" in r for r in reasons), \
+        reasons

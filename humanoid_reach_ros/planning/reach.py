@@ -1064,7 +1064,8 @@ class ReachPlanner:
                                "start posture in collision: " + (", ".join(shapes) if shapes else "unknown shapes"))
             return None, joints
         retreat, reasons = self.retreat_planner.plan(joints, contact, tree, margin, approach,
-                                                     self._reverse_of_last(joints), min_retreat_m)
+                                                     self._reverse_of_last(joints), min_retreat_m,
+                                                     self_margin_m=collision.self_margin_m)
         if retreat is None:
             raise _failure(PlanError.START_IN_COLLISION,
                            f"{contact.describe()} and no retreat of "

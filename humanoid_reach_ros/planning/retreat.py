@@ -32,7 +32,9 @@ that stage for a humanoid:
    mass). The chest joints move with the arm; a named simplification: the legs and the
    waist do not help the retreat.
 4. **Checks** at every step: joint limits; no shape other than the hand's penetrates the
-   map; the hand's shapes touch only the voxels within ``contact_radius_m`` of the contact
+   map; no pair of the robot's own shapes comes within the planner's self-collision margin
+   that was not that close at the start (a chest brought home once swung the other forearm
+   into the waist); the hand's shapes touch only the voxels within ``contact_radius_m`` of the contact
    (the allowed contact) and never press into them deeper than at the start (never into them
    at all when the start is clear of them; ``clearance_tolerance_m``), and the clearance is
    ``end_clearance_m`` beyond the margin at the end. A named simplification of "clearance
@@ -155,6 +157,8 @@ class RetreatPlanner:
         self.cm = cm
         self.params = params
         self.hand = {arm: hand_shape_mask(robot, cm, arm) for arm in ARM_LIMBS}
+        self._self_margin: float | None = None          # of the plan in progress (``plan``)
+        self._start_close: set[tuple[str, str]] = set()  # its start's pairs within that margin
         self._data = robot.model.createData()
         self._fid = {arm: robot.model.getFrameId(robot.limbs[limb].tip) for arm, limb in ARM_LIMBS.items()}
         # the arm's joints and the chest's: the chest moves the shoulder when the arm alone is at a
@@ -250,11 +254,17 @@ class RetreatPlanner:
 
     def plan(self, joints: np.ndarray, contact: Contact, tree: SphereTree, margin_m: float,
              approach: np.ndarray | None = None, reverse_path: np.ndarray | None = None,
-             min_distance_m: float | None = None) -> tuple[Retreat | None, list[str]]:
+             min_distance_m: float | None = None, self_margin_m: float | None = None,
+             ) -> tuple[Retreat | None, list[str]]:
         """The first retreat that passes every check (module doc) and the reasons the others
         failed. ``reverse_path`` (K, n): the last plan's samples backwards from where the robot
         stands (the way the hand came in), tried first; then the Cartesian directions.
-        ``min_distance_m``: a longer retreat than the parameter's (at most ``max_distance_m``)."""
+        ``min_distance_m``: a longer retreat than the parameter's (at most ``max_distance_m``).
+        ``self_margin_m``: the planner's self-collision margin; a retreat posture whose shapes
+        come closer to each other than it (pairs not that close at the start) is refused (None:
+        not checked). bench/session s15: a chest-home retreat ended with the other forearm in
+        the waist, and the planner refused its end."""
+        self._self_margin = self_margin_m
         saved = self.params
         if min_distance_m is not None:
             self.params = replace(saved, min_distance_m=min(max(float(min_distance_m), saved.min_distance_m),
@@ -266,6 +276,7 @@ class RetreatPlanner:
 
     def _plan(self, joints, contact, tree, margin_m, approach, reverse_path) -> tuple[Retreat | None, list[str]]:
         q0 = self.robot.config(joints, self.robot.base_on_feet(joints))
+        self._start_close = self._close_pairs(*self.cm.world_shapes(q0)[:2])
         allowed = (SphereTree.from_voxels(contact.voxels, 2.0 * (float(tree.radii[0]) - margin_m))
                    if len(contact.voxels) else None)
         reasons = []
@@ -341,6 +352,8 @@ class RetreatPlanner:
             if np.any(dist[other] < 0):
                 names = [self.cm.names[i] for i in np.flatnonzero(other & (dist < 0))]
                 return None, f"{', '.join(names)} would touch the map at {1e3 * s:.0f} mm"
+            if (pairs := self._new_self_contacts(P0, P1)):
+                return None, f"{pairs} would come within the self-collision margin at {1e3 * s:.0f} mm"
             clear = self._hand_clearance(q, allowed, hand)
             if clear < min(prev_clear, 0.0) - p.clearance_tolerance_m:
                 return None, f"the hand would press into the contact's voxels at {1e3 * s:.0f} mm"
@@ -364,12 +377,25 @@ class RetreatPlanner:
         if np.any(dist[other] < 0):
             names = [self.cm.names[i] for i in np.flatnonzero(other & (dist < 0))]
             return f"{', '.join(names)} would touch the map {where}", dist, prev_clear
+        if (pairs := self._new_self_contacts(P0, P1)):
+            return f"{pairs} would come within the self-collision margin {where}", dist, prev_clear
         clear = self._hand_clearance(q, allowed, hand)
         if clear < min(prev_clear, 0.0) - self.params.clearance_tolerance_m:
             return f"the hand would press into the contact's voxels {where}", dist, prev_clear
         if np.any(dist[hand] < 0) and self._outside_contact(P0, P1, R, hand, tree, margin_m, contact):
             return f"the hand would touch voxels away from the contact {where}", dist, prev_clear
         return "", dist, prev_clear
+
+    def _close_pairs(self, P0: np.ndarray, P1: np.ndarray) -> set[tuple[str, str]]:
+        """The shape pairs closer than the plan's self-collision margin (none when unchecked)."""
+        if self._self_margin is None:
+            return set()
+        return {(a, b) for a, b, _ in self.cm.colliding_pairs(P0, P1, margin=self._self_margin)}
+
+    def _new_self_contacts(self, P0: np.ndarray, P1: np.ndarray) -> str:
+        """``"a<->b, ..."``: the pairs closer than the self-collision margin here that were not at
+        the start, or ""."""
+        return ", ".join(f"{a}<->{b}" for a, b in sorted(self._close_pairs(P0, P1) - self._start_close))
 
     def _back_along(self, q0, contact, path, tree, margin_m, allowed) -> tuple[Retreat | None, str]:
         """The retreat along ``path`` (joint samples from the start backwards): the first sample
