@@ -318,7 +318,7 @@ class RetreatPlanner:
         pin.framesForwardKinematics(model, data, q0)
         M0 = data.oMf[fid].copy()
         lo, hi = self.robot.lower[cols], self.robot.upper[cols]
-        hand, other = self.hand[arm], ~self.hand[arm]
+        hand = self.hand[arm]
         q = q0.copy()
         path = [q0[N_BASE_Q:].copy()]
         prev_clear = self._hand_clearance(q0, allowed, hand)
@@ -347,21 +347,9 @@ class RetreatPlanner:
             pin.framesForwardKinematics(model, data, q)
             if np.linalg.norm(data.oMf[fid].translation - target.translation) > 2e-3:
                 return None, f"the arm cannot follow the line beyond {1e3 * (s - p.step_m):.0f} mm (IK, limits)"
-            P0, P1, R = self.cm.world_shapes(q)
-            dist = tree.nearest_batch(P0, P1, R)[0] + margin_m
-            if np.any(dist[other] < 0):
-                names = [self.cm.names[i] for i in np.flatnonzero(other & (dist < 0))]
-                return None, f"{', '.join(names)} would touch the map at {1e3 * s:.0f} mm"
-            if (pairs := self._new_self_contacts(P0, P1)):
-                return None, f"{pairs} would come within the self-collision margin at {1e3 * s:.0f} mm"
-            clear = self._hand_clearance(q, allowed, hand)
-            if clear < min(prev_clear, 0.0) - p.clearance_tolerance_m:
-                return None, f"the hand would press into the contact's voxels at {1e3 * s:.0f} mm"
-            if np.any(dist[hand] < 0):
-                # the hand may still touch the voxels of the allowed contact, nothing else
-                outside = self._outside_contact(P0, P1, R, hand, tree, margin_m, contact)
-                if outside:
-                    return None, f"the hand would touch voxels away from the contact at {1e3 * s:.0f} mm"
+            why, dist, _ = self._step_ok(q, contact, tree, margin_m, allowed, prev_clear, f"at {1e3 * s:.0f} mm")
+            if why:
+                return None, why
             path.append(q[N_BASE_Q:].copy())
             arm_clear = float(np.min(dist[hand])) - margin_m   # the retreating shapes, with the planning margin
             if s >= p.min_distance_m - 1e-9 and arm_clear >= p.end_clearance_m and np.all(dist >= margin_m) \
