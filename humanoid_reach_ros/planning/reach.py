@@ -791,15 +791,10 @@ class ReachPlanner:
         ``UNOBSERVED_SPACE`` always carries a point to look at (CI once answered it with none, and
         the operator could not look). ``(points (K, 3), words)``."""
         names = list(self.collision_model.names)
-        points: list[np.ndarray] = []
-        where = ""
-        Q = positions
-        for refine in (False, True):
-            if refine:
-                if points or len(Q) < 2:
-                    break
-                s = np.linspace(0.0, 1.0, 4, endpoint=False)[1:, None, None]
-                Q = (Q[:-1] + s * (Q[1:] - Q[:-1])).reshape(-1, Q.shape[1])
+
+        def entries(Q: np.ndarray) -> tuple[list[np.ndarray], str]:
+            points: list[np.ndarray] = []
+            where = ""
             for j in Q:
                 q = self.start_config(j)
                 if full.check(q):
@@ -814,6 +809,13 @@ class ReachPlanner:
                     where = f"the {', '.join(shapes)} would enter it around {np.round(mid, 2).tolist()} m"
                 if all(np.linalg.norm(mid - p) > 0.1 for p in points):
                     points.append(mid)
+            return points, where
+
+        points, where = entries(positions)
+        if not points and len(positions) > 1:
+            s = np.linspace(0.0, 1.0, 4, endpoint=False)[1:, None, None]   # 1/4, 1/2, 3/4 of each interval
+            between = positions[:-1] + s * (positions[1:] - positions[:-1])
+            points, where = entries(between.reshape(-1, positions.shape[1]))
         if not points and len(frontier):
             Q = positions[::max(1, len(positions) // 60)]
             P0, P1 = full.world_shapes_batch(np.array([self.start_config(j) for j in Q]))   # (N, S, 3)
