@@ -190,5 +190,4 @@ class ExecutionConfig:
 
 
 def _executor_defaults() -> ExecutorParams:
-    known = {f.name for f in dataclasses.fields(ExecutorParams)}
-    return ExecutorParams(**{k: spec.default for k, spec in EXECUTOR_PARAMETERS.items() if k in known})
+    return executor_params({k: spec.default for k, spec in EXECUTOR_PARAMETERS.items()})

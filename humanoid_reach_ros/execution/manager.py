@@ -271,15 +271,13 @@ class ExecutionManager:
 
     def __init__(self, robot, config: ExecutionConfig, joints: Callable[[], tuple[np.ndarray | None, str]],
                  joint_states_age: Callable[[], float], log: Log, ok: Callable[[], bool] = lambda: True) -> None:
-        self.robot, self.config, self.log, self.ok = robot, config, log, ok
+        self.robot, self.log, self.ok = robot, log, ok
         self._joints, self._age = joints, joint_states_age
         self.requests = ExecutionRequests(robot, config)
-        self.counters = self.requests.counters
+        self.counters = self.requests.counters     # goals, trajectories, target messages: their labels' numbers too
         self.loop: Loop | None = None
         self.tracker = MotionTracker(self._send, log, self.counters, lambda: self.config, ok)
-        self._motion_ids, self._goal_ids, self._trajectory_ids = (itertools.count(1), itertools.count(1),
-                                                                  itertools.count(1))
-        self._follow_ids, self._sequential_ids = itertools.count(1), itertools.count(1)
+        self._motion_ids, self._sequential_ids = itertools.count(1), itertools.count(1)
         self._aborted_id: int | None = None
         self._window = LoopWindow()
 
@@ -295,10 +293,14 @@ class ExecutionManager:
     def on_event(self, event: LoopEvent) -> None:
         self.tracker.on_event(event)
 
+    @property
+    def config(self) -> ExecutionConfig:
+        """The configuration in effect (the requests' own: one copy)."""
+        return self.requests.config
+
     def reconfigure(self, values: dict[str, Any]) -> None:
         """Run-time parameter changes (name -> value): a new configuration, whole."""
-        self.config = self.config.changed(values)
-        self.requests.config = self.config
+        self.requests.config = self.config.changed(values)
 
     def joints(self) -> tuple[np.ndarray | None, str]:
         return self._joints()
@@ -322,9 +324,7 @@ class ExecutionManager:
         return int(code)
 
     def _goal_label(self, kind: str) -> str:
-        n = next(self._goal_ids)
-        self.counters.set(goals=max(self.counters.goals, n))
-        return f"{kind} #{n}"
+        return f"{kind} #{self.counters.count('goals')}"
 
     # ------------------------------------------------------------ /execute_reach
     def execute(self, build: Callable[[], TrajectoryGoal | DualArmGoal], port: GoalPort) -> Outcome:
@@ -430,8 +430,7 @@ class ExecutionManager:
     # ------------------------------------------------------------ topics and services
     def trajectory_topic(self, build: Callable[[], TrajectoryGoal]) -> bool:
         """``/reach_trajectory``: executed like a goal with ``arm = 0``; nobody waits for it."""
-        self.counters.set(trajectories=(n := next(self._trajectory_ids)))
-        label = f"/reach_trajectory #{n}"
+        label = f"/reach_trajectory #{self.counters.count('trajectories')}"
         try:
             motion = self._motion(build(), label)
         except Exception as exc:  # never die on an input
@@ -445,8 +444,7 @@ class ExecutionManager:
         """``/dual_arm/targets`` (right, left): followed while ``dual_arm_follow``; targets that
         did not move past the retarget thresholds are dropped."""
         c = self.counters
-        c.set(target_messages=(n := next(self._follow_ids)))
-        label = f"/dual_arm/targets #{n}"
+        label = f"/dual_arm/targets #{c.count('target_messages')}"
         try:
             targets = build()
             if not self.config.dual_arm_follow:

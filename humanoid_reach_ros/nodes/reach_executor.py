@@ -44,8 +44,7 @@ from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
 from humanoid_reach_ros.codes import ExecuteCode as C, RequestError
-from humanoid_reach_ros.execution.config import PARAMETERS, SOLVERS, ExecutionConfig, executor_params, \
-    supervisor_config
+from humanoid_reach_ros.execution.config import PARAMETERS, SOLVERS, ExecutionConfig, supervisor_config
 from humanoid_reach_ros.execution.manager import DualArmGoal, ExecutionManager, LookGoal, LookProgress, \
     TrajectoryGoal
 from humanoid_reach_ros.execution.process import LoopConfig, LoopProcess
@@ -105,21 +104,21 @@ class ReachExecutorNode(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        p = self.p = declare_parameters(self, PARAMETERS)
+        p = declare_parameters(self, PARAMETERS)
         if p["solver"] not in SOLVERS:
             raise ValueError(f"solver must be one of {SOLVERS}, got {p['solver']!r}")
         if p["metrics_decimation"] < 1:
             raise ValueError(f"metrics_decimation must be >= 1, got {p['metrics_decimation']}")
-        self.params = executor_params(p)
+        config = ExecutionConfig.from_values(p)
+        self.params = config.executor
         self.period_s = self.params.period_s
         self.robot = RobotModel(p["robot_config"])
         # the start posture and a staleness check only: taken when needed, no 200 Hz callbacks
         self.joint_states = LatestOnDemand(self, JointState, "joint_states", qos_profile_sensor_data)
         self.manager = m = ExecutionManager(
-            self.robot, ExecutionConfig.from_values(p),
+            self.robot, config,
             lambda: current_joints(self.joint_states, m.config.joint_states_timeout_s, self.robot),
             self.joint_states.age_s, self.get_logger(), lambda: self.context.ok())
-        self.counters = m.counters
         t0 = time.perf_counter()
         dual = m.requests.dual_arm_model()
         self.loop = LoopProcess(LoopConfig(
@@ -175,12 +174,7 @@ class ReachExecutorNode(Node):
             f"{p['joint_states_timeout_s']:g} s")
 
     def _on_parameters(self, params) -> None:
-        changes = {x.name: x.value for x in params}
-        self.p.update(changes)
-        self.manager.reconfigure(changes)
-
-    def current_joints(self):
-        return self.manager.joints()
+        self.manager.reconfigure({x.name: x.value for x in params})
 
     def _on_execute(self, goal_handle) -> ExecuteReach.Result:
         port = GoalHandlePort(goal_handle, lambda st: exec_msgs.execute_feedback(st.last))
