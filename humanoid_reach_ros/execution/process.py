@@ -31,7 +31,7 @@ the message and pickles it, so typing the messages adds nothing to a deadline's 
 
 The child asks for ``SCHED_FIFO`` for its loop threads and locks its memory where the OS
 allows (:mod:`humanoid_reach_ros.execution.realtime`; the parent logs the outcome once),
-ignores SIGINT (the parent stops it with ``("close",)``) and dies with its parent
+ignores SIGINT (the parent stops it with ``Close()``) and dies with its parent
 (``PR_SET_PDEATHSIG``).
 """
 from __future__ import annotations
@@ -172,7 +172,7 @@ def _die_with_parent() -> None:
 @dataclass
 class LoopOutput:
     """Where the loop's commands go, made in the child by the node layer's factory
-    (``make_output(config, log)``). ``sink(joints, metrics, overruns)`` runs on the tick thread
+    (``make_output(config, joint_names, log)``). ``sink(joints, metrics, overruns)`` runs on the tick thread
     every published step; ``mode``: how it publishes (logged once); ``slow``: the count and the
     longest [s] of the writes that took longer than a period; ``close()`` at the end."""
 
@@ -182,8 +182,7 @@ class LoopOutput:
     close: Callable[[], None]
 
 
-def child_main(conn, config: LoopConfig, make_output: Callable[[LoopConfig, Callable[[str, str], None]], LoopOutput],
-               ) -> None:
+def child_main(conn, config: LoopConfig, make_output: Callable[..., LoopOutput]) -> None:
     """Entry point of the loop process (``make_output``: see :class:`LoopOutput`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _die_with_parent()
@@ -317,7 +316,7 @@ def _build(config: LoopConfig, out: queue.SimpleQueue, make_output):
     def log(level: str, text: str) -> None:
         out.put((LogLine, level, text))
 
-    output = make_output(config, log)
+    output = make_output(config, robot.joint_names, log)
 
     def on_finish(m) -> None:   # the tick or solver thread: a tuple only, the sender builds the message
         out.put((_finished, m.id, int(m.code), m.message, m.summary(time.monotonic()),

@@ -14,7 +14,7 @@ from humanoid_reach_ros.execution.process import LoopConfig, LoopOutput, child_m
 SLOW_PUBLISH_LOGS = 3          # blocked publishes logged one by one, then one line every 10 s
 
 
-def ros_output(config: LoopConfig, log: Callable[[str, str], None]) -> LoopOutput:
+def ros_output(config: LoopConfig, joint_names: list[str], log: Callable[[str, str], None]) -> LoopOutput:
     """The loop's :class:`LoopOutput`: a publish-only node whose writes release the interpreter
     lock (``io/gil_free.py``: a DDS write that blocks holds up the tick thread only, never the
     solver); blocked writes are counted and logged (the first few, then one line every 10 s)."""
@@ -26,9 +26,7 @@ def ros_output(config: LoopConfig, log: Callable[[str, str], None]) -> LoopOutpu
 
     from humanoid_reach_ros.io import exec_msgs, msgs
     from humanoid_reach_ros.io.gil_free import GilFreePublisher
-    from humanoid_reach_ros.robot.model import RobotModel
 
-    robot = RobotModel(config.robot_config)
     rclpy.init(args=["--ros-args", *config.ros_args] if config.ros_args else None,
                signal_handler_options=SignalHandlerOptions.NO,
                **({"domain_id": config.domain_id} if config.domain_id is not None else {}))
@@ -36,7 +34,7 @@ def ros_output(config: LoopConfig, log: Callable[[str, str], None]) -> LoopOutpu
                              use_global_arguments=False)
     command_pub = GilFreePublisher(node.create_publisher(JointState, config.command_topic, 10))
     metrics_pub = GilFreePublisher(node.create_publisher(ExecutorMetrics, config.metrics_topic, 10))
-    command = msgs.joint_state(robot.joint_names, np.zeros(robot.n_joints))
+    command = msgs.joint_state(joint_names, np.zeros(len(joint_names)))
     clock = node.get_clock()
     counter = [0]
     slow = {"count": 0, "max_s": 0.0, "logged_at": -float("inf")}
