@@ -1,7 +1,8 @@
 """The operator's flow across three hosts, and link faults (issue 24; docs/deployment.md).
 
-``tools/hosts.sh up`` (three network namespaces on a bridge: hr_robot 10.231.0.1, hr_compute .2,
-hr_operator .3; links 1 Gbit/s, the operator's 20 Mbit/s) and, per placement of the planner:
+``tools/hosts.sh up`` (three network namespaces on a bridge: <P>_robot 10.231.0.1, <P>_compute .2,
+<P>_operator .3, <P> the prefix ``tools/hosts.sh names`` prints, below hr_<host>; links 1 Gbit/s,
+the operator's 20 Mbit/s) and, per placement of the planner:
 
 * ``compute``: ``hr_graph --host robot`` in hr_robot, ``hr_graph --host compute`` in hr_compute;
 * ``robot``: both in hr_robot (the planner beside the robot's nodes, on the same "host").
@@ -9,7 +10,7 @@ hr_operator .3; links 1 Gbit/s, the operator's 20 Mbit/s) and, per placement of 
 Every process runs through ``tools/hosts.sh exec HOST`` (discovery across the LAN, one
 ``ROS_DOMAIN_ID`` locked for this run). A probe in hr_robot (the robot's own host: nothing it
 receives crosses a link) records ``/joint_states``, ``/executor/metrics`` and ``/diagnostics``.
-A thread samples the bridge ends of the three veth pairs (``/sys/class/net/hr_<host>_br/
+A thread samples the bridge ends of the three veth pairs (``/sys/class/net/<port>/
 statistics/{rx,tx}_bytes``) at 10 Hz.
 
 Per placement: the graph idle (``IDLE_S``), then the operator's flow from hr_operator, each step
@@ -54,6 +55,7 @@ the cuts is test/test_hosts.py).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import shutil
@@ -212,9 +214,16 @@ def pinger_child(out: Path) -> int:
 
 
 # ---------------------------------------------------------------- the links
+@functools.cache
+def host_names() -> dict[str, list[str]]:
+    """``tools/hosts.sh names``: {"bridge": [BR], HOST: [NETNS, PORT, ADDRESS]} (the prefix: HR_HOSTS_PREFIX)."""
+    r = subprocess.run(["bash", str(HOSTS_SH), "names"], capture_output=True, text=True, timeout=30, check=True)
+    return {f[0]: f[1:] for f in (line.split() for line in r.stdout.splitlines()) if f}
+
+
 def link_counters(host: str) -> tuple[int, int]:
     """(rx, tx) bytes of the bridge's end of the host's veth pair: rx from the host, tx towards it."""
-    stats = Path(f"/sys/class/net/hr_{host}_br/statistics")
+    stats = Path(f"/sys/class/net/{host_names()[host][1]}/statistics")
     try:
         return int((stats / "rx_bytes").read_text()), int((stats / "tx_bytes").read_text())
     except (OSError, ValueError):
@@ -279,7 +288,7 @@ def hosts_sh(*args: str, check: bool = True, timeout: float = 60.0) -> subproces
 
 
 def hosts_up() -> bool:
-    return subprocess.run(["ip", "link", "show", "hr_br0"], capture_output=True).returncode == 0
+    return subprocess.run(["ip", "link", "show", host_names()["bridge"][0]], capture_output=True).returncode == 0
 
 
 class HostsBench:
@@ -350,7 +359,7 @@ class HostsBench:
             except subprocess.TimeoutExpired:
                 self.kill(p)
         for host in HOSTS:     # orphans (a node whose hr_graph was killed): by pid, inside our namespaces only
-            r = subprocess.run(["ip", "netns", "pids", f"hr_{host}"], capture_output=True, text=True)
+            r = subprocess.run(["ip", "netns", "pids", host_names()[host][0]], capture_output=True, text=True)
             for pid in r.stdout.split():
                 try:
                     os.kill(int(pid), signal.SIGKILL)
@@ -537,10 +546,10 @@ class ProbeData:
 
 # ---------------------------------------------------------------- a placement
 def run_placement(b: HostsBench, placement: str, args: argparse.Namespace, out: Path) -> dict[str, Any]:
-    res: dict[str, Any] = {"placement": placement, "planner_on": f"hr_{placement}", "steps": [], "cuts": []}
+    res: dict[str, Any] = {"placement": placement, "planner_on": host_names()[placement][0], "steps": [], "cuts": []}
     shutil.rmtree(out, ignore_errors=True)     # this run's logs, events and probe files only (they are appended to)
     out.mkdir(parents=True, exist_ok=True)
-    b.log(f"placement {placement}: the planner in hr_{placement}; graph up ...")
+    b.log(f"placement {placement}: the planner in {host_names()[placement][0]}; graph up ...")
     try:
         res.update(b.graph_up(placement, out))
         b.log(f"  graph up in {res['graph_up_s']} s; idle {args.idle:g} s")
@@ -852,7 +861,8 @@ def main(argv: list[str] | None = None) -> int:
     deadline = time.monotonic() + args.wait_hosts
     while hosts_up():
         if time.monotonic() > deadline:
-            print("bench/hosts.py: the namespaces are up (hr_br0 exists): another run is using them, or one was "
+            print(f"bench/hosts.py: the namespaces are up ({host_names()['bridge'][0]} exists): another run is "
+                  "using them, or one was "
                   "killed -- 'tools/hosts.sh down' once nobody runs", file=sys.stderr)
             return 1
         time.sleep(2.0)

@@ -1,17 +1,18 @@
 """The graph across three hosts on one machine (issue 24; docs/deployment.md).
 
-``tools/hosts.sh up`` builds the network namespaces hr_robot, hr_compute and hr_operator on a
-bridge (the operator's link capped at 20 Mbit/s); ``hr_graph --host robot`` and ``hr_graph
---host compute`` (as installed) start each host's share of the graph there, discovery across
-the LAN (``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``, set by ``hosts.sh exec``), in the test's own
-``ROS_DOMAIN_ID``. From the operator's host: a plan to the valve on the map the robot
-measured (the operator's automatic look first, through the robot's executor). Then the
-compute link is cut while a plan is asked for: the operator gets a clear error
+``tools/hosts.sh up`` builds the network namespaces <P>_robot, <P>_compute and <P>_operator (<P>:
+``HR_HOSTS_PREFIX``, by default hr and the uid) on a bridge (the operator's link capped at 20
+Mbit/s); ``hr_graph --host robot`` and ``hr_graph --host compute`` (as installed) start each host's
+share of the graph there, discovery across the LAN (``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET``, set by
+``hosts.sh exec``), in the test's own ``ROS_DOMAIN_ID``. From the operator's host: a plan to the
+valve on the map the robot measured (the operator's automatic look first, through the robot's
+executor). Then the compute link is cut while a plan is asked for: the operator gets a clear error
 within its timeout (no hang), and once the link is back the next request succeeds, no node
 restarted. The operator's link cut for 3 s while a look runs on the robot: the CLI rides it out.
-(``bench/hosts.py`` measures the cuts against the issue's targets; ``--cuts scan`` is the
-longer form of this one.) Last, a stray ``/joint_command`` publisher on the operator's host moves nothing
-(joint_driver's ``command_source`` host), the same program on the robot's host does.
+(``bench/hosts.py`` measures the cuts against the issue's targets; ``--cuts scan`` is the longer
+form of this one.) Last, a stray ``/joint_command`` publisher on the operator's host moves nothing
+(joint_driver's ``command_source`` host), the same program on the robot's host does. Then
+``tools/hosts.sh down`` stops both graphs before it removes the namespaces.
 
 Needs root (network namespaces; CI runs as root): without it, or where the namespaces cannot
 be made, the test fails and says why; it never passes silently.
@@ -47,9 +48,16 @@ def hosts(*args: str, check: bool = True, timeout: float = 60.0) -> subprocess.C
     return r
 
 
+def names(env: dict | None = None) -> dict[str, list[str]]:
+    """``tools/hosts.sh names``: {"bridge": [BR], HOST: [NETNS, PORT, ADDRESS]} for the prefix in ``env``."""
+    r = subprocess.run(["bash", str(HOSTS_SH), "names"], capture_output=True, text=True, timeout=30,
+                       env=None if env is None else dict(env), check=True)
+    return {f[0]: f[1:] for f in (line.split() for line in r.stdout.splitlines()) if f}
+
+
 def link_bytes(host: str) -> int:
     """Bytes through the host's link, both directions (the bridge's end of its veth pair)."""
-    stats = Path(f"/sys/class/net/hr_{host}_br/statistics")
+    stats = Path(f"/sys/class/net/{names()[host][1]}/statistics")
     return int((stats / "rx_bytes").read_text()) + int((stats / "tx_bytes").read_text())
 
 
@@ -173,6 +181,15 @@ def test_the_operator_flow_across_three_hosts_and_a_cut_link(three_hosts, ros_en
         for host, (proc, _) in graphs.items():
             assert proc.poll() is None, f"hr_graph on {host} exited:\n{logs()}"
         assert "exited with code" not in logs()
+
+        # ---- the doc's last step: `down` stops both graphs (SIGINT: each stops its nodes), then the namespaces
+        r = hosts("down", timeout=180)
+        assert "stopping" in r.stdout, r.stdout
+        for proc, out in graphs.values():
+            proc.wait(60.0)
+            assert "[hr_graph] stopped" in out.read_text(), logs()
+        assert all(names()[h][0] not in subprocess.run(["ip", "netns", "list"], capture_output=True,
+                                                       text=True).stdout for h in graphs), "namespaces left"
     finally:
         for proc, _ in graphs.values():
             if proc.poll() is None:
@@ -182,3 +199,57 @@ def test_the_operator_flow_across_three_hosts_and_a_cut_link(three_hosts, ros_en
                 proc.wait(60.0)
             except subprocess.TimeoutExpired:
                 os.killpg(proc.pid, signal.SIGKILL)
+
+
+# a host "graph": a parent that, like hr_graph, runs a child in a session of its own and stops it on SIGINT
+PARENT = """
+import signal, subprocess, sys, time
+child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(600)"], start_new_session=True)
+stop = []
+signal.signal(signal.SIGINT, lambda *a: stop.append(1))
+print("up", flush=True)
+while not stop:
+    time.sleep(0.05)
+child.terminate(); child.wait()
+open(sys.argv[1], "w").write("stopped its child")
+"""
+STUBBORN = "import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); print('up', flush=True); time.sleep(600)"
+
+
+def test_down_stops_what_runs_in_the_hosts_and_two_prefixes_do_not_collide(tmp_path: Path) -> None:
+    """No graph: what ``down`` does with processes inside (SIGINT to each started one, then SIGTERM to a
+    process that ignores it), and two users' prefixes (HR_HOSTS_PREFIX) side by side."""
+    if os.geteuid() != 0:
+        pytest.fail("three hosts need network namespaces, which need root (CI runs as root): run the suite as root")
+    mine = {**os.environ, "HR_HOSTS_PREFIX": f"hrt{os.getpid() % 10000}", "HR_HOSTS_STOP_S": "3"}
+    other = {**mine, "HR_HOSTS_PREFIX": f"hru{os.getpid() % 10000}"}
+    run = lambda env, *a: subprocess.run(["bash", str(HOSTS_SH), *a], env=env, capture_output=True,  # noqa: E731
+                                         text=True, timeout=120)
+    netns = lambda: subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout  # noqa: E731
+    procs: list[subprocess.Popen] = []
+    try:
+        for env in (mine, other):
+            r = run(env, "up")
+            assert r.returncode == 0, r.stderr
+        assert names(mine)["robot"][0] in netns() and names(other)["robot"][0] in netns()
+        assert names(mine)["bridge"] != names(other)["bridge"]
+        marker = tmp_path / "parent.stopped"
+        for host, code in (("robot", PARENT), ("compute", STUBBORN)):
+            procs.append(subprocess.Popen(["bash", str(HOSTS_SH), "exec", host, sys.executable, "-c", code,
+                                           str(marker)], env=mine, stdout=subprocess.PIPE, text=True,
+                                          start_new_session=True))
+        for p in procs:
+            assert p.stdout.readline().strip() == "up"
+        r = run(mine, "down")
+        assert r.returncode == 0, (r.stdout, r.stderr)
+        assert "stopping 3 process(es)" in r.stdout and "SIGTERM" in r.stderr, (r.stdout, r.stderr)
+        for p in procs:
+            p.wait(30.0)
+        assert marker.read_text() == "stopped its child"       # the parent got SIGINT and stopped its child
+        assert names(mine)["robot"][0] not in netns() and names(other)["robot"][0] in netns()
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGKILL)
+        run(mine, "down")
+        run(other, "down")

@@ -1,33 +1,42 @@
 #!/usr/bin/env bash
-# Three hosts on one machine (docs/deployment.md): the network namespaces hr_robot, hr_compute
-# and hr_operator, each with one interface (eth0) on a veth pair whose other end is a port of
-# the bridge hr_br0 -- a small switched LAN, 10.231.0.0/24:
+# Three hosts on one machine (docs/deployment.md): the network namespaces <P>_robot, <P>_compute
+# and <P>_operator, each with one interface (eth0) on a veth pair whose other end is a port of
+# the bridge <P>_br -- a small switched LAN, 10.231.0.0/24:
 #
-#   hr_robot    10.231.0.1   joint_driver, scene_sim, voxel_mapper, marker_localizer, reach_executor
-#   hr_compute  10.231.0.2   reach_planner
-#   hr_operator 10.231.0.3   reach_operator, a recorder
+#   <P>_robot    10.231.0.1   joint_driver, scene_sim, voxel_mapper, marker_localizer, reach_executor
+#   <P>_compute  10.231.0.2   reach_planner
+#   <P>_operator 10.231.0.3   reach_operator, a recorder
+#
+# <P>, the prefix, is $HR_HOSTS_PREFIX, by default "hr" and the uid of the user who ran it
+# (sudo's SUDO_UID, else id -u: hr0 for root, hr1000 for uid 1000), so two users on one machine
+# get their own namespaces, bridge and LAN. Letters, digits, at most 8 (interface names <= 15).
 #
 # Each link is capped in both directions with tc tbf (netem, for delay and loss, is used only
 # where the kernel has it: --delay / --loss). Needs root (CI runs as root).
 #
 #   tools/hosts.sh up [--rate RATE] [--operator-rate RATE] [--delay MS] [--loss PCT]
-#   tools/hosts.sh down
+#   tools/hosts.sh down                  # stops every process in the namespaces, then removes them
 #   tools/hosts.sh status
+#   tools/hosts.sh names                 # "bridge BR", then "HOST NETNS PORT ADDRESS" per host
 #   tools/hosts.sh cut HOST SECONDS      # the host's link down for SECONDS, then up again
 #   tools/hosts.sh link HOST down|up     # the host's link down (or up) until told otherwise
 #   tools/hosts.sh exec HOST CMD ...     # CMD on HOST, discovery across the LAN (SUBNET)
 #
 # RATE as tc takes it (default 1gbit; the operator's link 20mbit, a good wireless link).
+# down: SIGINT to each process started in a namespace (what Ctrl-C does: hr_graph stops its
+# nodes in order), then SIGTERM to all inside after HR_HOSTS_STOP_S s (default 30), SIGKILL 5 s later.
 set -euo pipefail
 
 HOSTS=(robot compute operator)
 declare -A ADDR=([robot]=10.231.0.1 [compute]=10.231.0.2 [operator]=10.231.0.3)
-BRIDGE=hr_br0
 PREFIX=24
 
 die() { echo "hosts.sh: $*" >&2; exit 1; }
-ns() { echo "hr_$1"; }
-port() { echo "hr_$1_br"; }          # the bridge's end of the host's link
+P=${HR_HOSTS_PREFIX:-hr${SUDO_UID:-$(id -u)}}
+[[ $P =~ ^[A-Za-z0-9]{1,8}$ ]] || die "HR_HOSTS_PREFIX must be 1-8 letters or digits, got '$P'"
+BRIDGE=${P}_br
+ns() { echo "${P}_$1"; }
+port() { echo "${P}_${1:0:3}_br"; }  # the bridge's end of the host's link
 known_host() { [[ -n "${ADDR[$1]:-}" ]] || die "unknown host '$1' (one of: ${HOSTS[*]})"; }
 
 need_root() {
@@ -81,8 +90,43 @@ up() {
     done
 }
 
+ns_pids() {   # every process inside our namespaces (the graphs, their nodes, anything they spawned)
+    local h; for h in "${HOSTS[@]}"; do ip netns pids "$(ns "$h")" 2>/dev/null || true; done
+}
+
+ns_roots() {   # the processes inside whose parent is outside (hr_graph, not the nodes it started)
+    local all pid ppid; all=" $(ns_pids | tr '\n' ' ') "
+    for pid in $all; do
+        ppid=$(awk '/^PPid:/ {print $2}' "/proc/$pid/status" 2>/dev/null) || continue
+        [[ $all == *" $ppid "* ]] || echo "$pid"
+    done
+}
+
+stop_all() {   # stop_all SIGNAL DEADLINE_S [roots]: signal the processes inside; 0 once none is left
+    local sig=$1 deadline=$2 pids
+    if [[ ${3:-} == roots ]]; then pids=$(ns_roots); else pids=$(ns_pids); fi
+    [[ -z $pids ]] && return 0
+    # shellcheck disable=SC2086
+    kill "-$sig" $pids 2>/dev/null || true
+    local tries=$((deadline * 5))          # checks 0.2 s apart
+    while [[ -n $(ns_pids) ]]; do
+        (( tries-- > 0 )) || return 1
+        sleep 0.2
+    done
+}
+
 down() {
     need_root
+    local n; n=$(ns_pids | wc -w)
+    if (( n > 0 )); then
+        local wait_s=${HR_HOSTS_STOP_S:-30}
+        [[ $wait_s =~ ^[0-9]+$ ]] || die "HR_HOSTS_STOP_S must be whole seconds, got '$wait_s'"
+        echo "hosts.sh: stopping $n process(es) in the namespaces (SIGINT, up to $wait_s s)"
+        stop_all INT "$wait_s" roots || { echo "hosts.sh: still running after $wait_s s: SIGTERM" >&2
+            stop_all TERM 5 || { echo "hosts.sh: still running: SIGKILL" >&2; stop_all KILL 5 || true; }; }
+        local left; left=$(ns_pids | wc -w)
+        (( left == 0 )) || die "$left process(es) still in the namespaces: $(ns_pids | tr '\n' ' ')"
+    fi
     for h in "${HOSTS[@]}"; do
         ip netns del "$(ns "$h")" 2>/dev/null || true      # its eth0 goes, and the veth pair with it
         ip link del "$(port "$h")" 2>/dev/null || true
@@ -99,6 +143,11 @@ status() {
         local rate; rate=$(tc qdisc show dev "$(port "$h")" 2>/dev/null | grep -o 'rate [^ ]*' | head -1)
         echo "$n ${ADDR[$h]} link ${state:-missing} ${rate:-no cap}"
     done
+}
+
+names() {
+    echo "bridge $BRIDGE"
+    local h; for h in "${HOSTS[@]}"; do echo "$h $(ns "$h") $(port "$h") ${ADDR[$h]}"; done
 }
 
 cut() {
@@ -124,6 +173,7 @@ run_on() {
     local h=${1:?exec HOST CMD ...}; shift
     known_host "$h"; need_root
     [[ $# -gt 0 ]] || die "exec: no command"
+    command -v "$1" >/dev/null || die "exec: '$1' not found on PATH (the package's executables: '. tools/env.sh' first)"
     ip netns exec "$(ns "$h")" env ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET "$@"
 }
 
@@ -131,8 +181,9 @@ case ${1:-} in
     up) shift; up "$@" ;;
     down) down ;;
     status) status ;;
+    names) names ;;
     cut) shift; cut "$@" ;;
     link) shift; link "$@" ;;
     exec) shift; run_on "$@" ;;
-    *) die "usage: tools/hosts.sh up [--rate R] [--operator-rate R] [--delay MS] [--loss PCT] | down | status | cut HOST SECONDS | link HOST down|up | exec HOST CMD ..." ;;
+    *) die "usage: tools/hosts.sh up [--rate R] [--operator-rate R] [--delay MS] [--loss PCT] | down | status | names | cut HOST SECONDS | link HOST down|up | exec HOST CMD ..." ;;
 esac
