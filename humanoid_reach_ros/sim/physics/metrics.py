@@ -139,10 +139,10 @@ def contact_metrics(pm: PhysicsModel, data: mujoco.MjData, ref: StandReference) 
     world = pm.world_geoms
     for i in range(data.ncon):
         c = data.contact[i]
-        g1, g2 = int(c.geom1), int(c.geom2)
-        if (g1 in world) == (g2 in world):
+        ga, gb = int(c.geom1), int(c.geom2)
+        if (ga in world) == (gb in world):
             continue
-        robot_body = int(model.geom_bodyid[g2 if g1 in world else g1])
+        robot_body = int(model.geom_bodyid[gb if ga in world else ga])
         mujoco.mj_contactForce(model, data, i, force6)
         fn = float(force6[0])
         for k, feet in enumerate(pm.foot_body_sets):

@@ -1,0 +1,98 @@
+"""The joint driver's physics plant (``joint_driver`` with ``plant: mujoco``), without ROS.
+
+The kinematic :class:`~humanoid_reach_ros.sim.joint_sim.JointSimulator` keeps doing what it
+does for the kinematic plant -- validating commands, rate-limiting and smoothing them, holding
+on a stale command -- and its joint angles become the servos' position targets here: the
+interpolator of a real joint controller, with the physics plant as the hardware under it. Each
+loop tick advances the plant by the tick's measured period (so simulated time follows the wall
+clock) and publishes what the plant measures: joint angles and velocities, and the floating
+base's pose (not placed on the feet).
+
+:meth:`PhysicsDriver.statuses` adds one ``physics`` diagnostics status: the plant's timing
+(real-time factor, capacity, own CPU, step cost), the contact metrics now and their extremes
+since start (CoP, its margin to the support polygon, sole slip, base tilt, hand forces, fall),
+and how far the measured base is from the base the kinematic odometry would place on the right
+sole (what the rest of the graph assumed before the plant existed).
+"""
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+import pinocchio as pin
+
+from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.sim.physics.metrics import ContactMetrics
+from humanoid_reach_ros.sim.physics.model_builder import build_for_robot
+from humanoid_reach_ros.sim.physics.stepper import PhysicsPlant
+
+OK, WARN, ERROR = 0, 1, 2     # diagnostic_msgs/DiagnosticStatus levels
+
+
+class PhysicsDriver:
+    """A :class:`PhysicsPlant` tracking the kinematic simulator's joints (module doc)."""
+
+    def __init__(self, model: RobotModel, joints: np.ndarray, scene_file: str | None = None) -> None:
+        self.model = model
+        self.plant = PhysicsPlant(build_for_robot(model, scene_file), np.asarray(joints, float))
+        self.lock = threading.Lock()        # the loop thread steps, the diagnostics timer reads
+        self.metrics: ContactMetrics = self.plant.metrics()
+        self._worst = {"cop_margin_mm_min": math.inf, "foot_slip_mm_max": 0.0, "base_tilt_deg_max": 0.0,
+                       "hand_contact_force_n_max": 0.0, "joint_tracking_error_rad_max": 0.0}
+        self.fallen_reason = ""
+
+    def step(self, targets: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, pin.SE3]:
+        """Set the servos' targets, simulate ``dt`` and measure; returns (joints, velocities, base pose)."""
+        with self.lock:
+            plant = self.plant
+            plant.set_targets(targets)
+            plant.advance(dt)
+            m = self.metrics = plant.metrics()
+            w = self._worst
+            if m.cop is not None:
+                w["cop_margin_mm_min"] = min(w["cop_margin_mm_min"], 1e3 * m.cop_margin_m)
+            w["foot_slip_mm_max"] = max(w["foot_slip_mm_max"], 1e3 * max(m.sole_slip_m))
+            w["base_tilt_deg_max"] = max(w["base_tilt_deg_max"], m.base_tilt_deg)
+            w["hand_contact_force_n_max"] = max(w["hand_contact_force_n_max"], *m.hand_force_n.values())
+            joints = plant.joints
+            w["joint_tracking_error_rad_max"] = max(w["joint_tracking_error_rad_max"],
+                                                    float(np.abs(plant.targets - joints).max()))
+            if m.fallen and not self.fallen_reason:
+                self.fallen_reason = m.fall_reason
+            return joints, plant.joint_velocities, plant.base_pose
+
+    def statuses(self) -> list[tuple[str, int, str, dict]]:
+        """The ``physics`` status (module doc), as (name suffix, level, message, values)."""
+        with self.lock:
+            m, t, w = self.metrics, self.plant.timing(), dict(self._worst)
+            joints, base = self.plant.joints, self.plant.base_pose
+        feet_base = self.model.base_on_feet(joints)
+        values = {
+            "real_time_factor": t.real_time_factor, "capacity_x_real_time": t.capacity, "plant_cpu_pct": t.cpu_pct,
+            "step_cost_us": t.step_cost_us, "sim_time_s": t.sim_time_s, "timestep_s": self.plant.pm.timestep_s,
+            "cop_x_m": m.cop[0] if m.cop is not None else "no foot contact",
+            "cop_y_m": m.cop[1] if m.cop is not None else "no foot contact",
+            "cop_margin_mm": 1e3 * m.cop_margin_m if m.cop is not None else "no foot contact",
+            "right_foot_force_n": m.foot_force_n[0], "left_foot_force_n": m.foot_force_n[1],
+            "right_foot_slip_mm": 1e3 * m.sole_slip_m[0], "left_foot_slip_mm": 1e3 * m.sole_slip_m[1],
+            "base_tilt_deg": m.base_tilt_deg, "base_z_m": m.base_height_m,
+            "capture_point_out_mm": 1e3 * m.capture_point_out_m,
+            "base_vs_feet_odometry_mm": 1e3 * float(np.linalg.norm(base.translation - feet_base.translation)),
+            **{f"{side}_hand_force_n": f for side, f in m.hand_force_n.items()},
+            **{k: (v if math.isfinite(v) else "no foot contact yet") for k, v in w.items()},
+            "fallen": bool(self.fallen_reason), "fall_reason": self.fallen_reason,
+        }
+        for side, cop in zip(("right", "left"), m.foot_cop):
+            if cop is not None:
+                values[f"{side}_foot_cop_x_m"], values[f"{side}_foot_cop_y_m"] = float(cop[0]), float(cop[1])
+        if self.fallen_reason:
+            return [("physics", ERROR, f"fallen: {self.fallen_reason}", values)]
+        if m.cop is None or m.cop_margin_m < 0.0:
+            return [("physics", WARN, "centre of pressure outside the support polygon" if m.cop is not None
+                     else "no foot on the ground", values)]
+        return [("physics", OK, f"standing: CoP {1e3 * m.cop_margin_m:.0f} mm inside the support polygon, "
+                 f"real time x{t.real_time_factor:.2f}", values)]
+
+
+__all__ = ["PhysicsDriver"]
