@@ -8,6 +8,9 @@ participant of its own with localhost discovery, ``io/host_local.py``) and every
 * ``/joint_states``  sensor_msgs/JointState, all 30 joints, position + velocity;
 * ``/base_pose``     geometry_msgs/PoseStamped, waist pose in ``world`` by kinematic
   odometry (right foot fixed on the floor, see ``humanoid_reach_ros.sim.joint_sim``);
+  with ``plant: mujoco`` the joints and the base are those a MuJoCo plant measures
+  (``humanoid_reach_ros.sim.physics``: the kinematic simulator's joints are its servos'
+  targets) and ``/diagnostics`` carries a ``physics`` status (CoP, margin, slip, tilt, fall);
 * ``/robot_description`` std_msgs/String, the URDF (with the robot description's added frames as
   fixed links), once, transient local (depth 1);
 * ``/diagnostics``   diagnostic_msgs/DiagnosticArray every ``diagnostics_period_s``:
@@ -49,6 +52,7 @@ from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 from humanoid_reach_ros.sim.driver import POSTURES, SimulatedDriver
 from humanoid_reach_ros.sim.joint_sim import MAX_BUFFERED_COMMANDS
+from humanoid_reach_ros.sim.physics import PLANTS, check_plant
 
 NODE_NAME = "joint_driver"
 COMMAND_SOURCES = ("host", "any")
@@ -57,6 +61,11 @@ COMMAND_SOURCES = ("host", "any")
 # Defaults match config/joint_driver.yaml (checked by test_joint_driver_node).
 PARAMETERS: dict[str, ParamSpec] = {
     "period_s": ParamSpec(0.005, "control loop period [s] (200 Hz)", (0.0005, 1.0)),
+    "plant": ParamSpec("kinematic", "what the commands move: kinematic (joints placed where commanded, the waist "
+                       "on the feet) or mujoco (a MuJoCo physics plant: servos, contacts, a measured floating base; "
+                       "docs/physics.md)", constraints=f"one of {', '.join(PLANTS)}"),
+    "physics_scene": ParamSpec("", "scene the mujoco plant stands in (relative to config/ or absolute); empty: the "
+                               "robot description's demo scene"),
     "initial_posture": ParamSpec("half_sitting", "posture at start", constraints=f"one of {', '.join(POSTURES)}"),
     "robot_config": ParamSpec(DEFAULT_ROBOT, "robot: a name (config/robots/<name>/robot.yaml) or the path of "
                                           "a robot description (relative to config/, or absolute)"),
@@ -109,6 +118,11 @@ class JointDriver(Node):
             left_foot_slip_warn_m=p["left_foot_slip_warn_m"])
         self.sim = self.core.sim
         self.hardware_id = self.model.name
+        self.physics = None
+        if check_plant(p["plant"]) == "mujoco":
+            from humanoid_reach_ros.sim.physics.driver import PhysicsDriver   # imports mujoco only when used
+
+            self.physics = PhysicsDriver(self.model, self.sim.q, p["physics_scene"] or None)
 
         reliable10 = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.joint_states_pub = self.create_publisher(JointState, "joint_states", reliable10)
@@ -165,7 +179,7 @@ class JointDriver(Node):
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.get_logger().info(
             f"simulated {self.hardware_id}: {self.model.n_joints} joints at {1.0 / self.period_s:.0f} Hz "
-            f"(period {self.period_s * 1e3:.1f} ms), initial posture {posture!r}, velocity scale "
+            f"(period {self.period_s * 1e3:.1f} ms), {p['plant']} plant, initial posture {posture!r}, velocity scale "
             f"{self.sim.velocity_scale:g}, tracking tau {self.sim.time_constant_s * 1e3:.1f} ms, "
             f"command timeout {self.core.command_timeout_s:g} s; publishing joint_states, base_pose, "
             f"robot_description, /diagnostics (the loop's writes {self._joint_states_out.mode}); listening on "
@@ -219,6 +233,10 @@ class JointDriver(Node):
         if notice is not None:
             warn, text = notice
             (self.get_logger().warning if warn else self.get_logger().info)(text)
+        if self.physics is not None:
+            self._tick_physics(dt)
+            core.end_tick(t)
+            return
         with core.lock:
             self.sim.step(dt)
             stamp = self.get_clock().now().to_msg()
@@ -232,6 +250,16 @@ class JointDriver(Node):
         self._base_pose_out.publish(self._pose_msg)
         core.end_tick(t)
 
+    def _tick_physics(self, dt: float) -> None:
+        """One tick on the mujoco plant: the kinematic simulator's joints are the servos' targets."""
+        with self.core.lock:
+            self.sim.step(dt)
+            targets = self.sim.q.copy()
+        q, dq, base = self.physics.step(targets, dt)
+        stamp = self.get_clock().now().to_msg()
+        self._joint_states_out.publish(msgs.fill_joint_state(self._joint_state, q, dq, stamp))
+        self._base_pose_out.publish(msgs.pose_stamped(base, self.world_frame_id, stamp))
+
     def _publish_diagnostics(self) -> None:
         now = time.monotonic()
         self.diagnostics_pub.publish(msgs.diagnostic_array(self.diagnostic_statuses(now),
@@ -240,9 +268,11 @@ class JointDriver(Node):
     def diagnostic_statuses(self, now: float) -> list:
         """The statuses of one /diagnostics message (``SimulatedDriver.statuses``); resets the timing window."""
         name = self.get_name()
+        statuses = self.core.statuses(now, self.world_frame_id, self._p["base_frame_id"])
+        if self.physics is not None:
+            statuses += self.physics.statuses()
         return [msgs.diagnostic_status(f"{name}: {suffix}", level, message, values, self.hardware_id)
-                for suffix, level, message, values in self.core.statuses(now, self.world_frame_id,
-                                                                         self._p["base_frame_id"])]
+                for suffix, level, message, values in statuses]
 
     # ------------------------------------------------------------ parameters
     def _apply_parameters(self, params: list[Parameter]) -> None:
