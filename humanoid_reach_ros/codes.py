@@ -56,8 +56,8 @@ CODE_INFO: dict[ErrorCode, tuple[str, str]] = {
     ErrorCode.INVALID_BOUNDS: ("invalid", "WGR lower > upper, or a rotation bound outside [-pi, pi] (+-180 deg): "
                                "check --wgr-deg / --wgr"),
     ErrorCode.UNKNOWN_FRAME: ("invalid", "the target frame is not known: use --frame world or base_link"),
-    ErrorCode.TARGET_OUT_OF_REACH: ("no_motion", "proven out of the arms' reach from any stance-keeping trunk pose: "
-                                    "move the target closer (or the robot nearer)"),
+    # the planner's message gives the proof (arm, shoulder, what was searched) and the remedy
+    ErrorCode.TARGET_OUT_OF_REACH: ("no_motion", ""),
     # the planner's message names the links, the nearest voxels and the retreats it tried
     ErrorCode.START_IN_COLLISION: ("no_motion", ""),
     ErrorCode.NO_MAP: ("no_input", "the planner has no environment model: start voxel_mapper (or give reach_planner "

@@ -52,8 +52,9 @@ class FakeClient:
 
     def __init__(self, plans: list[Any] = (), execution: tuple[str, Any] = ("done", None),
                  look: tuple[str, Any] = ("done", None), look_up: bool = True, publishers: int = 1,
-                 marker_after_look: bool = True) -> None:
+                 marker_after_look: bool = True, mapper_voxels: int | None = 6585) -> None:
         self.timeout_s = 1.0
+        self.mapper_voxels = mapper_voxels
         self.plans = list(plans)
         self.execution = execution if execution[1] is not None or execution[0] != "done" else ("done", result())
         self.look_outcome = look if look[1] is not None or look[0] != "done" else ("done", result(message="looked"))
@@ -97,6 +98,13 @@ class FakeClient:
 
     def watch_marker(self):
         return contextlib.nullcontext(self.sightings)
+
+    def watch_map(self):
+        w = MarkerSightings(lambda: 0)
+        if self.mapper_voxels is not None:   # the voxel mapper's diagnostics, as they arrive
+            w.on_diagnostics(NS(status=[NS(name="voxel_mapper: map", values=[NS(key="occupied_voxels",
+                                                                               value=str(self.mapper_voxels))])]))
+        return contextlib.nullcontext(w)
 
     def executor_parameters(self, names: list[str]) -> dict[str, Any]:
         return {"marker_look_deg": [2.0, 40.0], "robot_config": "unused"}
@@ -210,6 +218,9 @@ def test_scan_and_look_alone_move_the_head_only() -> None:
     assert code == 0 and not c.requests and c.looks == [([], [], 0.0, None)]
     assert "scanning with the head" in text and "  head pose 1/1: yaw +5.7, pitch +11.5 deg (holding)" in text
     assert summary["look"]["message"] == "looked" and "look: looked [1.5 s, max COG drift 0.10 mm]" in text
+    assert summary["map_voxels"] == 6585 and "map: 6,585 occupied voxels" in text   # how big the map now is
+    code, summary, text, _ = run(FakeClient([], mapper_voxels=None), "--scan", "--no-auto-look")
+    assert code == 0 and summary["map_voxels"] is None and "map: size unknown (no voxel_mapper diagnostics" in text
     c = FakeClient([])
     code, _, _, _ = run(c, "--look", "10", "20", "--dwell", "2")
     assert code == 0 and c.looks == [([math.radians(10)], [math.radians(20)], 2.0, None)]

@@ -2,6 +2,8 @@
 the target band, the conditioned draw and the out-of-reach proof."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -108,6 +110,13 @@ def test_out_of_reach_is_a_proof(region_and_projector, target, arm):
     p_e, R_e = region.sample(rng, n)
     for a in (("right", "left") if arm == "auto" else (arm,)):
         assert not projector.ik[f"{a}_arm"].maybe_reachable(c_p, c_R, p_e, R_e).any()
+
+
+def test_a_far_target_is_told_in_short_numbers(region_and_projector):
+    """``--target 1e308 0 1``: the proof's lengths in 3 significant digits, not 300-digit numbers."""
+    tr, _ = region_and_projector
+    msg = tr.out_of_reach(valve_region((1e308, 0.0, 1.0)))
+    assert "1e+308 m short" in msg and len(msg) < 300 and not re.search(r"\d{8}", msg), msg
 
 
 def test_reachable_targets_are_never_ruled_out(region_and_projector):

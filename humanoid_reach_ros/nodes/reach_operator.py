@@ -133,6 +133,18 @@ class Operator:
             for sub in subs:
                 self.node.destroy_subscription(sub)
 
+    @contextmanager
+    def watch_map(self) -> Iterator[MarkerSightings]:
+        """``/diagnostics`` only (the voxel mapper's map size) for a ``with`` block."""
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        w = MarkerSightings(lambda: 0)
+        sub = self.node.create_subscription(DiagnosticArray, "/diagnostics", w.on_diagnostics, 20)
+        try:
+            yield w
+        finally:
+            self.node.destroy_subscription(sub)
+
     def executor_parameters(self, names: list[str], timeout_s: float = 2.0) -> dict[str, Any]:
         """The executor's parameters ``names``; the declared defaults for those it does not answer in time."""
         from rcl_interfaces.srv import GetParameters

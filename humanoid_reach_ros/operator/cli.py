@@ -18,13 +18,15 @@ bounds within ``ANGLE_TOL`` of +-pi). ROS-free: the node turns :class:`PlanInput
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import sys
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, NoReturn
 
 import numpy as np
 
-from humanoid_reach_ros.codes import ARM_REQUESTS
+from humanoid_reach_ros.codes import ARM_REQUESTS, EXIT
 from humanoid_reach_ros.planning.wgr import ANGLE_TOL
 
 ARMS = ARM_REQUESTS                     # --arm name -> PlanReach.Request.ARM_*
@@ -64,13 +66,28 @@ _count = _int_in(1, 2**32 - 1, "4294967295")
 _seed = _int_in(0, 2**63 - 1, "2^63-1")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse whose argument error is one line and a pointer to ``--help`` (not the usage
+    block) on stderr; with ``--json`` also the summary object, as the only line on stdout
+    (docs/operator.md), its ``error`` the same text and ``exit_code`` 2."""
+
+    json_summary = False
+
+    def error(self, message: str) -> NoReturn:
+        if self.json_summary:
+            sys.stdout.write(json.dumps({"look": None, "plan": None, "execution": None,
+                                         "exit_code": EXIT["usage"], "error": message}) + "\n")
+            sys.stdout.flush()
+        self.exit(EXIT["usage"], f"{self.prog}: error: {message}\n{self.prog}: --help lists every flag\n")
+
+
 def planner_names() -> list[str]:
     from humanoid_reach_ros.planning.path import PLANNER_NAMES
     return list(PLANNER_NAMES)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="reach_operator", allow_abbrev=False,   # it moves a robot: --exec is not taken for --execute
         description="Plan (and with --execute, execute) a whole-body reaching motion to the AR marker or a "
                     "given pose through /plan_reach and /execute_reach.",
@@ -146,6 +163,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     """The command line; angles given in degrees (``--rpy-deg``, ``--wgr-deg``) are stored in
     radians in ``rpy`` and ``wgr``, so the rest of the tool sees radians only."""
     p = build_parser()
+    p.json_summary = "--json" in argv
     a = p.parse_args(argv)
     if a.rpy_deg is not None:
         a.rpy = [math.radians(v) for v in a.rpy_deg]

@@ -16,13 +16,15 @@ from typing import Any, Callable, Protocol
 class MarkerWatch(Protocol):
     """``pose_t``: monotonic time of the last ``/target_pose`` (-inf: none); ``position``: its x y z;
     ``last``: the marker's last known position from marker_localizer's diagnostics; ``diagnostics``:
-    any heard; ``joints``: {name: angle} of the last /joint_states, or None."""
+    any heard; ``joints``: {name: angle} of the last /joint_states, or None; ``map_voxels``: the
+    voxel mapper's occupied voxels from its last diagnostics, None before any (the scan's report)."""
 
     pose_t: float
     position: tuple[float, float, float] | None
     last: list[float] | None
     diagnostics: bool
     joints: dict[str, float] | None
+    map_voxels: int | None
 
     def publishers(self) -> int:
         """``/target_pose`` publishers known now."""
@@ -35,6 +37,7 @@ class MarkerSightings:
         self.publishers = publishers
         self.pose_t, self.position, self.last, self.diagnostics = -math.inf, None, None, False
         self.joints: dict[str, float] | None = None
+        self.map_voxels: int | None = None
 
     def on_pose(self, m: Any) -> None:
         """A ``geometry_msgs/PoseStamped`` on /target_pose."""
@@ -42,8 +45,13 @@ class MarkerSightings:
         self.pose_t, self.position = time.monotonic(), (p.x, p.y, p.z)
 
     def on_diagnostics(self, m: Any) -> None:
-        """A ``diagnostic_msgs/DiagnosticArray``: marker_localizer's status, with the last position."""
+        """A ``diagnostic_msgs/DiagnosticArray``: marker_localizer's status, with the last position;
+        the voxel mapper's map status (``occupied_voxels``)."""
         for st in m.status:
+            if st.name.endswith(": map"):
+                v = {kv.key: kv.value for kv in st.values}
+                if "occupied_voxels" in v:
+                    self.map_voxels = int(v["occupied_voxels"])
             if st.name.startswith("marker_localizer"):
                 v = {kv.key: kv.value for kv in st.values}
                 self.diagnostics = True

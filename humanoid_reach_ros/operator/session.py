@@ -28,6 +28,7 @@ WAIT_NOTE_EVERY_S = 5.0   # ... then one every this long, with the seconds left
 MARKER_FRESH_WAIT_S = 2.0    # a /target_pose within this long of finding its publisher: seen now (>= 2 Hz in view)
 MARKER_DISCOVERY_S = 5.0     # a marker_localizer (a /target_pose publisher) gets this long to be discovered
 MARKER_DIAGNOSTICS_WAIT_S = 2.5   # then its diagnostics (1 Hz, the last marker position) this long at most
+MAP_REPORT_WAIT_S = 2.5     # after --scan / --look: the voxel mapper's diagnostics (1 Hz, the map's size) this long
 MARKER_LOOK_DWELL_S = 0.1    # the head's hold there (the wait for the marker follows)
 
 
@@ -71,6 +72,9 @@ class OperatorClient(Protocol):
         """Wait (``timeout_s``, with waiting lines) for the /look server; False when it did not come."""
 
     def watch_marker(self) -> AbstractContextManager[MarkerWatch]: ...
+
+    def watch_map(self) -> AbstractContextManager[MarkerWatch]:
+        """A watch fed by ``/diagnostics`` only (the voxel mapper's map size)."""
 
     def executor_parameters(self, names: list[str]) -> dict[str, Any]: ...
 
@@ -160,6 +164,8 @@ class OperatorSession:
                      f"turning the head to yaw {a.look[0]:g}, pitch {a.look[1]:g} deg ...")
         outcome, result = self.client.look(yaw, pitch, a.dwell or 0.0, lambda fb: self.say(head_pose_line(fb)),
                                            gaze_points)
+        if gaze_points is None and result is not None and result.success:
+            self.summary["map_voxels"] = self.map_size()
         looked = execution_summary(outcome, result, LOOK_FIELDS)
         if gaze_points is None:
             self.summary["look"] = looked
@@ -186,6 +192,20 @@ class OperatorSession:
 
     def wait_for_look(self, owner: str) -> bool:
         return self.client.wait_for_look(owner)
+
+    def map_size(self) -> int | None:
+        """After a scan or look: the voxel mapper's occupied voxels from its diagnostics (1 Hz) heard
+        after it ended (``MAP_REPORT_WAIT_S`` at most), said in a line; None (said too) when none came."""
+        try:
+            with self.client.watch_map() as watch:
+                self.client.spin_until(lambda: watch.map_voxels is not None, MAP_REPORT_WAIT_S)
+        except Canceled:
+            return None
+        if watch.map_voxels is not None:
+            self.say(f"map: {watch.map_voxels:,} occupied voxels")
+            return watch.map_voxels
+        self.say(f"map: size unknown (no voxel_mapper diagnostics within {MAP_REPORT_WAIT_S:g} s)")
+        return None
 
     def plan_with_looks(self, req: Any) -> tuple[Any | None, int]:
         """``/plan_reach``; while it answers UNOBSERVED_SPACE with the points where the target or the

@@ -303,7 +303,10 @@ class TrunkRegion:
             gap = bound - need
             if gap <= 0:
                 return None
-            reasons.append(f"{a} hand {reach:.3f} m from a shoulder at best {bound:.3f} m away, {gap:.3f} m short")
+            reasons.append(f"hand {reach:.3f} m from a shoulder at best {_m(bound)} m away, {_m(gap)} m short")
+        arms = _arms(arm)
+        reasons = ([f"{' and '.join(arms)} {reasons[0].replace('hand', 'hands', 1) if len(arms) > 1 else reasons[0]}"]
+                   if len(set(reasons)) == 1 else [f"{a} {r}" for a, r in zip(arms, reasons)])
         return (f"{'; '.join(reasons)}; searched: trunk up to {self.trunk_z_max:.2f} m, roll "
                 f"{self.roll[0]:.2f}..{self.roll[1]:.2f}, pitch {self.pitch_span[0]:.2f}..{self.pitch_span[1]:.2f}, "
                 f"yaw {self.yaw[0]:.2f}..{self.yaw[1]:.2f} rad")
@@ -326,6 +329,11 @@ class TrunkRegion:
         lever_h = float(np.linalg.norm(self.v + U, axis=1).max()) + arc
         lever_v = float(np.linalg.norm(U, axis=1).max()) + arc
         return eps * math.hypot(lever_h, lever_v) + arc
+
+
+def _m(v: float) -> str:
+    """A length for a message: mm precision, 3 significant digits beyond 10 km (``--target 1e308``)."""
+    return f"{v:.3f}" if abs(v) < 1e4 else f"{v:.3g}"
 
 
 def _arc_distance(P: np.ndarray, T: np.ndarray, yaw: tuple[float, float]) -> np.ndarray:
