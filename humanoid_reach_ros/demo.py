@@ -34,7 +34,7 @@ import numpy as np
 
 from humanoid_reach_ros.codes import ARM_REQUESTS, ErrorCode, code_name
 from humanoid_reach_ros.graph import (  # noqa: F401  (Graph, GRAPH_NODES: also for benches and tools)
-    GRAPH_NODES, STOP_DEADLINE_S, Graph, allocate_domain, graph_env, wait_for)
+    GRAPH_NODES, STOP_DEADLINE_S, Graph, allocate_domain, graph_env, nodes_text, wait_for)
 from humanoid_reach_ros.execution.config import PARAMETERS
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT, robots
 
@@ -379,7 +379,7 @@ def run(args: argparse.Namespace) -> dict:
         names = set(GRAPH_NODES)
         op.spin_until(lambda: names <= set(op.node.get_node_names()) and op.joint_states is not None, 90.0,
                       f"the nodes {sorted(names)} in the graph")
-        print(f"[demo] {len(names)} nodes up in {time.monotonic() - t_start:.1f} s")
+        print(f"[demo] {nodes_text(len(names))} up in {time.monotonic() - t_start:.1f} s")
         if args.no_scan:
             print("[demo] no head scan (--no-scan): the planner's UNOBSERVED_SPACE answers are looked at instead")
         else:

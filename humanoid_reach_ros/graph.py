@@ -223,6 +223,11 @@ class NodeProcess:
 # ---------------------------------------------------------------- a graph of node processes
 # the six nodes of launch/reach.launch.py, in its order; the first two are the simulated robot and
 # head sensors (its use_sim_sensors:=false leaves them out: the real robot's drivers stand in)
+def nodes_text(n: int) -> str:
+    """``1 node``, ``6 nodes``: a count of nodes in a line."""
+    return f"{n} node{'' if n == 1 else 's'}"
+
+
 GRAPH_NODES = ("joint_driver", "scene_sim", "voxel_mapper", "marker_localizer", "reach_planner", "reach_executor")
 SIM_NODES = ("joint_driver", "scene_sim")
 SCENE_NODES = ("scene_sim", "reach_planner", "reach_executor")   # the launch file's scene:= goes to these

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Mapping, TextIO
 
 from humanoid_reach_ros.graph import (ENCLAVE_ENV, HOST_NODES, STOP_DEADLINE_S, Graph, NodeProcess, graph_env,
-                                      host_nodes, launch_params)
+                                      host_nodes, launch_params, nodes_text)
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.robot.spec import robots
 
@@ -147,8 +147,8 @@ def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
     dead: set[str] = set()
     t0 = time.monotonic()
     try:
-        out.write(f"[hr_graph] starting {len(names)} nodes" + (f" of host {args.host}" if args.host != "all" else "")
-                  + f" (ROS_DOMAIN_ID={domain}, discovery "
+        out.write(f"[hr_graph] starting {nodes_text(len(names))}"
+                  + (f" of host {args.host}" if args.host != "all" else "") + f" (ROS_DOMAIN_ID={domain}, discovery "
                   f"{env.get('ROS_AUTOMATIC_DISCOVERY_RANGE', '-')}); logs in {log_dir}/\n")
         out.flush()
         for name in names:
@@ -172,7 +172,7 @@ def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
                 out.flush()
             if not pending and not ready:
                 ready = True
-                out.write(f"[hr_graph] ready: {len(names) - len(dead)} nodes up in {time.monotonic() - t0:.1f} s"
+                out.write(f"[hr_graph] ready: {nodes_text(len(names) - len(dead))} up in {time.monotonic() - t0:.1f} s"
                           + (f" ({', '.join(sorted(dead))} exited)" if dead else "") + "; Ctrl-C stops them\n")
                 out.flush()
             if pending and time.monotonic() > next_note:
@@ -180,7 +180,7 @@ def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
                 out.write(f"[hr_graph] waiting for {', '.join(pending)} ({time.monotonic() - t0:.0f} s)\n")
                 out.flush()
             time.sleep(0.1)
-        out.write(f"[hr_graph] {signal.Signals(stop[0]).name}: stopping {len(graph.procs)} nodes\n")
+        out.write(f"[hr_graph] {signal.Signals(stop[0]).name}: stopping {nodes_text(len(graph.procs))}\n")
         out.flush()
     finally:
         if watch is not None:
@@ -193,7 +193,7 @@ def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
             report_dead(p, out)
     bad = {n: c for n, c in codes.items() if c != 0 or n in dead}
     slow = {p.name: round(p.stop_s, 2) for p in graph.procs if (p.stop_s or 0.0) > STOP_DEADLINE_S}
-    out.write(f"[hr_graph] stopped {len(codes)} nodes" + (f"; exit codes {bad}" if bad else " cleanly")
+    out.write(f"[hr_graph] stopped {nodes_text(len(codes))}" + (f"; exit codes {bad}" if bad else " cleanly")
               + (f"; slower than {STOP_DEADLINE_S:g} s to stop: {slow}" if slow else "") + "\n")
     out.flush()
     return 1 if bad else 0

@@ -134,6 +134,12 @@ def test_bad_options_are_refused(argv: list[str], message: str, capsys: pytest.C
     assert exc.value.code == 2 and message in capsys.readouterr().err
 
 
+def test_a_count_of_nodes_is_said_in_words() -> None:
+    """"1 node up", "6 nodes up" (hr_graph's and the demo's lines; --host compute starts one node)."""
+    from humanoid_reach_ros.graph import nodes_text
+    assert (nodes_text(0), nodes_text(1), nodes_text(6)) == ("0 nodes", "1 node", "6 nodes")
+
+
 def test_the_nodes_environment_keeps_security_and_discovery_and_sets_the_enclave() -> None:
     """hr_graph's nodes get the shell's ROS_SECURITY_* untouched, its domain and discovery
     settings, and --enclave as rcl's ROS_SECURITY_ENCLAVE_OVERRIDE (reach.launch.py's enclave:=)."""

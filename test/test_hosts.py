@@ -106,6 +106,7 @@ def test_the_operator_flow_across_three_hosts_and_a_cut_link(three_hosts, ros_en
                      READY_DEADLINE_S, f"hr_graph --host {host} to say ready", on_timeout=logs)
             assert proc.poll() is None, logs()
         assert "of host robot" in graphs["robot"][1].read_text() and "5 nodes" in graphs["robot"][1].read_text()
+        assert "ready: 1 node up" in graphs["compute"][1].read_text(), logs()
 
         # ---- the operator's flow: a plan to the valve on the map measured on the robot; the map is not
         # complete yet (no scan), so the planner answers UNOBSERVED_SPACE and the operator looks there
