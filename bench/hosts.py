@@ -41,13 +41,15 @@ from the moment the link is back (a cheap request: a target 3 m away, answered
 ``TARGET_OUT_OF_REACH`` without sampling); the recovery is from the link's return to the first
 response.
 
-Last line: one JSON object, ``REQUIRED_KEYS`` first, then ``targets`` (judged), ``placements``,
-``cuts``, ``machine`` and ``load_average``. Exit codes: 0 the run finished (targets judged in
+Last line: one JSON object, ``REQUIRED_KEYS`` first, then ``targets`` (judged: a missing figure,
+e.g. a cut whose trigger never came or without the executor's diagnostics, is a miss),
+``targets_not_run`` (what ``--no-flow``, ``--no-cuts`` or ``--placements`` left out, not judged),
+``placements``, ``cuts``, ``machine`` and ``load_average``. Exit codes: 0 the run finished (targets judged in
 the JSON), 1 it could not run (the namespaces are in use, the graph did not come up), 2 not
 root / bad arguments. Ctrl-C, SIGTERM or an exception: every process started is stopped and
 ``tools/hosts.sh down`` runs.
 
-Usage: ``sudo python bench/hosts.py [--out out/bench_hosts] [--placements compute robot]
+Usage (as root): ``python bench/hosts.py [--out out/bench_hosts] [--placements compute robot]
 [--no-cuts] [--cuts reach scan plan start] [--no-flow] [--plans 6] [--timeout 30] [--idle 10]``; a
 reduced run: ``--placements compute --no-flow --cuts scan --idle 3`` (~60 s; the suite's short version of
 the cuts is test/test_hosts.py).
@@ -486,6 +488,20 @@ def plan_waits_ms(evs: list[dict]) -> list[float]:
     return [(b - a) * 1e3 for a, b in zip(sent, resp)]
 
 
+def step_plan_waits_ms(run: dict[str, Any]) -> tuple[list[float], int]:
+    """Every wait for a plan of a step, and how many of them ended in a failure: each answered call
+    (``plan_waits_ms``); a call never answered, until the CLI ended; a step that plans (all but
+    ``--scan``) yet sent no call (``/plan_reach`` never found), its whole run. So a failed step stays
+    in the percentiles' denominator, at its time to failure."""
+    evs = run["events"]
+    sent = [e["t"] for e in evs if e["event"] == "plan_sent"]
+    answered = plan_waits_ms(evs)
+    lost = [(run["t_end"] - t) * 1e3 for t in sent[len(answered):]]
+    if not sent and "--scan" not in run["args"]:
+        lost = [(run["t_end"] - run["t_start"]) * 1e3]
+    return answered + lost, len(lost)
+
+
 def step_success(run: dict[str, Any]) -> bool:
     s = run["summary"]
     ok = run["exit_code"] == 0 and bool(s) and not run["hung"]
@@ -498,9 +514,10 @@ def step_record(run: dict[str, Any], t_ref: float) -> dict[str, Any]:
     s = run["summary"]
     plan = s.get("plan") or {}
     ex = s.get("execution") or {}
+    waits, to_failure = step_plan_waits_ms(run)
     return {"args": run["args"], "exit_code": run["exit_code"], "hung": run["hung"], "success": step_success(run),
             "start_s": round(run["t_start"] - t_ref, 2), "duration_s": run["duration_s"],
-            "plan_waits_ms": [round(w, 1) for w in plan_waits_ms(run["events"])],
+            "plan_waits_ms": [round(w, 1) for w in waits], "plan_waits_to_failure": to_failure,
             "plan": {k: plan.get(k) for k in ("error_name", "message")} if plan else None,
             "planner_total_ms": round(float((plan.get("statistics") or {}).get("total_time_s", 0.0)) * 1e3, 1)
             if plan else None,
@@ -610,13 +627,13 @@ def run_placement(b: HostsBench, placement: str, args: argparse.Namespace, out: 
             st["feet_drift_mm"] = data.feet_drift_mm(*st["t"])
         if res["steps"]:
             res["flow_feet_drift_mm"] = data.feet_drift_mm(res["steps"][0]["t"][0], res["steps"][-1]["t"][1])
-        for c in res["cuts"]:
+        for c in [c for c in res["cuts"] if "t_down" in c]:     # a cut that never came has no window
             c["feet_drift_mm"] = data.feet_drift_mm(c["t_down"], c["t_up"])
             c["joint_state_samples_in_cut"] = data.samples(c["t_down"], c["t_up"])
             c["joint_state_max_gap_ms_in_cut"] = data.max_gap_ms(c["t_down"], c["t_up"])
     for st in res["steps"]:
         st["t"] = [round(x - b.t0, 2) for x in st["t"]]
-    for c in res["cuts"]:
+    for c in [c for c in res["cuts"] if "t_down" in c]:
         for k in ("t_down", "t_up"):
             c[k] = round(c[k] - b.t0, 2)
     return res
@@ -774,13 +791,21 @@ def recovery(path: Path, t_up: float) -> float | None:
 
 
 # ---------------------------------------------------------------- the figures
-def summarize(placements: list[dict[str, Any]]) -> dict[str, Any]:
+def summarize(placements: list[dict[str, Any]], cuts_expected: int | None = None) -> dict[str, Any]:
+    """The figures of a run. Missing is ``None`` (a missed target, bench/graph.py's ``judge``): a cut
+    whose trigger never came, or fewer cuts than ``cuts_expected`` (default: those recorded), leaves
+    every ``link_cut_*`` figure missing; so does a cut without the executor's loop diagnostics
+    (overruns) or its measured joints (feet drift). Each step's plan waits include those that ended
+    in a failure (``step_plan_waits_ms``), counted in ``plan_waits_to_failure``."""
     from humanoid_reach_ros.testing.graph_metrics import percentile
 
     steps = [s for p in placements for s in p["steps"]]
     remote = [w for p in placements if p["placement"] == "compute" for s in p["steps"] for w in s["plan_waits_ms"]]
     local = [w for p in placements if p["placement"] == "robot" for s in p["steps"] for w in s["plan_waits_ms"]]
-    cuts = [c for p in placements for c in p["cuts"] if "t_down" in c]
+    recorded = [c for p in placements for c in p["cuts"]]
+    cuts = [c for c in recorded if "t_down" in c]
+    n_cuts = len(recorded) if cuts_expected is None else cuts_expected
+    cuts_ok = n_cuts > 0 and len(cuts) == n_cuts
     ratio = next((p["map"].get("ratio") for p in placements if p["placement"] == "compute" and p.get("map")), None)
     idle = [w["operator"]["both"] for p in placements for k in ("idle", "idle_after")
             if (w := p.get(k)) and w.get("operator")]
@@ -795,7 +820,7 @@ def summarize(placements: list[dict[str, Any]]) -> dict[str, Any]:
 
     def r(v, nd=3):
         return None if v is None else round(v, nd)
-    drifts = [c.get("feet_drift_mm") for c in cuts if c.get("feet_drift_mm") is not None]
+    drifts = [c.get("feet_drift_mm") for c in cuts]
     overruns = [c.get("executor_overruns") for c in cuts]
     recov = [c.get("recovery_s") for c in cuts]
     return {
@@ -805,12 +830,14 @@ def summarize(placements: list[dict[str, Any]]) -> dict[str, Any]:
         "operator_link_idle_kbit_s": r(max(idle) / 1e3, 1) if idle else None,
         "operator_link_peak_mbit_s": r(max(peaks) / 1e6, 2) if peaks else None,
         "robot_compute_link_mbit_s_during_scan": r(scan / 1e6, 2) if scan is not None else None,
-        "link_cut_executor_overruns": (None if not cuts or any(o is None for o in overruns) else sum(overruns)),
-        "link_cut_feet_drift_measured_mm_max": r(max(drifts), 5) if drifts else None,
-        # a cut with no recovery within RECOVERY_DEADLINE_S counts as that long
+        "link_cut_executor_overruns": (sum(overruns) if cuts_ok and None not in overruns else None),
+        "link_cut_feet_drift_measured_mm_max": r(max(drifts), 5) if cuts_ok and None not in drifts else None,
+        # a cut with no recovery within RECOVERY_DEADLINE_S counts as that long (a measured miss)
         "link_cut_recovery_s": (r(max(RECOVERY_DEADLINE_S if x is None else x for x in recov), 2)
-                                if cuts else None),
-        "link_cut_operator_hangs": sum(1 for c in cuts if c.get("hung")) if cuts else None,
+                                if cuts_ok else None),
+        "link_cut_operator_hangs": sum(1 for c in cuts if c.get("hung")) if cuts_ok else None,
+        "cuts_expected": n_cuts, "cuts_not_done": n_cuts - len(cuts),
+        "plan_waits_to_failure": sum(s.get("plan_waits_to_failure", 0) for s in steps),
         # detail
         "plan_wait_ms_p50_remote_planner": r(percentile(remote, 50), 1) if remote else None,
         "plan_wait_ms_p95_local_planner": r(percentile(local, 95), 1) if local else None,
@@ -821,6 +848,25 @@ def summarize(placements: list[dict[str, Any]]) -> dict[str, Any]:
         "planner_own_ms_p95_remote_planner": r(percentile(own["compute"], 95), 1) if own["compute"] else None,
         "flow_steps": len(steps), "cuts_done": len(cuts),
     }
+
+
+FLOW_KEYS = ("hosts_flow_success_rate", "plan_wait_ms_p95_remote_planner", "map_voxels_remote_over_local",
+             "operator_link_peak_mbit_s", "robot_compute_link_mbit_s_during_scan")
+CUT_KEYS = ("link_cut_executor_overruns", "link_cut_feet_drift_measured_mm_max", "link_cut_recovery_s",
+            "link_cut_operator_hangs")
+
+
+def not_run_targets(args: argparse.Namespace) -> dict[str, str]:
+    """The figures this run's options leave out (not judged, said why); every other missing figure
+    is a missed target."""
+    out = {k: "--no-flow" for k in FLOW_KEYS if args.no_flow}
+    if "compute" not in args.placements:
+        out.update({k: "no placement on compute" for k in ("plan_wait_ms_p95_remote_planner",
+                                                           "map_voxels_remote_over_local",
+                                                           "robot_compute_link_mbit_s_during_scan", *CUT_KEYS)})
+    if not args.cuts:
+        out.update({k: "--no-cuts" for k in CUT_KEYS})
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -898,18 +944,17 @@ def main(argv: list[str] | None = None) -> int:
         save_links(b.sampler, b.t0, out / "links.json")
     if interrupted:
         return 130
-    figures = summarize(placements)
-    if args.no_flow:
-        for k in ("hosts_flow_success_rate", "plan_wait_ms_p95_remote_planner", "map_voxels_remote_over_local",
-                  "operator_link_peak_mbit_s", "robot_compute_link_mbit_s_during_scan"):
-            figures[k] = None
-    if any(p.get("graph_up_failed") for p in placements):
-        figures["hosts_flow_success_rate"] = 0.0 if not args.no_flow else None
+    figures = summarize(placements, cuts_expected=len(args.cuts) if "compute" in args.placements else 0)
+    not_run = not_run_targets(args)
+    for k in not_run:
+        figures[k] = None
+    if any(p.get("graph_up_failed") for p in placements) and "hosts_flow_success_rate" not in not_run:
+        figures["hosts_flow_success_rate"] = 0.0
     required = {k: figures.pop(k) for k in REQUIRED_KEYS}
-    judged = bench_graph.judge(required, TARGETS)
+    judged = bench_graph.judge(required, TARGETS, not_run)
     load_end = os.getloadavg()
-    result = {**required, "targets": judged,
-              "targets_met": all(t["met"] for t in judged.values() if t["met"] is not None),
+    result = {**required, "targets": judged, "targets_not_run": not_run,
+              "targets_met": all(t["met"] for t in judged.values()),
               "load_average": {"start_1min": round(load_start[0], 2), "end_1min": round(load_end[0], 2),
                                "max_1min": round(b.sampler.load_max, 2), "start": [round(x, 2) for x in load_start],
                                "end": [round(x, 2) for x in load_end]},
@@ -919,8 +964,10 @@ def main(argv: list[str] | None = None) -> int:
               "command": "python bench/hosts.py " + " ".join(argv), "wall_s": round(time.monotonic() - b.t0, 1)}
     (out / "hosts.json").write_text(json.dumps(result, indent=2))
     for key, t in judged.items():
-        mark = "ok  " if t["met"] else ("n/a " if t["met"] is None else "MISS")
-        log(f"{mark} {key}: {t['value']} (target {t['target']})")
+        log(f"{'ok  ' if t['met'] else 'MISS'} {key}: {t['value']} (target {t['target']})"
+            + (" (not measured)" if t.get("missing") else ""))
+    for key, why in not_run.items():
+        log(f"not run {key}: {why}")
     print(json.dumps(result), flush=True)
     return 1 if errors else 0
 

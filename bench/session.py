@@ -45,9 +45,12 @@ Measured:
   included) + from the last response to the motion's start: the stamp of the motion's first
   executor step (its first ``/executor/metrics`` message, ``time_from_start_s < 0.2``, the
   first after the goal was sent; the stamp, not the receipt, as this bench's probe lags under
-  load), against the child's system clock at the response. Reported apart, not in the wait
-  (they are the CLI process's, not the graph's): its start-up to the first request (Python,
-  rclpy, discovery of /plan_reach: ``cli_startup_ms_p50``), its wait for the /execute_reach
+  load), against the child's system clock at the response. Where no such stamp is found the goal's
+  sending time stands in (it shortens the wait): counted, ``motion_start_fallbacks``. A step that
+  started no motion (its plan refused, no answer) waits its time to failure, first request to the
+  CLI's end (``operator_waits_to_failure``): every reaching step is in the percentiles' denominator.
+  Reported apart, not in the wait (they are the CLI process's, not the graph's): its start-up to
+  the first request (Python, rclpy, discovery of /plan_reach: ``cli_startup_ms_p50``), its wait for the /execute_reach
   action server to be discovered after the plan (``execute_server_wait_ms_max``: a fresh
   process may not have discovered it yet when a plan comes back fast) and, for ``--marker``,
   its wait for a fresh ``/target_pose`` on the subscription it has just created
@@ -65,6 +68,9 @@ Measured:
   settled), as bench/graph.py measures it (``graph_metrics.measured_balance``: the left sole
   in the right sole's frame, from the model's forward kinematics of the measured joints),
   max over the session against its first sample.
+
+A missing figure (no step of its kind, a session without its joint states, fewer executor motions
+logged than goals that ran, a step that never ran) is ``null`` and a missed target.
 
 Last line: one JSON object: ``session_steps`` and the keys of ``TARGETS``, ``machine``,
 ``scenes`` (per scene: the marker step or why it was skipped, the targets with why, each
@@ -464,6 +470,7 @@ def step_figures(sess: Session, kind: str, run: dict[str, Any]) -> dict[str, Any
         "retreat": next((r["retreat"] for r in reversed(responses) if r["success"]), "") if responses else "",
         "auto_looks": len(s.get("auto_looks") or []),
         "auto_looks_ok": all(x.get("success") for x in (s.get("auto_looks") or [])),
+        "looks_ok": sum(1 for x in looks_all if x.get("success")),   # looks that ran (session_motions)
         "execution": {k: ex.get(k) for k in ("outcome", "success", "error_name", "message", "duration_s", "steps",
                                              "overruns", "final_hand_error_m", "min_distance_m")} if ex else None,
         "overruns": int(ex.get("overruns") or 0),
@@ -490,6 +497,7 @@ def step_figures(sess: Session, kind: str, run: dict[str, Any]) -> dict[str, Any
         if sent_exec is not None and responses:
             # the motion's first executor step, by its own stamp (the system clock, as the child's "wall")
             start = next((t for t in sess.metric_starts if t >= sent_exec - 0.002), None)
+            # a fallback (no executor step stamp: the goal's sending time, which shortens the wait) is counted
             fig["motion_start_from"] = "executor_metrics_stamp" if start is not None else "goal_sent"
             if start is None:
                 start = sent_exec
@@ -502,6 +510,11 @@ def step_figures(sess: Session, kind: str, run: dict[str, Any]) -> dict[str, Any
             wait += start - responses[-1]["wall"] - discovery
             fig["operator_wait_ms"] = wait * 1e3
             fig["plan_ms"] = plan_s * 1e3
+        else:
+            # no motion started (a refused plan, no answer, a rejected goal): the step's wait is its time to
+            # failure, from its first request (or the CLI's start, when none was sent) to the CLI's end
+            fig["operator_wait_ms"] = (run["t_end"] - (sent[0] if sent else run["t_start"])) * 1e3
+            fig["wait_to_failure"] = True
     if kind == "look":
         success = success and fig["auto_looks"] > 0 and fig["auto_looks_ok"]
     fig["success"] = bool(success)
@@ -589,6 +602,19 @@ def run_session(out: Path, scene_name: str, seed: int, robot: str | None, log) -
     return res
 
 
+def session_motions(sessions: list[dict[str, Any]]) -> dict[str, Any]:
+    """The goals that ran per session (executions, the scan or look, automatic looks, each successful)
+    against the motions the executor logged (``executor_motion_overruns``): ``complete`` when every
+    session logged at least as many (a session without its log, or with fewer lines, is not)."""
+    expected, complete = 0, True
+    for s in sessions:
+        ran = sum(bool((st.get("execution") or {}).get("success")) for st in s["steps"]) + sum(
+            st.get("looks_ok", 0) for st in s["steps"])
+        expected += ran
+        complete = complete and "executor_motions" in s and s["executor_motions"] >= ran
+    return {"expected": expected, "complete": complete}
+
+
 MOTION_LINE = re.compile(r"\[[\d.]+ s, (\d+) steps, (\d+) overruns")
 
 
@@ -618,12 +644,17 @@ def summarize(sessions: list[dict[str, Any]]) -> dict[str, Any]:
     retreat_steps = [st for st in steps if st["retreat_expected"] or st["retreat"]]
     homes = [st for st in steps if st["kind"] == "home"]
     looks = [st for st in steps if st["kind"] == "look" or st["auto_looks"]]
-    waits = [st["operator_wait_ms"] for st in steps if st.get("operator_wait_ms") is not None]
+    # every step but the scan waits for a motion (a failed one: its time to failure, step_figures); a step
+    # that never ran (failed_step: the graph or the session broke) has no wait: the figure is missing
+    reaching = [st for st in steps if st["kind"] != "scan"]
+    waits = [st["operator_wait_ms"] for st in reaching if st.get("operator_wait_ms") is not None]
+    waits_ok = bool(reaching) and len(waits) == len(reaching)
     cli = [st["cli_startup_ms"] for st in steps if st.get("cli_startup_ms") is not None]
     marker = [st["marker_wait_ms"] for st in steps if st.get("marker_wait_ms") is not None]
     disc = [st["execute_server_wait_ms"] for st in steps if st.get("execute_server_wait_ms") is not None]
     checks = [c for st in steps for c in st["limits"]]
-    drifts = [s["feet_drift_mm"] for s in sessions if s.get("feet_drift_mm") is not None]
+    drifts = [s.get("feet_drift_mm") for s in sessions]
+    motions = session_motions(sessions)
 
     def rate(sel: list[dict[str, Any]], ok) -> float | None:
         return round(sum(1 for x in sel if ok(x)) / len(sel), 4) if sel else None
@@ -633,16 +664,24 @@ def summarize(sessions: list[dict[str, Any]]) -> dict[str, Any]:
         "retreat_success_rate": rate(retreat_steps, lambda x: x["success"] and bool(x["retreat"])),
         "home_success_rate": rate(homes, lambda x: x["success"]),
         "auto_look_success_rate": rate(looks, lambda x: x["success"] and x["auto_looks"] > 0 and x["auto_looks_ok"]),
-        "trajectories_outside_limits": sum(1 for c in checks if c["outside"]),
-        "executor_refusals": sum(st["refusals"] for st in steps),
-        "session_feet_drift_measured_mm_max": round(max(drifts), 5) if drifts else None,
-        # every motion's, looks and scans included (the executor's log), not only the reaches'
-        "session_overruns": sum(s.get("executor_overruns", 0) for s in sessions),
-        "operator_wait_ms_p50": round(percentile(waits, 50), 1) if waits else None,
-        "operator_wait_ms_p95": round(percentile(waits, 95), 1) if waits else None,
+        # none checked (no plan came back) or no step ran: not measured
+        "trajectories_outside_limits": sum(1 for c in checks if c["outside"]) if checks else None,
+        "executor_refusals": (sum(st["refusals"] for st in steps)
+                              if any(st["exit_code"] is not None for st in steps) else None),
+        # every session's (one without its measured joints: missing)
+        "session_feet_drift_measured_mm_max": (round(max(drifts), 5) if drifts and None not in drifts else None),
+        # every motion's, looks and scans included (the executor's log), not only the reaches'; missing when
+        # the log shows fewer motions than the goals that ran (session_motions)
+        "session_overruns": (sum(s["executor_overruns"] for s in sessions) if sessions and motions["complete"]
+                             else None),
+        "operator_wait_ms_p50": round(percentile(waits, 50), 1) if waits_ok else None,
+        "operator_wait_ms_p95": round(percentile(waits, 95), 1) if waits_ok else None,
         # context
         "operator_wait_ms_max": round(max(waits), 1) if waits else None,
-        "operator_waits": len(waits),
+        "operator_waits": len(waits), "operator_wait_steps": len(reaching),
+        "operator_waits_to_failure": sum(1 for st in reaching if st.get("wait_to_failure")),
+        "motion_start_fallbacks": sum(1 for st in steps if st.get("motion_start_from") == "goal_sent"),
+        "executor_motions_expected": motions["expected"],
         "trajectories_checked": len(checks),
         "retreat_steps": len(retreat_steps), "home_steps": len(homes), "auto_look_steps": len(looks),
         "reach_overruns": sum(st["overruns"] for st in steps),
@@ -717,15 +756,17 @@ def main(argv: list[str] | None = None) -> int:
     judged = judge(required)
     result = {**required, "machine": machine(), "scenes": per_scene, "details": {
         **figures, "targets": judged,
-        "targets_met": all(t["met"] for t in judged.values() if t["met"] is not None),
+        "targets_met": all(t["met"] for t in judged.values()),
         "session_errors": [{"scene": s["scene"], "seed": s["seed"], "error": s["error"]}
                            for s in sessions if "error" in s],
         "robot": args.robot or "the config YAML files' (hrp2)", "sessions_per_scene": n,
         "bench": "session", "wall_s": round(time.monotonic() - t0, 1)}}
     (out / "session.json").write_text(json.dumps(result, indent=2))
     for key, t in judged.items():
-        mark = "ok  " if t["met"] else ("n/a " if t["met"] is None else "MISS")
-        log(f"{mark} {key}: {t['value']} (target {t['target']})")
+        log(f"{'ok  ' if t['met'] else 'MISS'} {key}: {t['value']} (target {t['target']})"
+            + (" (not measured)" if t.get("missing") else ""))
+    log(f"waits: {figures['operator_waits_to_failure']} of {figures['operator_wait_steps']} to a failure, "
+        f"{figures['motion_start_fallbacks']} motion start(s) from the goal's sending (no executor step stamp)")
     print(json.dumps(result))
     return 0
 
