@@ -214,3 +214,24 @@ def test_invalid_inertia_is_named(inertia: str, message: str) -> None:
             '</inertial></link><joint name="j" type="revolute"><parent link="a"/><child link="b"/></joint></robot>')
     with pytest.raises(ValueError, match=rf"b: .*{message}"):
         check_inertias(ET.fromstring(urdf), "r.urdf")
+
+
+def test_hand_pressing_on_an_obstacle_is_a_measured_force(models) -> None:
+    """A ball 1 cm into the right hand's capsule: the hand's contact force on it is measured, the left's is zero,
+    and the feet carry what the ball does not."""
+    from humanoid_reach_ros.sim.scene import scene_from_dict
+
+    model = robot_model(models, "hrp2")
+    hand = model.frame_pose(model.half_sitting(), model.hand_frames["right"]).translation
+    doc = {"name": "ball", "primitives": [
+        {"name": "floor", "type": "plane", "normal": [0.0, 0.0, 1.0], "offset": 0.0, "floor": True},
+        {"name": "ball", "type": "sphere", "center": [float(hand[0]), float(hand[1]), float(hand[2]) - 0.02],
+         "radius": 0.06}]}
+    pm = build_physics_model(model, load_physics_config(model.spec.path.parent), scene_from_dict(doc))
+    plant = PhysicsPlant(pm)
+    plant.run(0.5)
+    m = plant.metrics()
+    assert not m.fallen, m.fall_reason
+    assert m.hand_force_n["right"] > 1.0, m.hand_force_n
+    assert m.hand_force_n["left"] == 0.0
+    assert sum(m.foot_force_n) < model.mass * 9.81 * 1.02
