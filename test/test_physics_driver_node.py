@@ -2,8 +2,6 @@
 base and metrics; a bad plant name, a missing inertia or an unknown gain key exit 2 with a clear error."""
 from __future__ import annotations
 
-import shutil
-
 import numpy as np
 import pytest
 import yaml
@@ -12,8 +10,8 @@ from geometry_msgs.msg import PoseStamped
 from sensor_msgs.msg import JointState
 
 from humanoid_reach_ros.io import msgs
-from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.robot.model import RobotModel
+from test_physics_plant import copy_robot, drop_inertial
 
 PARAMS_FILE = "config/joint_driver.yaml"
 READY = r"simulated hrp2: 30 joints .* mujoco plant"
@@ -63,21 +61,10 @@ def test_bad_plant_name_exits_2(start_node) -> None:
     assert "Traceback" not in driver.log()
 
 
-def _robot_copy(tmp_path):
-    d = tmp_path / "bot"
-    shutil.copytree(config_path("robots", "hrp2"), d)
-    return d
-
-
 @pytest.mark.node
 def test_missing_inertia_exits_2(start_node, tmp_path) -> None:
-    d = _robot_copy(tmp_path)
-    urdf = d / "hrp2.urdf"
-    text = urdf.read_text()
-    start = text.index('<link name="LARM_LINK2">')
-    i0 = text.index("<inertial>", start)
-    i1 = text.index("</inertial>", i0) + len("</inertial>")
-    urdf.write_text(text[:i0] + text[i1:])
+    d = copy_robot(tmp_path)
+    drop_inertial(d, "LARM_LINK2")
     driver = start_node("joint_driver", params={"plant": "mujoco", "robot_config": str(d / "robot.yaml")})
     driver.ok_exit_codes = (2,)
     assert driver.proc.wait(30.0) == 2, driver.log_tail()
@@ -87,7 +74,7 @@ def test_missing_inertia_exits_2(start_node, tmp_path) -> None:
 
 @pytest.mark.node
 def test_unknown_gain_key_exits_2(start_node, tmp_path) -> None:
-    d = _robot_copy(tmp_path)
+    d = copy_robot(tmp_path)
     doc = yaml.safe_load((d / "physics.yaml").read_text())
     doc["gains"]["arms"]["ki"] = 5.0
     (d / "physics.yaml").write_text(yaml.safe_dump(doc))

@@ -187,15 +187,18 @@ def copy_robot(tmp_path: Path, robot: str = "hrp2") -> Path:
     return dst
 
 
-def test_missing_inertia_is_a_clear_error(tmp_path) -> None:
-    d = copy_robot(tmp_path)
-    urdf = d / "hrp2.urdf"
+def drop_inertial(robot_dir: Path, link: str) -> None:
+    """Remove the ``<inertial>`` of ``link`` from the URDF (``urdf`` of robot.yaml) in ``robot_dir``."""
+    urdf = robot_dir / yaml.safe_load((robot_dir / "robot.yaml").read_text())["urdf"]
     text = urdf.read_text()
-    # the right knee link loses its <inertial>
-    start = text.index('<link name="RLEG_LINK3">')
-    i0 = text.index("<inertial>", start)
+    i0 = text.index("<inertial>", text.index(f'<link name="{link}">'))
     i1 = text.index("</inertial>", i0) + len("</inertial>")
     urdf.write_text(text[:i0] + text[i1:])
+
+
+def test_missing_inertia_is_a_clear_error(tmp_path) -> None:
+    d = copy_robot(tmp_path)
+    drop_inertial(d, "RLEG_LINK3")    # the right knee link
     model = RobotModel(d / "robot.yaml")
     with pytest.raises(ValueError, match=r"inertias MuJoCo cannot simulate: RLEG_LINK3: a moving link without"):
         build_for_robot(model)
