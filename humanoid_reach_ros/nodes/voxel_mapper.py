@@ -110,10 +110,13 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
                                          "map_frame]"),
     "unobserved_region_max_m": ParamSpec(list(_M.unobserved_region_max_m), "... its upper corner [m, map_frame]"),
     "unobserved_robot_clearance_m": ParamSpec(_M.unobserved_robot_clearance_m, "space within this distance of the "
-                                              "robot's collision shapes, at every posture /joint_states reported, "
-                                              "counts as observed free for the unobserved-space layers (a head "
-                                              "camera cannot see around its own body; occupied voxels stay "
-                                              "occupied) [m]", (0.0, 1.0)),
+                                              "robot's collision shapes, at every posture /joint_states reported and "
+                                              "swept between them, counts as observed free for the unobserved-space "
+                                              "layers (occupied voxels stay occupied). Known defect (issue 31): 0.25 "
+                                              "counts 25 cm around the body as seen [m]", (0.0, 1.0)),
+    "self_filter_margin_m": ParamSpec(_M.self_filter_margin_m, "depth points within this distance of the robot's "
+                                      "collision shapes at their stamp are the robot's own links: dropped before "
+                                      "fusion (points_self) [m]", (0.0, 0.2)),
     "unobserved_block_voxels": ParamSpec(_M.unobserved_block_voxels, "edge of the coarse blocks of "
                                          "/voxel_map/unobserved_blocks [voxels]", (1, 50)),
     "minor_change_voxels": ParamSpec(_M.minor_change_voxels, "a map change of fewer voxels than this (occupied "

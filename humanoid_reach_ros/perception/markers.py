@@ -367,6 +367,15 @@ class JointStateBuffer:
         while self._items[0][0] < stamp_s - self.window_s:
             self._items.popleft()
 
+    def since(self, stamp_s: float) -> list[tuple[float, np.ndarray]]:
+        """The buffered ``(stamp, joints)`` states newer than ``stamp_s``, oldest first."""
+        stamps = [s for s, _ in self._items]
+        return [(s, q.copy()) for s, q in list(self._items)[bisect.bisect_right(stamps, stamp_s):]]
+
+    @property
+    def newest_stamp(self) -> float | None:
+        return self._items[-1][0] if self._items else None
+
     def _velocity(self, k: int) -> np.ndarray | None:
         """Joint velocity over the interval between states ``k`` and ``k + 1`` (None outside)."""
         if k < 0 or k + 1 >= len(self._items):

@@ -62,6 +62,7 @@ import numpy as np
 from scipy.ndimage import binary_dilation
 
 from humanoid_reach_ros.geometry.camera import PinholeCamera, look_at
+from humanoid_reach_ros.geometry.voxels import mark_capsules
 
 Vec3 = tuple[float, float, float]
 
@@ -457,23 +458,12 @@ class VoxelMap:
         (S, 3) [m, world], ``radii`` (S,)) as space the robot's body has been in: free for
         the unobserved-space readers (a head camera never sees around its own body), never
         for occupancy (an occupied voxel stays occupied). Returns the voxels newly marked."""
-        h = self.params.resolution_m
-        before = self.swept_count
-        for a, b, r in zip(np.asarray(p0, float), np.asarray(p1, float), np.asarray(radii, float)):
-            lo = np.maximum(np.floor((np.minimum(a, b) - r) / h).astype(np.int64), self.index_lo)
-            hi = np.minimum(np.floor((np.maximum(a, b) + r) / h).astype(np.int64), self.index_hi)
-            if np.any(hi < lo):
-                continue
-            axes = [np.arange(lo[k], hi[k] + 1) for k in range(3)]
-            c = (np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3) + 0.5) * h
-            ab = b - a
-            t = np.clip(((c - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
-            inside = (np.linalg.norm(c - (a + t[:, None] * ab), axis=1) <= r).reshape([len(x) for x in axes])
-            s = tuple(slice(int(lo[k] - self.index_lo[k]), int(hi[k] - self.index_lo[k] + 1)) for k in range(3))
-            self.swept[s] |= inside
-        self.swept_count = int(np.count_nonzero(self.swept))
-        added = self.swept_count - before
+        added = int(mark_capsules(np.ascontiguousarray(p0, dtype=np.float64).reshape(-1, 3),
+                                  np.ascontiguousarray(p1, dtype=np.float64).reshape(-1, 3),
+                                  np.ascontiguousarray(radii, dtype=np.float64).reshape(-1),
+                                  float(self.params.resolution_m), self.index_lo, self.swept))
         if added:
+            self.swept_count += added
             self.version += 1
         return added
 

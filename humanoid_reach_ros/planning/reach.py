@@ -915,9 +915,9 @@ class ReachPlanner:
         q_first = self.start_config(joints)
         # a retreat leaves the contact in the map as it is: the new target's object is left out of
         # the reach's checker only (around the target), not of the start's contact
-        whole = (lambda: self._scene_collision(snap, None)[0]) if collisions is None and region is not None else None
+        whole = (lambda: self._scene_collision(snap, None)) if collisions is None and region is not None else None
         retreat, joints = self._start_or_retreat(joints, q_first, collision, snap, self._approach_at(joints, request),
-                                                 force_retreat, min_retreat_m, whole)
+                                                 force_retreat, min_retreat_m, whole, known)
         q_start = self.start_config(joints)
         prefix = q_first[None] if retreat is None else np.array([self.start_config(j) for j in retreat.joints])
         retreat_kw = {} if retreat is None else {"retreat": retreat.describe()}
@@ -1034,7 +1034,8 @@ class ReachPlanner:
     def _start_or_retreat(self, joints: np.ndarray, q_start: np.ndarray, collision: RobotCollision,
                           snap: SceneSnapshot, approach: np.ndarray | None, force: bool = False,
                           min_retreat_m: float | None = None,
-                          whole: Callable[[], RobotCollision] | None = None) -> tuple[Retreat | None, np.ndarray]:
+                          whole: Callable[[], tuple[RobotCollision, RobotCollision | None, float]] | None = None,
+                          known: RobotCollision | None = None) -> tuple[Retreat | None, np.ndarray]:
         """The start as it is, or, when a hand touches the map, the end of a retreat
         (planning/retreat.py). START_IN_COLLISION names the links and the nearest voxels when
         something else collides, or when no retreat works; a colliding start is never moved at
@@ -1043,14 +1044,17 @@ class ReachPlanner:
         the contact's normal, its allowed voxels and the retreat's checks do not depend on
         where the next target is (bench/session, dense_pipes: a target 26 cm from the hand left
         part of the pipe under the forearm out, every retreat failed; the way home, on the whole
-        map, found one from the same posture)."""
+        map, found one from the same posture). ``known``: the occupied-only checker when
+        ``collision`` also holds the unobserved frontier: a hand touches what was measured, never
+        the frontier (since issue 31 it lies a self-filter margin from the body, and a hand
+        hanging beside the hip is not in contact with it); the retreat itself keeps out of both."""
         margin = snap.params.safety_margin_m
         reach = self.retreat_planner.params.contact_radius_m if force else None
-        contact, hit = self.retreat_planner.classify_start(q_start, collision.tree, margin, reach)
+        contact, hit = self.retreat_planner.classify_start(q_start, (known or collision).tree, margin, reach)
         tree = collision.tree
         if contact is not None and hit is None and whole is not None:
-            wc = whole()
-            contact_w, hit_w = self.retreat_planner.classify_start(q_start, wc.tree, margin, reach)
+            wc, wk, _ = whole()
+            contact_w, hit_w = self.retreat_planner.classify_start(q_start, (wk or wc).tree, margin, reach)
             if contact_w is not None and hit_w is None:
                 contact, tree = contact_w, wc.tree
         if hit is not None:

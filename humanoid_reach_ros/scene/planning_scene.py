@@ -45,7 +45,7 @@ import numpy as np
 
 from humanoid_reach_ros.geometry.distance import RobotCollision
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree
-from humanoid_reach_ros.geometry.voxels import without_target
+from humanoid_reach_ros.geometry.voxels import mark_capsules, without_target
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.shapes import CollisionModel, load_collision_model
 
@@ -114,42 +114,6 @@ def voxel_points(voxels, what: str = "voxels") -> np.ndarray:
 
 
 @nb.njit(cache=True)
-def _mark_capsules(P0, P1, R, h, lo, grid):   # pragma: no cover - compiled
-    """Set ``grid`` (a box of voxels from index ``lo``) where voxel centres lie within the
-    capsules (P0, P1, R); returns how many were newly set."""
-    added = 0
-    nx, ny, nz = grid.shape
-    for s in range(P0.shape[0]):
-        ax, ay, az = P0[s, 0], P0[s, 1], P0[s, 2]
-        dx, dy, dz = P1[s, 0] - ax, P1[s, 1] - ay, P1[s, 2] - az
-        dd = dx * dx + dy * dy + dz * dz
-        r2 = R[s] * R[s]
-        i0 = max(int(math.floor((min(ax, P1[s, 0]) - R[s]) / h)) - lo[0], 0)
-        i1 = min(int(math.floor((max(ax, P1[s, 0]) + R[s]) / h)) - lo[0], nx - 1)
-        j0 = max(int(math.floor((min(ay, P1[s, 1]) - R[s]) / h)) - lo[1], 0)
-        j1 = min(int(math.floor((max(ay, P1[s, 1]) + R[s]) / h)) - lo[1], ny - 1)
-        k0 = max(int(math.floor((min(az, P1[s, 2]) - R[s]) / h)) - lo[2], 0)
-        k1 = min(int(math.floor((max(az, P1[s, 2]) + R[s]) / h)) - lo[2], nz - 1)
-        for i in range(i0, i1 + 1):
-            cx = (i + lo[0] + 0.5) * h - ax
-            for j in range(j0, j1 + 1):
-                cy = (j + lo[1] + 0.5) * h - ay
-                for k in range(k0, k1 + 1):
-                    if grid[i, j, k]:
-                        continue
-                    cz = (k + lo[2] + 0.5) * h - az
-                    t = 0.0
-                    if dd > 1e-18:
-                        t = (cx * dx + cy * dy + cz * dz) / dd
-                        t = min(1.0, max(0.0, t))
-                    ex, ey, ez = cx - t * dx, cy - t * dy, cz - t * dz
-                    if ex * ex + ey * ey + ez * ez <= r2:
-                        grid[i, j, k] = True
-                        added += 1
-    return added
-
-
-@nb.njit(cache=True)
 def _boxes_touch_grid(C, half, h, lo, grid):   # pragma: no cover - compiled
     """Per box (centres C (M, 3), half-edge ``half``): does a True voxel of ``grid`` lie in it?"""
     out = np.zeros(C.shape[0], np.bool_)
@@ -193,7 +157,7 @@ class BodySweptSpace:
 
     def mark(self, P0: np.ndarray, P1: np.ndarray, radii: np.ndarray) -> int:
         """Mark the voxels whose centres lie within the capsules; returns how many are new."""
-        added = int(_mark_capsules(np.ascontiguousarray(P0, dtype=np.float64),
+        added = int(mark_capsules(np.ascontiguousarray(P0, dtype=np.float64),
                                    np.ascontiguousarray(P1, dtype=np.float64),
                                    np.ascontiguousarray(radii, dtype=np.float64), self.h, self.lo, self.grid))
         self.count += added
