@@ -177,14 +177,105 @@ def test_frames_carry_recorded_joint_state_stamps() -> None:
 
 
 @pytest.mark.node
-def test_replay_beside_a_live_publisher_warns(start_node, ros_env, tmp_path: Path) -> None:
-    """``hr_play`` beside a running ``joint_driver``: two ``/joint_states`` sources, named (issue 22)."""
+def test_replay_beside_a_live_publisher_is_refused_unless_into_live(start_node, ros_env, tmp_path: Path) -> None:
+    """``hr_play`` beside a running ``joint_driver`` (issue 33): refused by default (exit 3, the
+    publisher named, nothing published); ``--into-live`` plays and names the two sources."""
     start_node("joint_driver", params_file="config/joint_driver.yaml", ready_log=r"simulated hrp2")
-    r = subprocess.run([sys.executable, "-m", "humanoid_reach_ros.nodes.bag_play", str(BAG), "--stamps-now",
-                        "--topics", "/joint_states", "--start-offset", "14"], env=dict(ros_env), cwd=REPO_ROOT,
-                       capture_output=True, text=True, timeout=60)
+    play = [sys.executable, "-m", "humanoid_reach_ros.nodes.bag_play", str(BAG), "--stamps-now",
+            "--topics", "/joint_states", "--start-offset", "14"]
+    r = subprocess.run(play, env=dict(ros_env), cwd=REPO_ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 3, (r.returncode, r.stderr)
+    assert "not playing: a live graph publishes the topics of this replay (/joint_states by /joint_driver)" in \
+        r.stderr and "--namespace /replay" in r.stderr and "--into-live" in r.stderr, r.stderr
+    assert "published 0 messages" in r.stdout, r.stdout
+    r = subprocess.run(play + ["--into-live"], env=dict(ros_env), cwd=REPO_ROOT, capture_output=True, text=True,
+                       timeout=60)
     assert r.returncode == 0, r.stderr
+    assert "--into-live: playing INTO THE LIVE GRAPH" in r.stderr, r.stderr
     assert "/joint_states is also published by /joint_driver: the replay mixes two sources" in r.stderr, r.stderr
+
+
+def joint_value(msg: JointState, name: str) -> float:
+    return float(msg.position[list(msg.name).index(name)])
+
+
+@pytest.mark.node
+def test_replay_beside_a_live_graph_leaves_its_map_and_joint_states_alone(start_node, ros_env, ros_probe,
+                                                                           tmp_path: Path) -> None:
+    """Issue 33, point 1: the head scan replayed beside a live graph (``joint_driver``,
+    ``scene_sim``, ``voxel_mapper``). Once the live map is built, ``scene_sim`` is stopped (the
+    live map then changes only if something else feeds the mapper). ``hr_play --stamps-now``
+    as the README's tour had it is refused (exit 3); ``--namespace /replay`` plays every message
+    under ``/replay`` while the live ``/joint_states`` (what the planner, the executor and the
+    mapper read) carry only the driver's posture, the mapper receives no cloud and the live
+    map keeps its voxel count. (Before: 6,585 -> 8,625 voxels, the recording's clouds fused.)"""
+    from humanoid_reach_ros.robot.model import RobotModel
+
+    head_yaw = RobotModel("hrp2").spec.neck_joints[0]
+    maps = ros_probe.collect(PointCloud2, "/voxel_map", LATCHED)
+    diagnostics = ros_probe.collect(DiagnosticArray, "/diagnostics")
+    live_states = ros_probe.collect(JointState, "/joint_states", QoSProfile(depth=5000,
+                                                                            reliability=ReliabilityPolicy.RELIABLE))
+    replay_states = ros_probe.collect(JointState, "/replay/joint_states",
+                                      QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
+    replay_clouds = ros_probe.collect(PointCloud2, "/replay/head_camera/points", qos_profile_sensor_data)
+    start_node("joint_driver", params_file="config/joint_driver.yaml", ready_log=r"simulated hrp2")
+    sensors = start_node("scene_sim", params_file="config/scene_sim.yaml", ready_log="scene sensors ready",
+                         timeout=120.0)
+    start_node("voxel_mapper", params_file=MAPPER_PARAMS, ready_log="voxel mapper ready", timeout=120.0)
+
+    def voxels() -> int:
+        return maps.last.width * maps.last.height if len(maps) else 0
+    ros_probe.spin_until(lambda: voxels() > 500, 120.0, "a live map of > 500 voxels",
+                         on_timeout=lambda: str(mapper_inputs(diagnostics)))
+    assert sensors.stop() == 0   # the live map is now frozen: only a replay's clouds could change it
+    received = lambda: int(mapper_inputs(diagnostics).get("clouds_received", -1))  # noqa: E731
+    settled = {"clouds": -2, "since": time.monotonic()}
+
+    def mapper_settled() -> bool:   # the same clouds_received in diagnostics for 3 s: nothing in flight
+        n = received()
+        if n != settled["clouds"]:
+            settled.update(clouds=n, since=time.monotonic())
+        return n >= 0 and time.monotonic() - settled["since"] > 3.0
+    ros_probe.spin_until(mapper_settled, 60.0, "the mapper's last live cloud")
+    before_voxels, before_clouds, before_maps = voxels(), received(), len(maps)
+    live_yaw = joint_value(live_states.last, head_yaw)
+
+    play = [sys.executable, "-m", "humanoid_reach_ros.nodes.bag_play", str(BAG), "--stamps-now"]
+    r = subprocess.run(play, env=dict(ros_env), cwd=REPO_ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 3 and "/joint_states by /joint_driver" in r.stderr, (r.returncode, r.stderr)
+    assert "published 0 messages" in r.stdout, r.stdout
+
+    live_states.clear()
+    t_play = time.monotonic()
+    log = tmp_path / "play.log"
+    with open(log, "wb") as f:
+        proc = subprocess.Popen(play + ["--namespace", "/replay", "--rate", "4", "--wait-subscribers", "20"],
+                                env=dict(ros_env), cwd=REPO_ROOT, stdout=f, stderr=subprocess.STDOUT)
+    try:
+        ros_probe.spin_until(lambda: proc.poll() is not None, 120.0, "the namespaced replay to end",
+                             on_timeout=log.read_text)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, log.read_text()
+    with BagReader(BAG) as bag:
+        n_states = bag.topics["/joint_states"].message_count
+    ros_probe.spin_until(lambda: len(replay_states) >= n_states, 30.0, "every replayed joint state under /replay")
+    assert len(replay_clouds) > 0, log.read_text()
+    replayed_yaw = [joint_value(m, head_yaw) for m in replay_states.messages]
+    assert max(abs(y - live_yaw) for y in replayed_yaw) > 0.3   # the recording turns the head: told apart
+    # two more mapper diagnostics after the replay ended: whatever it sent has been counted
+    t_end = time.monotonic()
+    def mapper_reports_since_end() -> int:
+        return sum(any(st.name.endswith("voxel_mapper: inputs") for st in a.status) for a in diagnostics.since(t_end))
+    ros_probe.spin_until(lambda: mapper_reports_since_end() >= 2, 30.0, "two mapper diagnostics after the replay")
+    live = [joint_value(m, head_yaw) for m in live_states.since(t_play)]
+    assert live and max(abs(y - live_yaw) for y in live) < 1e-6, "a replayed joint state reached /joint_states"
+    assert received() == before_clouds, (before_clouds, mapper_inputs(diagnostics))
+    assert voxels() == before_voxels and len(maps) == before_maps, (before_voxels, voxels())
+    print(f"\nlive map {before_voxels} voxels before and {voxels()} after; {len(replay_states)} joint states and "
+          f"{len(replay_clouds)} clouds replayed under /replay; {len(live)} live joint states, none of them replayed")
 
 
 def operator_md_replay_recipe() -> list[list[str]]:

@@ -119,6 +119,29 @@ def test_qos_yaml_and_schedule() -> None:
         playback_schedule([1], 0.0)
 
 
+def test_replay_topic_names() -> None:
+    """Where a replay publishes (issue 33): as recorded, under a namespace, or remapped one by one
+    (``ros2 bag play --remap``'s OLD:=NEW; a remap wins over the namespace); bad names refused."""
+    from humanoid_reach_ros.io.mcap_bag import replay_topic_names as names
+    topics = ["/joint_states", "/head_camera/points"]
+    assert names(topics) == {t: t for t in topics}
+    assert names(topics, "/replay") == {"/joint_states": "/replay/joint_states",
+                                        "/head_camera/points": "/replay/head_camera/points"}
+    assert names(topics, "/replay/", ["/joint_states:=/old/js"])["/joint_states"] == "/old/js"
+    assert names(topics, "", ["/joint_states:=/js"]) == {"/joint_states": "/js", "/head_camera/points":
+                                                         "/head_camera/points"}
+    for ns, remaps, message in [("replay", [], "--namespace 'replay' is not an absolute ROS name"),
+                                ("/2x", [], "is not an absolute ROS name"),
+                                ("/a b", [], "is not an absolute ROS name"),
+                                ("", ["/joint_states=/js"], "give OLD:=NEW"),
+                                ("", ["/joint_states:="], "give OLD:=NEW"),
+                                ("", ["/nope:=/x"], "/nope is not a played topic"),
+                                ("", ["/joint_states:=js"], "--remap target 'js' is not an absolute"),
+                                ("", ["/joint_states:=/head_camera/points"], "would both be played on")]:
+        with pytest.raises(BagError, match=message):
+            names(topics, ns, remaps)
+
+
 def test_recorder_topic_choice_and_qos_matching() -> None:
     from humanoid_reach_ros.io.endpoints import recording_qos as subscription_qos
     from humanoid_reach_ros.nodes.bag_record import is_hidden
@@ -242,6 +265,10 @@ def test_cli_bad_inputs(tmp_path: Path, ros_env) -> None:
     assert r.returncode == 2 and "/nope not in s.mcap" in r.stderr
     r = run_tool(PLAY, [str(tmp_path / "s.mcap"), "--rate", "0"], ros_env)
     assert r.returncode == 2 and "--rate must be" in r.stderr
+    r = run_tool(PLAY, [str(tmp_path / "s.mcap"), "--namespace", "replay"], ros_env)
+    assert r.returncode == 2 and "not an absolute ROS name" in r.stderr, r.stderr
+    r = run_tool(PLAY, [str(tmp_path / "s.mcap"), "--remap", "/nope:=/x"], ros_env)
+    assert r.returncode == 2 and "/nope is not a played topic" in r.stderr, r.stderr
     r = run_tool(PLAY, [str(tmp_path / "s.mcap"), "--info"], ros_env)
     assert r.returncode == 0 and "/robot_description [std_msgs/msg/String] 1 msgs, transient local" in r.stdout
 

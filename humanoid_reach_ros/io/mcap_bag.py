@@ -518,6 +518,45 @@ def playback_schedule(log_times_ns: Sequence[int], rate: float) -> list[float]:
     return [(t - t0) / 1e9 / rate for t in log_times_ns]
 
 
+# ---------------------------------------------------------------- where a replay publishes
+_TOPIC_NAME = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]*)+$")
+
+
+def _absolute_name(name: str, what: str) -> str:
+    """``name`` if it is an absolute ROS name (``/a/b_2``; tokens of letters, digits and ``_``,
+    none starting with a digit), else ``BagError`` naming ``what``."""
+    if not _TOPIC_NAME.match(name):
+        raise BagError(f"{what} {name!r} is not an absolute ROS name (like /replay or /replay/joint_states: "
+                       f"'/'-separated tokens of letters, digits and '_', none starting with a digit)")
+    return name
+
+
+def replay_topic_names(topics: Sequence[str], namespace: str = "", remaps: Sequence[str] = ()) -> dict[str, str]:
+    """Recorded topic -> the topic a replay publishes it on. ``remaps``: ``OLD:=NEW`` pairs as
+    ``ros2 bag play --remap`` takes them (``OLD`` a played topic); every other topic goes under
+    ``namespace`` (``/replay``: ``/joint_states`` -> ``/replay/joint_states``), or stays where it
+    was recorded when ``namespace`` is empty. ``BagError`` for a malformed pair or name, a remap
+    of a topic that is not played, or two topics sent to one name."""
+    ns = _absolute_name(namespace.rstrip("/"), "--namespace") if namespace not in ("", "/") else ""
+    explicit: dict[str, str] = {}
+    for pair in remaps:
+        old, sep, new = pair.partition(":=")
+        if not sep or not old or not new:
+            raise BagError(f"--remap {pair!r}: give OLD:=NEW, e.g. /joint_states:=/replay/joint_states")
+        _absolute_name(old, "--remap topic")
+        _absolute_name(new, "--remap target")
+        if old not in topics:
+            raise BagError(f"--remap {pair!r}: {old} is not a played topic (played: {', '.join(topics)})")
+        explicit[old] = new
+    out = {t: explicit.get(t, ns + t) for t in topics}
+    seen: dict[str, str] = {}
+    for t, name in out.items():
+        if name in seen:
+            raise BagError(f"{seen[name]} and {t} would both be played on {name}")
+        seen[name] = t
+    return out
+
+
 __all__ = ["BagError", "BagMessage", "BagReader", "BagWriter", "QosInfo", "TopicInfo", "describe",
            "full_type_name", "message_class", "message_definition", "parse_qos_yaml", "playback_schedule",
-           "qos_yaml", "replay_qos", "split_type"]
+           "qos_yaml", "replay_qos", "replay_topic_names", "split_type"]

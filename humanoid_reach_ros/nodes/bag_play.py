@@ -4,6 +4,22 @@ Usage::
 
     python -m humanoid_reach_ros.nodes.bag_play run.mcap --rate 2 --topics /joint_states --loop
     python -m humanoid_reach_ros.nodes.bag_play run.mcap --info
+    python -m humanoid_reach_ros.nodes.bag_play run.mcap --namespace /replay   # beside a live graph
+
+* **A replay never changes a live graph unless asked to.** Before it plays, the player looks
+  (``DISCOVERY_WAIT_S``) for other publishers of the topics it would publish: when a live graph
+  publishes any of them (a ``joint_driver``'s ``/joint_states``, a ``scene_sim``'s clouds), it
+  refuses (exit 3) and names them: played there, the recording's clouds would be fused into the
+  live map that the next plan trusts, and its ``/joint_states`` and ``/robot_description``
+  would reach the planner and the executor. ``--namespace /replay`` plays every topic under
+  ``/replay`` (``/replay/joint_states``, ``/replay/head_camera/points``: for RViz or Foxglove
+  beside the live graph; nothing of the package subscribes there), ``--remap OLD:=NEW`` moves
+  single topics (``ros2 bag play --remap``'s form), ``--into-live`` plays into the live graph on
+  purpose and says loudly what that does. Into an EMPTY graph (no other publisher of a played
+  topic: nodes waiting for recorded input, docs/operator.md's recipe) it plays as recorded, as
+  ``ros2 bag play`` does. A live publisher that appears while playing stops the replay (exit 3)
+  unless ``--into-live``. (The package publishes no ``/tf``; a bag that holds one is played
+  under the namespace like any topic, so RViz needs ``/tf`` remapped to see its frames.)
 
 * One publisher per topic with the recorded type (the message class is imported from the
   type name: ``pkg/msg/Type`` -> ``pkg.msg.Type``); messages go out as their recorded
@@ -33,11 +49,10 @@ Usage::
   time is not used by this package).
 * ``--wait-subscribers S``: before playing, wait up to S s until every played topic has a
   subscriber (so that the first messages are not lost to discovery).
-* Another live publisher of a played topic (a ``joint_driver`` beside a replayed
-  ``/joint_states``: two sources mixed) is warned about, naming its node: the player looks
-  at each played topic's publishers (``get_publishers_info_by_topic``, its own left out) for
-  ``DISCOVERY_WAIT_S`` before it starts and every ``PUBLISHER_CHECK_PERIOD_S`` while playing
-  (discovery of a running node can take over a second).
+* Other live publishers of a played topic are looked for (``get_publishers_info_by_topic``,
+  its own left out) for ``DISCOVERY_WAIT_S`` before it starts and every
+  ``PUBLISHER_CHECK_PERIOD_S`` while playing (discovery of a running node can take over a
+  second); with ``--into-live`` each is named in a warning (two sources mixed).
 * Replaying into running nodes: a node that rejects stale input (the planner's 0.5 s
   ``/joint_states``) fails once a single pass has ended; ``--loop`` keeps the stream going.
 * At the end the player waits up to ``ACK_TIMEOUT_S`` (5 s) until the subscribers of its
@@ -45,7 +60,8 @@ Usage::
   short replay is not lost when the process exits; a warning names the topics that did not.
 
 Exit codes: 0 played, 1 stopped by a bag error while playing, 2 bad arguments, missing or
-corrupt bag, unknown topic filter or message type.
+corrupt bag, unknown topic filter or message type, 3 refused or stopped: a live graph publishes
+a played topic (without ``--into-live``).
 """
 from __future__ import annotations
 
@@ -60,26 +76,45 @@ from rclpy.node import Node
 from rclpy.qos import ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from rclpy.signals import SignalHandlerOptions
-from rclpy.utilities import remove_ros_args
 
 from humanoid_reach_ros.io.endpoints import has_header, replay_publisher_qos, restamp_ns
-from humanoid_reach_ros.io.mcap_bag import BagError, BagReader, describe, message_class, playback_schedule
+from humanoid_reach_ros.io.mcap_bag import (BagError, BagReader, describe, message_class, playback_schedule,
+                                            replay_topic_names)
 from humanoid_reach_ros.nodes.bag_record import StopSignals
 
 NODE_NAME = "bag_play"
 _UNNAMED = "_NODE_NAME_UNKNOWN_"   # rmw's node name of an endpoint whose node is not discovered yet
+UNNAMED_NODE = "a node discovery has not named yet"
+EXIT_LIVE_GRAPH = 3
+
+
+class LiveGraph(Exception):
+    """Other nodes publish topics the player would publish: ``found`` {topic: [nodes]}."""
+
+    def __init__(self, found: dict[str, list[str]]) -> None:
+        super().__init__(found)
+        self.found = found
+
+    def describe(self) -> str:
+        return "; ".join(f"{t} by {', '.join(n)}" for t, n in sorted(self.found.items()))
 
 
 class BagPlayerNode(Node):
-    """Publishers for the played topics; ``play`` runs one pass over the bag."""
+    """Publishers for the played topics (on ``out_topics[t]``: the recorded name by default);
+    ``play`` runs one pass over the bag. Unless ``into_live``, another publisher of a played
+    topic raises :class:`LiveGraph` (module doc)."""
 
-    def __init__(self, reader: BagReader, topics: list[str], stamps_now: bool = False, **kw: Any) -> None:
+    def __init__(self, reader: BagReader, topics: list[str], stamps_now: bool = False,
+                 out_topics: dict[str, str] | None = None, into_live: bool = False, **kw: Any) -> None:
         super().__init__(NODE_NAME, **kw)
         self.reader = reader
         self.topics = topics
+        self.out_topics = out_topics or {t: t for t in topics}
+        self.into_live = into_live
         self.stamps_now = stamps_now
         self.classes = {t: message_class(reader.topics[t].type) for t in topics}  # BagError if unknown
-        self.publishers_ = {t: self.create_publisher(self.classes[t], t, replay_publisher_qos(reader.topics[t].qos))
+        self.publishers_ = {t: self.create_publisher(self.classes[t], self.out_topics[t],
+                                                     replay_publisher_qos(reader.topics[t].qos))
                             for t in topics}
         self.restamp = {t for t in topics if stamps_now and has_header(self.classes[t])}
         self.published = 0
@@ -100,11 +135,12 @@ class BagPlayerNode(Node):
         return []
 
     def other_publishers(self) -> dict[str, list[str]]:
-        """Played topics that other nodes publish too -> those nodes (``/ns/name``), as discovery
-        shows them now (this player's own publisher left out)."""
+        """Topics this player publishes that other nodes publish too -> those nodes (``/ns/name``;
+        ``UNNAMED_NODE`` for one discovery has not named yet), as discovery shows them now (this
+        player's own publisher left out)."""
         found: dict[str, list[str]] = {}
         me = f"{self.get_namespace().rstrip('/')}/{self.get_name()}"
-        for topic in self.topics:
+        for topic in self.out_topics.values():
             nodes = [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in self.get_publishers_info_by_topic(topic)]
             # an endpoint whose node discovery has not named yet (this player's own, early on) shows as
             # _NODE_NAME_UNKNOWN_: this player's publisher is taken out by name, else as one unnamed
@@ -113,20 +149,25 @@ class BagPlayerNode(Node):
                 nodes.remove(me)
             elif unnamed:
                 nodes.remove(unnamed[0])
-            nodes = [n for n in nodes if _UNNAMED not in n]   # named at a later look
+            nodes = [UNNAMED_NODE if _UNNAMED in n else n for n in nodes]   # named at a later look
             if nodes:
-                found[topic] = sorted(nodes)
+                found[topic] = sorted(set(nodes))
         return found
 
-    def warn_other_publishers(self) -> None:
-        """A warning per (topic, node) newly seen publishing a played topic: two sources mixed."""
-        for topic, nodes in self.other_publishers().items():
-            new = [n for n in nodes if (topic, n) not in self._warned]
+    def check_live_graph(self, found: dict[str, list[str]] | None = None) -> None:
+        """Other publishers of the played topics (``found``, or as discovery shows them now):
+        :class:`LiveGraph` unless ``into_live``; with it, a warning per (topic, node) newly seen
+        (two sources mixed)."""
+        found = self.other_publishers() if found is None else found
+        if found and not self.into_live:
+            raise LiveGraph(found)
+        for topic, nodes in found.items():
+            new = [n for n in nodes if (topic, n) not in self._warned and n != UNNAMED_NODE]
             if new:
                 self._warned.update((topic, n) for n in new)
                 self.get_logger().warning(
-                    f"{topic} is also published by {', '.join(new)}: the replay mixes two sources of {topic} "
-                    f"(stop {'them' if len(new) > 1 else 'it'}, or leave the topic out with --topics)")
+                    f"--into-live: {topic} is also published by {', '.join(new)}: the replay mixes two sources of "
+                    f"{topic} (stop {'them' if len(new) > 1 else 'it'}, or leave the topic out with --topics)")
 
     def wait_for_acks(self, timeout_s: float) -> list[str]:
         """Reliable topics whose subscribers have not acknowledged every message within
@@ -165,7 +206,7 @@ class BagPlayerNode(Node):
                 time.sleep(min(wait, 0.05))
             if time.monotonic() > self._next_check:   # another publisher may appear at any time
                 self._next_check = time.monotonic() + PUBLISHER_CHECK_PERIOD_S
-                self.warn_other_publishers()
+                self.check_live_graph()
             if stop.signal is not None:
                 return False
             self.publish(m.topic, m.data)
@@ -185,6 +226,14 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                    "reject stale input)")
     p.add_argument("--wait-subscribers", type=float, default=0.0, metavar="S",
                    help="wait up to S s for a subscriber on every played topic before starting")
+    p.add_argument("--namespace", default="", metavar="NS",
+                   help="play every topic under NS (/replay: /joint_states -> /replay/joint_states), e.g. beside "
+                        "a live graph")
+    p.add_argument("--remap", nargs="+", default=[], metavar="OLD:=NEW",
+                   help="play topic OLD on NEW (as ros2 bag play --remap)")
+    p.add_argument("--into-live", action="store_true",
+                   help="play even where a live graph publishes the same topics: the recording then feeds the "
+                        "live nodes (its clouds into the live map, its joint states to the planner and executor)")
     p.add_argument("--info", action="store_true", help="print what the bag holds and exit")
     a = p.parse_args(argv)
     if not (a.rate > 0 and a.rate < float("inf")):
@@ -195,13 +244,40 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 
 ACK_TIMEOUT_S = 5.0   # at the end, reliable subscribers get this long to acknowledge what was played
-DISCOVERY_WAIT_S = 1.0   # before playing: other publishers of the played topics seen within this long are named ...
-PUBLISHER_CHECK_PERIOD_S = 1.0   # ... and while playing, those that appear, looked for this often
+# before playing, other publishers of the played topics are looked for this long (a live graph is
+# refused) ... Fast DDS announces a participant in a burst when it starts, then every 3 s (its
+# lease announcement period): a burst missed on a busy machine is heard at the next one (a running
+# joint_driver was seen after 1.8 s once, and only after 2 s -- 62 messages into the replay -- once)
+DISCOVERY_WAIT_S = 3.5
+PUBLISHER_CHECK_PERIOD_S = 0.5   # ... and while playing, those that appear, looked for this often
+
+
+def refusal(exc: LiveGraph, published: int) -> str:
+    """What ``hr_play`` says when a live graph publishes topics it would publish."""
+    what = "not playing" if published == 0 else f"stopped after {published} messages"
+    return (f"hr_play: {what}: a live graph publishes the topics of this replay ({exc.describe()}). Played "
+            "there, the recording would feed the live nodes: its clouds into the live map the next plan "
+            "trusts, its /joint_states and /robot_description to the planner and the executor. To look at it "
+            "beside the graph: --namespace /replay (every topic under /replay; or --remap OLD:=NEW); to replay "
+            "into the live graph on purpose: --into-live; to reproduce a run: stop the graph's publishers of "
+            "these topics first.")
+
+
+def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
+    """``(own, ros)``: the player's arguments, and ``--ros-args ... [--]`` (rclpy's). Not
+    rclpy's ``remove_ros_args``: it would take ``--remap``'s ``OLD:=NEW`` for a legacy node
+    remapping rule."""
+    if "--ros-args" not in argv:
+        return list(argv), []
+    i = argv.index("--ros-args")
+    j = argv.index("--", i) if "--" in argv[i:] else len(argv)
+    return argv[:i] + argv[j + 1:], argv[i:j + 1]
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv if argv is None else argv
-    args = parse_args(remove_ros_args(argv)[1:])
+    own, ros_args = split_ros_args(argv)
+    args = parse_args(own[1:])
     try:
         reader = BagReader(args.bag)
         if args.info:
@@ -210,26 +286,43 @@ def main(argv: list[str] | None = None) -> int:
         topics = reader.select(args.topics)
         for t in topics:
             message_class(reader.topics[t].type)
+        out_topics = replay_topic_names(topics, args.namespace, args.remap)
     except BagError as exc:
         print(f"hr_play: {exc}", file=sys.stderr)
         return 2
     stop = StopSignals()
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(args=argv[:1] + ros_args, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     code = 0
     try:
-        node = BagPlayerNode(reader, topics, args.stamps_now)
+        node = BagPlayerNode(reader, topics, args.stamps_now, out_topics, args.into_live)
+        deadline = time.monotonic() + DISCOVERY_WAIT_S   # discovery shows the other publishers first
+        found: dict[str, list[str]] = {}
+        while stop.signal is None and time.monotonic() < deadline:
+            found = node.other_publishers()
+            if found and all(UNNAMED_NODE not in nodes for nodes in found.values()):
+                break     # a live graph, named (an unnamed one is named within the wait, mostly)
+            time.sleep(0.05)
+        node.check_live_graph(found)
         if args.wait_subscribers > 0:
             lonely = node.wait_for_subscribers(args.wait_subscribers, stop)
             if lonely:
                 node.get_logger().warning(f"no subscriber after {args.wait_subscribers:g} s on {', '.join(lonely)}; "
                                           "playing anyway")
-        deadline = time.monotonic() + DISCOVERY_WAIT_S   # discovery shows the other publishers first
-        while stop.signal is None and time.monotonic() < deadline:
-            node.warn_other_publishers()
-            time.sleep(0.05)
-        node.get_logger().info(f"playing {reader.path} ({', '.join(topics)}) at rate {args.rate:g}"
-                               f"{', looping' if args.loop else ''}")
+            node.check_live_graph()
+        if args.into_live:
+            live = node.other_publishers()
+            node.get_logger().warning(
+                "--into-live: playing INTO THE LIVE GRAPH: " + (
+                    f"{LiveGraph(live).describe()} publish the same topics; the recording's messages mix with "
+                    "theirs: its clouds are fused into the live map, its /joint_states and /robot_description "
+                    "reach the planner and the executor" if live else
+                    "no other publisher of these topics seen yet; any node that subscribes to them gets the "
+                    "recording"))
+        moved = [f"{t} -> {out_topics[t]}" for t in topics if out_topics[t] != t]
+        node.get_logger().info(f"playing {reader.path} ({', '.join(moved if moved else topics)}"
+                               f"{', the rest as recorded' if moved and len(moved) < len(topics) else ''}) "
+                               f"at rate {args.rate:g}{', looping' if args.loop else ''}")
         while node.play(args.rate, args.start_offset, stop) and args.loop:
             pass
         if stop.signal is None:
@@ -237,12 +330,15 @@ def main(argv: list[str] | None = None) -> int:
             if unacked:
                 node.get_logger().warning(f"not every reliable subscriber acknowledged the last messages within "
                                           f"{ACK_TIMEOUT_S:g} s on {', '.join(unacked)}")
-            node.warn_other_publishers()   # a last look: on a busy machine discovery names a node late
+            node.check_live_graph()   # a last look: on a busy machine discovery names a node late
         if any(reader.topics[t].qos.transient_local for t in topics) and stop.signal is None:
             time.sleep(0.2)  # let late-joining readers of latched topics fetch before the publisher goes
     except BagError as exc:
         print(f"hr_play: {exc}", file=sys.stderr)
         code = 1
+    except LiveGraph as exc:
+        print(refusal(exc, node.published if node is not None else 0), file=sys.stderr)
+        code = EXIT_LIVE_GRAPH
     finally:
         published = node.published if node is not None else 0
         if node is not None:
