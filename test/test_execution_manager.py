@@ -231,3 +231,60 @@ def test_maps_topics_configuration_and_diagnostics(robot) -> None:
     blind, _, _, _ = make(robot, joints=False, age=math.inf)
     inputs = {name: (level, values) for name, level, _, values in blind.diagnostics(0.005)}["inputs"]
     assert inputs[0] == LEVEL_WARN and inputs[1]["joint_states_age_s"] == "never"
+
+
+def pipe(centre, length_m: float = 0.4, radius_m: float = 0.03, h: float = 0.02) -> np.ndarray:
+    """Voxel centres (2 cm grid) of a pipe along y through ``centre``."""
+    g = np.arange(-0.5 * length_m, 0.5 * length_m + 1e-9, h)
+    r = np.arange(-radius_m, radius_m + 1e-9, h)
+    pts = np.array([[x, y, z] for y in g for x in r for z in r if x * x + z * z <= radius_m ** 2 + 1e-9])
+    return np.round((pts + np.asarray(centre)) / h) * h + h / 2
+
+
+def test_the_end_of_a_reach_says_whether_a_hand_touches_and_what(robot) -> None:
+    """Issue 33, point 4: the result carries the contact at the end, on the WHOLE map (the target's
+    object included; min_distance_m leaves it out), by the planner's own test: a reach that ends
+    with the hand on a pipe reports the contact, the target's object and its distance; one that
+    ends in free air reports none and how far the nearest voxel is. The test is the planner's
+    (``RetreatPlanner.classify_start``): a posture it calls in contact is one the next plan
+    retreats from first."""
+    from types import SimpleNamespace
+
+    from humanoid_reach_ros.planning.retreat import RetreatParams
+    hand = robot.frame_pose(robot.config(robot.half_sitting_joints, robot.base_on_feet(robot.half_sitting_joints)),
+                            robot.limbs["right_arm"].tip).translation
+    reach = RetreatParams().contact_distance_m
+    for centre, touching in [(hand + [0.0, 0.0, -0.04], True), (hand + [0.35, 0.0, 0.0], False)]:
+        m, _, log, _ = make(robot)
+        cloud = SimpleNamespace(points=pipe(centre), dropped_nonfinite=0, frame_id="world")
+        assert m.map_message(lambda c=cloud: c)
+        out = m.execute(lambda: TrajectoryGoal(reference(robot)), Port())
+        s = out.summary
+        assert out.success and s["hand_in_contact"] is touching, (s, log.text())
+        if touching:
+            assert s["contact_distance_m"] < reach and "on the target object (" in s["contact_with"], s
+            assert f"voxels within {1e3 * m.config.target_exclusion_radius_m:.0f} mm of the target" in s["contact_with"]
+            assert "hand in contact" in log.text("info")
+        else:
+            assert s["contact_with"] == "" and 0.2 < s["contact_distance_m"] < 0.4, s
+            assert "no hand in contact: the nearest voxel is" in log.text("info")
+    # no map, or no joint states at the end: no contact claimed, and said why
+    m, _, _, _ = make(robot)
+    assert m.requests.contact_at(robot.half_sitting_joints).as_dict() == {
+        "hand_in_contact": False, "contact_distance_m": math.inf, "contact_with": "no map"}
+    c = m.requests.contact_at(None, "no /joint_states received")
+    assert not c.in_contact and c.with_what == "unknown: no /joint_states received"
+
+
+def test_a_touch_away_from_the_target_is_named_by_its_region(robot) -> None:
+    """A hand resting on voxels farther than target_exclusion_radius_m from the motion's final
+    hand position: the region is named, not the target's object."""
+    from types import SimpleNamespace
+    m, _, _, _ = make(robot)
+    j = robot.half_sitting_joints
+    hand = robot.frame_pose(robot.config(j, robot.base_on_feet(j)), robot.limbs["right_arm"].tip).translation
+    voxels = pipe(hand + [0.0, 0.0, -0.04])
+    assert m.map_message(lambda: SimpleNamespace(points=voxels, dropped_nonfinite=0, frame_id="world"))
+    m.requests._target_p = np.array([hand, hand + [0.0, 0.0, 0.5]])   # the motion ended 0.5 m above
+    c = m.requests.contact_at(j)
+    assert c.in_contact and "on the voxels around [" in c.with_what and "not the target's object" in c.with_what, c

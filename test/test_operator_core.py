@@ -39,10 +39,12 @@ def plan_response(code: int = PlanError.SUCCESS, unobserved: list[list[float]] =
               statistics=dict(STATS), unobserved_points=[NS(x=p[0], y=p[1], z=p[2]) for p in unobserved])
 
 
-def result(code: int = ExecuteCode.SUCCESS, message: str = "the executor says", steps: int = 10):
+def result(code: int = ExecuteCode.SUCCESS, message: str = "the executor says", steps: int = 10,
+           contact: tuple[bool, float, str] = (False, 0.0927, "")):
     return NS(success=code == ExecuteCode.SUCCESS, error_code=NS(val=int(code)), message=message, duration_s=1.5,
               steps=steps, overruns=0, max_com_error_m=1e-4, min_distance_m=0.05, final_hand_error_m=0.002,
-              final_hand_error_rad=0.01, poses_done=1)
+              final_hand_error_rad=0.01, poses_done=1, hand_in_contact=contact[0], contact_distance_m=contact[1],
+              contact_with=contact[2])
 
 
 class FakeClient:
@@ -199,6 +201,23 @@ def test_an_execution_exits_with_its_class(outcome: str, res: Any, exit_code: in
     assert code == exit_code and c.executed == [(TRAJECTORY, 1, True)], text
     assert summary["execution"]["outcome"] == outcome
     assert line is None or line in text, text
+
+
+def test_a_touch_is_visible_in_the_text_and_the_json() -> None:
+    """Issue 33, point 4: the end of a reach says whether a hand is in contact, with what and how near."""
+    touch = (True, -0.004, "the right hand (r_hand) on the target object (57 voxels within 150 mm of the target)")
+    for contact, line in [(touch, "hand IN CONTACT (-4.0 mm): the right hand (r_hand) on the target object (57 "
+                                  "voxels within 150 mm of the target)"),
+                          ((False, 0.0927, ""), "hand not in contact: the nearest voxel, the target's object "
+                                                "included, is 92.7 mm away"),
+                          ((False, math.inf, "no map"), "hand contact: no map")]:
+        c = FakeClient([plan_response()], execution=("done", result(contact=contact)))
+        code, summary, text, _ = run(c, *TARGET, "--execute")
+        assert code == 0 and line in text, text
+        e = summary["execution"]
+        assert (e["hand_in_contact"], e["contact_with"]) == (contact[0], contact[2])
+        assert e["contact_distance_m"] == (contact[1] if math.isfinite(contact[1]) else None)   # JSON: inf -> null
+        json.dumps(summary, allow_nan=False)
 
 
 def test_a_lost_planner_exits_3_and_the_summary_says_so() -> None:

@@ -39,7 +39,7 @@ from humanoid_reach_ros.codes import ARM_AUTO, ExecuteCode as C, RequestError, c
 from humanoid_reach_ros.execution.config import MAX_SEQUENTIAL, ExecutionConfig
 from humanoid_reach_ros.execution.messages import (LogLine, LoopCommand, LoopEvent, LoopExited, LoopStatus,
                                                    MotionFinished, MotionStarted, SetMap, StartMotion, StopMotion)
-from humanoid_reach_ros.execution.requests import ExecutionRequests
+from humanoid_reach_ros.execution.requests import ExecutionRequests, HandContact
 from humanoid_reach_ros.execution.supervisor import IDLE, Motion
 
 LEVEL_OK, LEVEL_WARN, LEVEL_ERROR = 0, 1, 2      # diagnostic levels (diagnostic_msgs' numbering)
@@ -119,7 +119,8 @@ class LookProgress:
 
 @dataclasses.dataclass
 class Outcome:
-    """The end of an execution (``summary``: the motion's figures) or a look (``poses_done``,
+    """The end of an execution (``summary``: the motion's figures and where the hands ended,
+    ``HandContact.as_dict``) or a look (``poses_done``,
     ``duration_s``, ``max_com_error_m``)."""
 
     code: int
@@ -343,7 +344,18 @@ class ExecutionManager:
             return Outcome(int(C.CANCELED), "canceled before execution started")
         self.log.info(f"{label}: accepted: {self.requests.describe(motion)}")
         pend = self.tracker.follow(port, motion, port.feedback)
-        return Outcome(int(pend.code), pend.message, pend.summary)
+        return Outcome(int(pend.code), pend.message, {**pend.summary, **self._contact(label).as_dict()})
+
+    def _contact(self, label: str) -> HandContact:
+        """Where the hands ended (``ExecutionRequests.contact_at`` on the measured joints), logged;
+        an internal error is logged and answered "unknown", never raised."""
+        try:
+            contact = self.requests.contact_at(*self.joints())
+        except Exception as exc:
+            self.log.error(f"{label}: contact at the end: internal error: {exc}\n{traceback.format_exc()}")
+            return HandContact(False, math.inf, f"unknown: {type(exc).__name__}: {exc}")
+        self.log.info(f"{label}: {contact.describe()}")
+        return contact
 
     def _motion(self, goal: TrajectoryGoal | DualArmGoal, label: str) -> Motion:
         joints = self.joints()

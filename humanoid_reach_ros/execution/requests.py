@@ -11,6 +11,9 @@ ROS-free (the node converts messages with ``io/exec_msgs.py`` first):
   voxels within ``target_exclusion_radius_m`` of the motion's start and final hand positions
   left out (the object to be reached, or left), the sphere tree built here, outside the control
   loop;
+* where a motion ended (:meth:`ExecutionRequests.contact_at`, :class:`HandContact`): whether a
+  hand rests on the map, on the WHOLE map (the object reached included), by the planner's own
+  contact test (``planning/retreat.py``: what makes its next plan retreat first);
 * smooth reshaping (Yoshida et al., ``planning/reshape.py``) of a goal that asks for it,
   seconds, in the caller's thread while the loop keeps running or holding;
 * the ``/look`` motions: head poses (:meth:`ExecutionRequests.look`) and balanced whole-body
@@ -94,6 +97,32 @@ def resolve_arm(code: int, motion: dict[str, ArmMotion]) -> str:
 
 
 
+@dataclass(frozen=True)
+class HandContact:
+    """Where the hands are at the end of a motion, against the whole map (the object reached
+    included, unlike the motion's ``min_distance_m``): ``in_contact`` when a hand's shapes come
+    within the planner's ``contact_distance_m`` of the occupied voxels
+    (``RetreatPlanner.classify_start``: exactly what makes the next plan retreat first);
+    ``distance_m`` the nearest hand shape's signed distance to the nearest voxel (< 0: inside;
+    inf: no map or no joint states); ``with_what`` what it touches ("" without a contact)."""
+
+    in_contact: bool
+    distance_m: float
+    with_what: str
+
+    def as_dict(self) -> dict[str, Any]:
+        """The ``ExecuteReach`` result's fields."""
+        return {"hand_in_contact": self.in_contact, "contact_distance_m": self.distance_m,
+                "contact_with": self.with_what}
+
+    def describe(self) -> str:
+        if self.in_contact:
+            return f"hand in contact ({1e3 * self.distance_m:.1f} mm): {self.with_what}"
+        if math.isfinite(self.distance_m):
+            return f"no hand in contact: the nearest voxel is {1e3 * self.distance_m:.1f} mm from a hand"
+        return f"no hand in contact ({self.with_what})"
+
+
 @dataclass(frozen=True, eq=False)
 class HandTarget:
     """One validated hand target: its pose in ``frame`` ('world' or 'base_link')."""
@@ -165,6 +194,7 @@ class ExecutionRequests:
         self._reshaper = None
         self._look_cm = None      # the collision model and checker of look_clearance, made on first use
         self._look_coll = None
+        self._retreat = None      # the planner's contact test (planning/retreat.py), made on first use
         self._reshape_lock = threading.Lock()
         self._sampler = None
         self._sampler_lock = threading.Lock()
@@ -246,6 +276,52 @@ class ExecutionRequests:
             log(f"/voxel_map: {total - kept} of {total} voxels within "
                 f"{self.config.target_exclusion_radius_m:g} m of the hand's start {np.round(target[0], 3).tolist()} "
                 f"or final position {np.round(target[1], 3).tolist()} left out (the object reached or left)")
+
+    # ------------------------------------------------------------ where a motion ended
+    def contact_at(self, joints: np.ndarray | None, reason: str = "") -> HandContact:
+        """:class:`HandContact` of the joint angles ``joints`` (the measured end of a motion) on
+        the whole map: the voxels near the motion's target are NOT left out here (the loop's map
+        leaves them out so that the hand may reach its object; a touch is what this reports).
+        Contact is the planner's test (``RetreatPlanner.classify_start`` with its default
+        ``RetreatParams``: a hand's shapes, forearm to fingers, within ``contact_distance_m`` of the
+        voxels); the touched voxels are the target's object when the nearest lies within
+        ``target_exclusion_radius_m`` of the motion's final hand position."""
+        from humanoid_reach_ros.planning.retreat import RetreatPlanner, hand_shape_mask
+        if joints is None:
+            return HandContact(False, math.inf, f"unknown: {reason or 'no /joint_states'}")
+        with self._map_lock:
+            snap = self.scene.snapshot()
+            tree, _ = snap.tree(None)
+            target = None if self._target_p is None else self._target_p[-1].copy()
+        if tree.n_spheres == 0:
+            return HandContact(False, math.inf, "no map")
+        if self._retreat is None:
+            if self._look_cm is None:
+                from humanoid_reach_ros.robot.shapes import load_collision_model
+                self._look_cm = load_collision_model(None, self.robot)
+            cm = self._look_cm
+            self._retreat = (RetreatPlanner(self.robot, cm),
+                             hand_shape_mask(self.robot, cm, "right") | hand_shape_mask(self.robot, cm, "left"))
+        planner, hands = self._retreat
+        margin = float(snap.params.safety_margin_m)   # the tree's spheres are grown by it
+        with self._fk_lock:
+            q = self.robot.config(joints, self.robot.base_on_feet(joints))
+            contact, _ = planner.classify_start(q, tree, margin)
+            P0, P1, R = planner.cm.world_shapes(q)
+        dist, _ = tree.nearest_batch(P0[hands], P1[hands], R[hands])
+        nearest = float(np.min(dist)) + margin
+        if contact is None:
+            return HandContact(False, nearest, "")
+        radius = float(self.config.target_exclusion_radius_m)
+        occupied = np.asarray(snap.occupied, float).reshape(-1, 3)
+        where = f"the {contact.arm} hand ({', '.join(contact.shapes)})"
+        if target is not None and np.linalg.norm(contact.point - target) <= radius:
+            n = int(np.count_nonzero(np.linalg.norm(occupied - target, axis=1) <= radius))
+            what = f"{where} on the target object ({n} voxels within {1e3 * radius:.0f} mm of the target)"
+        else:
+            what = (f"{where} on the voxels around {np.round(contact.point, 3).tolist()} m ({len(contact.voxels)} "
+                    f"within {1e3 * planner.params.contact_radius_m:.0f} mm of the hand), not the target's object")
+        return HandContact(True, min(nearest, contact.distance_m), what)
 
     # ------------------------------------------------------------ motions
     def measured_start(self, joints: np.ndarray | None, reason: str) -> np.ndarray:

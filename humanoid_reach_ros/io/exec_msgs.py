@@ -182,11 +182,15 @@ def execute_feedback(m) -> ExecuteReach.Feedback:
 
 def result_message(code: int, message: str, summary: dict[str, float] | None = None) -> ExecuteReach.Result:
     """``ExecuteReach.Result`` with ``code``/``message`` and the figures of ``summary``
-    (keys: the result's float/int fields; missing ones stay 0)."""
+    (keys: the result's fields; missing ones stay 0 / false / empty)."""
     r = ExecuteReach.Result(success=code == ErrorCode.SUCCESS, error_code=error_code(code), message=message)
     for key, value in (summary or {}).items():
         if key in ("steps", "overruns"):
             setattr(r, key, int(value))
+        elif key == "hand_in_contact":
+            setattr(r, key, bool(value))
+        elif key == "contact_with":
+            setattr(r, key, str(value))
         else:
             setattr(r, key, float(value))
     return r

@@ -131,7 +131,7 @@ def plan_summary(resp: Any) -> dict[str, Any]:
 
 
 RESULT_FIELDS = ("duration_s", "steps", "overruns", "max_com_error_m", "min_distance_m", "final_hand_error_m",
-                 "final_hand_error_rad")
+                 "final_hand_error_rad", "hand_in_contact", "contact_distance_m", "contact_with")
 LOOK_FIELDS = ("poses_done", "duration_s", "max_com_error_m")
 
 
@@ -164,5 +164,16 @@ def execution_report(e: dict[str, Any]) -> str:
         return "-" if v is None else f"{v * scale:.{nd}f} {unit}"
 
     return (f"execution: {e['duration_s']:.2f} s, {e['steps']} steps ({e['overruns']} overruns); max COG drift "
-            f"{f('max_com_error_m', 1e3, 'mm', 2)}, min distance {f('min_distance_m', 1e3, 'mm', 1)}, final hand "
-            f"error {f('final_hand_error_m', 1e3, 'mm', 1)} / {f('final_hand_error_rad', 1.0, 'rad', 3)}")
+            f"{f('max_com_error_m', 1e3, 'mm', 2)}, min distance {f('min_distance_m', 1e3, 'mm', 1)} (the target's "
+            f"object left out), final hand error {f('final_hand_error_m', 1e3, 'mm', 1)} / "
+            f"{f('final_hand_error_rad', 1.0, 'rad', 3)}\n  {contact_line(e)}")
+
+
+def contact_line(e: dict[str, Any]) -> str:
+    """Where the hand ended (the result's contact fields): a touch, or how far the nearest voxel is."""
+    d = e.get("contact_distance_m")
+    if e.get("hand_in_contact"):
+        return f"hand IN CONTACT ({'-' if d is None else f'{d * 1e3:.1f} mm'}): {e.get('contact_with', '')}"
+    if d is None:
+        return "hand contact: " + (e.get("contact_with") or "unknown")
+    return f"hand not in contact: the nearest voxel, the target's object included, is {d * 1e3:.1f} mm away"
