@@ -15,7 +15,7 @@ import numpy as np
 def warm_up_all() -> dict[str, float]:
     """Compile (or load) all kernels; returns seconds per part."""
     from humanoid_reach_ros.geometry import sphere_tree
-    from humanoid_reach_ros.planning.reach import ReachPlanner
+    from humanoid_reach_ros.planning.service import PlanningService, PlanningServiceConfig
     from humanoid_reach_ros.sim.scene import load_scene
 
     times = {}
@@ -27,7 +27,10 @@ def warm_up_all() -> dict[str, float]:
     scene.raycast(np.zeros((4, 3)) + [0.0, 0.0, 1.4], np.tile([1.0, 0.0, -0.3], (4, 1)), max_range=5.0)
     times["scene_raycast"] = time.perf_counter() - t
     t = time.perf_counter()
-    ReachPlanner().warm_up()
+    # the planner node's own warm-up: a free-space plan, then one on a measured map with unobserved
+    # layers (PlanningService.warm_up_measured: a fresh clone's first plan compiled those kernels)
+    if not PlanningService(PlanningServiceConfig()).warm_up():
+        raise RuntimeError("the planner's warm-up plans did not succeed")
     times["planner_and_collision"] = time.perf_counter() - t
     t = time.perf_counter()
     from humanoid_reach_ros.control.executor import ExecutorParams, WholeBodyExecutor

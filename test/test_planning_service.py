@@ -275,3 +275,29 @@ def test_scene_policies_follow_reconfigure(service) -> None:
     service.reconfigure(config(scene_file="", unobserved_space="free", target_exclusion_radius_m=0.0))
     assert service.scene.version > version and service.scene.params.unobserved_space == "free"
 
+
+
+def test_the_warm_up_covers_a_request_on_a_measured_map() -> None:
+    """Issue 33, point 5: a fresh clone's first ``make demo`` plan compiled the kernels of a
+    measured map with unobserved layers inside the operator's wait (the planner's own warm-up plans
+    without them). ``warm_up_measured`` runs that path (here: the kernel that takes the swept body
+    out of the unobserved blocks gets its signature, in a process of its own so that no other test
+    has called it) and leaves the service's scene and the planner's memory as they were."""
+    import subprocess
+    import sys
+    code = """
+import numpy as np
+from humanoid_reach_ros.planning.service import PlanningService, PlanningServiceConfig
+from humanoid_reach_ros.scene import planning_scene
+svc = PlanningService(PlanningServiceConfig())
+assert svc.planner.warm_up()
+before = len(planning_scene._boxes_touch_grid.signatures)
+scene, version = svc.planner.scene, svc.scene.version
+assert svc.warm_up_measured()
+assert svc.planner.scene is scene is svc.scene and svc.scene.version == version and svc.scene.source == "none"
+assert svc.planner._last_positions is None and svc.planner._last_plan_end is None
+print(before, len(planning_scene._boxes_touch_grid.signatures))
+"""
+    r = subprocess.run([sys.executable, "-c", code], cwd=REPO_ROOT, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert r.stdout.split()[-2:] == ["0", "1"], r.stdout

@@ -188,15 +188,42 @@ class PlanningService:
         self.scene.set_params(config.scene)   # a new scene version
 
     def warm_up(self) -> bool:
-        """Compiled kernels before the first request (cache: tools/setup.sh)."""
+        """Compiled kernels before the first request (cache: tools/setup.sh): the planner's
+        free-space plan, then :meth:`warm_up_measured`."""
         t0 = time.perf_counter()
-        warm = self.planner.warm_up()
+        warm = self.planner.warm_up() and self.warm_up_measured()
         self.log("info", f"planning kernels warmed up in {1e3 * (time.perf_counter() - t0):.0f} ms; goal "
                          f"search: {self.planner.trunk_region.describe()}")
         if not warm:
             self.log("warning", "the warm-up plan (free space) did not succeed: the first request may pay "
                                 "for compiling the path checker")
         return warm
+
+    def warm_up_measured(self, budget_s: float = 60.0) -> bool:
+        """A free-space plan from half-sitting in a scene of its own that holds what the mapper
+        sends (a measured map and both unobserved layers, all far from the robot; the start's body
+        marked as swept), so that the kernels of a request on a measured map (the swept body taken
+        out of the unobserved blocks and frontier, the trees with the frontier) are compiled
+        (``tools/setup.sh``) or loaded (a node's start) before the first request. Why: the
+        planner's own warm-up plans on a scene without unobserved layers, and a fresh clone's
+        first ``make demo`` compiled them inside the operator's wait (1,247 ms against 158 ms
+        for the second run, issue 33; 4.3 s of numba compilation profiled on a loaded machine).
+        True when the plan succeeded; the service's scene and the planner's memory of its last
+        plan are left as they were."""
+        from humanoid_reach_ros.planning.wgr import valve_region
+        p = self.planner
+        saved = p.scene, p._last_plan_end, p._last_positions
+        try:
+            far = np.array([[5.0, 5.0, 5.0]])
+            p.scene = PlanningScene(p.robot, dataclasses.replace(self.config.scene, unobserved_space="occupied"),
+                                    p.collision_model)
+            p.scene.set_occupied(far, source="/voxel_map")
+            p.scene.set_unobserved(frontier=far - [0.0, 10.0, 0.0], blocks=far - [0.0, 10.0, 0.0])
+            out = p.plan(p.robot.half_sitting_joints, PlanRequest(valve_region(), goal_count=1,
+                                                                  time_budget_s=float(budget_s)))
+            return bool(out.success)
+        finally:
+            p.scene, p._last_plan_end, p._last_positions = saved
 
     def ready_line(self) -> str:
         c = self.config
