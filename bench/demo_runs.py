@@ -44,17 +44,20 @@ def dist_ms(values_s: list[float]) -> dict:
 def one_run(robot: str, out: Path) -> dict:
     """One demo; ``{"ok", "report" | "error", "wall_s"}``."""
     out.mkdir(parents=True, exist_ok=True)
-    (out / "demo_report.json").unlink(missing_ok=True)
+    latest = out / robot / "latest"          # the demo's run directory: OUT/<robot>/<date-time>/
+    before = latest.resolve() if latest.is_symlink() else None
     t0 = time.monotonic()
-    cmd = [sys.executable, "-m", "humanoid_reach_ros.demo", "--robot", robot, "--out", str(out), "--no-record"]
+    cmd = [sys.executable, "-m", "humanoid_reach_ros.demo", "--robot", robot, "--out", str(out), "--no-record",
+           "--keep", "0"]
     try:
         proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=RUN_TIMEOUT_S)
     except subprocess.TimeoutExpired:
         return {"ok": False, "error": f"timed out after {RUN_TIMEOUT_S:g} s", "wall_s": RUN_TIMEOUT_S}
     (out / "demo_stdout.txt").write_text(proc.stdout + proc.stderr)
     wall = round(time.monotonic() - t0, 1)
-    report_path = out / "demo_report.json"
-    report = json.loads(report_path.read_text()) if report_path.is_file() else None
+    run_dir = latest.resolve() if latest.is_symlink() else None
+    report_path = run_dir / "demo_report.json" if run_dir is not None and run_dir != before else None
+    report = json.loads(report_path.read_text()) if report_path is not None and report_path.is_file() else None
     if proc.returncode != 0 or report is None:
         tail = (proc.stdout + proc.stderr).strip().splitlines()[-3:]
         return {"ok": False, "error": f"exit {proc.returncode}: " + " | ".join(tail), "wall_s": wall,

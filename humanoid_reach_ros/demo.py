@@ -17,7 +17,9 @@ plus the MCAP recorder. The demo then acts as the operator:
 
 Options: ``--arm left``, ``--target X Y Z [--rpy R P Y]`` (a manual target in the world frame
 instead of the marker), ``--scene FILE``, ``--out DIR``, ``--no-record``, ``--no-scan`` (no step 1:
-the plan's automatic looks, ``--max-looks``, see what it needs).
+the plan's automatic looks, ``--max-looks``, see what it needs). Each run writes into its own
+directory ``DIR/<robot>/<YYYYmmdd-HHMMSS>/`` (default ``out/demo``), ``DIR/<robot>/latest`` links
+to the last, and the newest ``--keep`` runs per robot are kept (default ``DEMO_RUNS_KEPT``).
 """
 from __future__ import annotations
 
@@ -36,6 +38,7 @@ from humanoid_reach_ros.codes import ARM_REQUESTS, ErrorCode, code_name
 from humanoid_reach_ros.graph import (  # noqa: F401  (Graph, GRAPH_NODES: also for benches and tools)
     GRAPH_NODES, STOP_DEADLINE_S, Graph, allocate_domain, graph_env, nodes_text, wait_for)
 from humanoid_reach_ros.execution.config import PARAMETERS
+from humanoid_reach_ros.paths import run_directory
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT, robots
 
 # the topics the MCAP recording keeps (camera images are left out: 10 Hz of 640x480 RGB is 9 MB/s)
@@ -48,6 +51,8 @@ _SCAN = PARAMETERS["scan_poses_deg"].default
 HEAD_SCAN_DEG = tuple(zip(_SCAN[::2], _SCAN[1::2]))
 SIM_JOINT_STATES_TIMEOUT_S = 2.0   # planner/executor staleness of /joint_states in the demo [s]
 SIM_JOINT_STATES_ABORT_S = 5.0     # executor: abort a motion when /joint_states stop this long [s]
+
+DEMO_RUNS_KEPT = 10    # --keep: runs kept per robot under --out (older ones removed)
 
 
 def arm_code(arm: str) -> int:
@@ -499,7 +504,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--settle", type=float, default=1.0, help="seconds each head pose of the scan is held")
     ap.add_argument("--robot", default=DEFAULT_ROBOT, choices=robots(),
                     help=f"robot of config/robots (default {DEFAULT_ROBOT})")
-    ap.add_argument("--out", default="out/demo", help="directory for logs, report, plots and the MCAP file")
+    ap.add_argument("--out", default="out/demo", help="base directory: each run writes its node logs, report, plots "
+                    "and MCAP file into OUT/<robot>/<date-time>/, OUT/<robot>/latest links to the last run")
+    ap.add_argument("--keep", type=int, default=DEMO_RUNS_KEPT, help="runs kept per robot under --out, the oldest "
+                    f"removed first (0: keep all; default {DEMO_RUNS_KEPT})")
     ap.add_argument("--no-record", action="store_true", help="do not record an MCAP file")
     ap.add_argument("--no-scan", action="store_true",
                     help="skip the head scan: plan on what the head has seen and look where the planner answers "
@@ -522,6 +530,10 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--budget must be within [0.1, 60] s")
     if not 0 <= args.max_looks <= 20:
         ap.error("--max-looks must be within [0, 20]")
+    if args.keep < 0:
+        ap.error("--keep must be >= 0 (0: keep every run)")
+    base = Path(args.out)
+    args.out = str(run_directory(base / args.robot, args.keep))   # this run's own directory
 
     def on_sigterm(*_) -> None:
         raise KeyboardInterrupt  # stop like Ctrl-C: every child process is shut down
@@ -543,7 +555,7 @@ def main(argv: list[str] | None = None) -> int:
     for k, v in report.items():
         print(f"  {k:24s} {v}")
     print(f"[demo] files: {out / 'demo_report.json'}, {out / 'demo_execution.png'}"
-          + ("" if args.no_record else f", {out / 'demo.mcap'}"))
+          + ("" if args.no_record else f", {out / 'demo.mcap'}") + f", the node logs (also {out.parent / 'latest'}/)")
     print("[demo] " + ("OK" if ok else "FAILED: see the report above"))
     return 0 if ok else 1
 

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, TypeVar
 
-from humanoid_reach_ros.paths import config_path
+from humanoid_reach_ros.paths import config_path, unique_stamp
 
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent  # the directory holding humanoid_reach_ros/
 DOMAIN_MIN, DOMAIN_MAX = 1, 101
@@ -163,7 +163,7 @@ class NodeProcess:
         reaches only the process that started it, which then stops it (``hr_graph``)."""
         cmd = node_command(module, params_file, params, extra_ros_args)
         name = module.rsplit(".", 1)[-1]
-        log_path = Path(log_dir) / f"{name}.{time.monotonic_ns()}.log"
+        log_path = Path(log_dir) / unique_stamp(log_dir, ".log", f"{name}.")   # joint_driver.20261128-101500.log
         with open(log_path, "wb") as log:
             proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                     env=dict(env), cwd=PACKAGE_ROOT, start_new_session=new_session)
@@ -221,13 +221,13 @@ class NodeProcess:
 
 
 # ---------------------------------------------------------------- a graph of node processes
-# the six nodes of launch/reach.launch.py, in its order; the first two are the simulated robot and
-# head sensors (its use_sim_sensors:=false leaves them out: the real robot's drivers stand in)
 def nodes_text(n: int) -> str:
     """``1 node``, ``6 nodes``: a count of nodes in a line."""
     return f"{n} node{'' if n == 1 else 's'}"
 
 
+# the six nodes of launch/reach.launch.py, in its order; the first two are the simulated robot and
+# head sensors (its use_sim_sensors:=false leaves them out: the real robot's drivers stand in)
 GRAPH_NODES = ("joint_driver", "scene_sim", "voxel_mapper", "marker_localizer", "reach_planner", "reach_executor")
 SIM_NODES = ("joint_driver", "scene_sim")
 SCENE_NODES = ("scene_sim", "reach_planner", "reach_executor")   # the launch file's scene:= goes to these

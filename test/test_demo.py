@@ -33,7 +33,9 @@ def test_whole_graph_reaches_the_valve(tmp_path):
     print(proc.stdout[-4000:])
     assert proc.returncode == 0, proc.stdout[-6000:] + proc.stderr[-3000:]
     assert "the head aimed at the scene's valve" in proc.stdout
-    report = json.loads((tmp_path / "demo_report.json").read_text())
+    run = tmp_path / "hrp2" / "latest"       # the run's own directory (--out is the base)
+    assert run.is_symlink() and f"files: {run.resolve()}/demo_report.json" in proc.stdout
+    report = json.loads((run / "demo_report.json").read_text())
     assert report["target_from_marker"] and report["arm"] in ("right", "left")
     assert report["min_distance_m"] >= 0.0
     assert report["final_hand_in_wgr"] and report["final_hand_error_m"] < 1e-3
@@ -43,9 +45,10 @@ def test_whole_graph_reaches_the_valve(tmp_path):
     # executor: exact COG held (< 1 mm); measured from /joint_states it includes the driver's tracking lag
     assert report["max_com_drift_m"] < 1e-3 and report["com_drift_measured_m"] < 3e-3
     assert report["map_voxels"] > 1000
-    assert (tmp_path / "demo_execution.png").stat().st_size > 10_000
+    assert (run / "demo_execution.png").stat().st_size > 10_000
+    assert {p.name.split(".")[0] for p in run.glob("*.log")} >= {"joint_driver", "reach_planner", "reach_executor"}
     assert "stopped 7 processes cleanly" in proc.stdout
-    with BagReader(tmp_path / "demo.mcap") as bag:
+    with BagReader(run / "demo.mcap") as bag:
         topics = set(bag.select(None))
         assert {"/joint_states", "/joint_command", "/voxel_map", "/target_pose", "/executor/metrics",
                 "/reach_trajectory"} <= topics, topics
@@ -58,6 +61,7 @@ def test_whole_graph_reaches_the_valve(tmp_path):
     (("--scene", "/nonexistent.yaml"), "no such file"),
     (("--budget", "0"), "--budget"),
     (("--max-looks", "-1"), "--max-looks must be within"),
+    (("--keep", "-1"), "--keep must be >= 0"),
     (("--arm", "middle"), "invalid choice"),
     (("--robot", "nao"), "invalid choice"),
     (("--tar", "0.7", "0", "0.9"), "unrecognized arguments: --tar"),   # no abbreviations: it moves a robot
@@ -65,7 +69,7 @@ def test_whole_graph_reaches_the_valve(tmp_path):
 def test_bad_options_are_refused(tmp_path, args, message):
     proc = run_demo(tmp_path, *args, timeout=60)
     assert proc.returncode == 2 and message in proc.stderr, proc.stderr
-    assert not list(tmp_path.glob("*.log"))  # nothing was started
+    assert not list(tmp_path.iterdir())  # nothing was started, no run directory made
 
 
 def test_progress_bar_reaches_100_percent_on_success():
