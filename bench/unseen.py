@@ -37,19 +37,25 @@ is kept.
   primitive of the scene file by exact signed distance (``testing/truth.py``): a negative
   distance is a plan through an obstacle (``plans_penetrating_true_obstacles``, with the
   deepest: depth [mm], primitive, shape, time);
-* **feasible and observable** (the definition of this bench): a target is *feasible* when
-  ``ReachPlanner`` (config/reach_planner.yaml's parameters) plans it from the same start
-  posture (the measured joints at the target's first request) with the same seed and budget
-  in the TRUE scene (the scene file's voxels, every primitive, nothing unobserved: unobserved
-  space free); it is *observable* when every point of that plan's capsules (their axes every
-  3 cm and 6 points at +-r around each, at every sample) outside the robot's own volume at the
-  start (its capsules grown by ``BODY_MARGIN_M`` = 3 cm: what the robot occupied is known
-  free) is seen by some gaze reachable from the start (``GazeSolver.sees`` over a grid of
-  chest x head postures within their limits, each point the grid misses confirmed by
-  ``GazeSolver.observable``'s search). Simplifications, named: one plan decides (another,
-  observable path to the same target may exist), points are sampled, the body and the
-  environment occlude nothing (as ``GazeSolver``). A feasible and observable target is
-  *reached* when the graph's final answer, after at most the operator's 3 looks, is SUCCESS
+* **feasible and observable** (the definition of this bench): a target is feasible and
+  observable when a plan to it exists that stays out of the true obstacles and out of the space
+  no sensor could show the robot. The oracle: ``ReachPlanner`` (config/reach_planner.yaml's
+  parameters, the same seed and budget) from the same start posture (the measured joints at
+  the target's first request) on the scene file's voxels (every primitive, the hidden ones
+  included), with the space no reachable gaze sees as unobserved space to avoid (policy
+  ``occupied``). That space: the ``CELL_M`` (4 cm) cells of ``OBSERVE_BOX`` whose centre no gaze
+  from the first target's start sees (``GazeSolver.sees`` over a grid of chest 9 x 7 x neck
+  10 x 10 postures within their limits), less the robot's own volume grown by ``BODY_MARGIN_M``
+  = 3 cm (issue 31's policy: what the robot occupied is known free; the oracle's scene marks
+  each target's start posture so, as the planner does); its outer layer goes to the oracle as
+  the frontier (a plan cannot cross it, so it never enters that space). Oracle SUCCESS:
+  feasible and observable; UNOBSERVED_SPACE: feasible only through unobservable space (the
+  planner's own check on the true voxels alone); other codes: not feasible within the budget.
+  Simplifications, named: the gaze grid, not ``GazeSolver.observable``'s search, decides (a
+  point seen only between grid postures counts as unobservable: the oracle errs strict); the
+  body and the environment occlude nothing (as ``GazeSolver``); one planner's sampling decides
+  (an arm-only plan its trunk sampling misses is not found). A feasible and observable target
+  is *reached* when the graph's final answer, after at most the operator's 3 looks, is SUCCESS
   and its plan penetrates nothing.
 
 Every target counts in every denominator: a step that failed (an exception, a node that
@@ -61,10 +67,12 @@ Last line: one JSON object: ``unseen_plans`` (SUCCESS plans checked), ``plans_pe
 (target 0) with ``worst_penetration`` and ``penetrating_cases``, ``unobservable_answers``
 (final UNOBSERVABLE_SPACE), ``unobserved_answers`` (final UNOBSERVED_SPACE after the looks),
 ``feasible_observable_targets``, ``feasible_observable_success_rate`` (target >= 0.95),
-``codes`` (final code per target), ``targets``, ``seeds``, ``wall_s``, ``commit``, ``machine``.
+``codes`` (final code per target), ``targets``, ``seeds``, ``wall_s``, ``commit``, ``machine``;
+also ``starts_inside_true_obstacles``: targets whose start (the measured posture after the
+earlier targets' looks, which execute) already lies inside a true obstacle.
 
 Usage: ``python bench/unseen.py [--robot hrp2] [--seeds 1 2 3 4] [--targets-per-scene 50]
-[--budget 3] [--quick] [--out out/unseen] [--truth-only]``; ``--quick``: one scene, 20 targets;
+[--budget 3] [--body-margin 0.03] [--quick] [--out out/unseen] [--truth-only]``; ``--quick``: one scene, 20 targets;
 ``--truth-only``: no graph, the truth of an earlier run's records (``--out``) computed again.
 """
 from __future__ import annotations
@@ -402,7 +410,8 @@ class Truth:
     """The truth of one scene: the audit of returned plans, and the oracle of feasible and
     observable targets (module doc)."""
 
-    def __init__(self, robot, cm, scene, budget_s: float, start: np.ndarray, log) -> None:
+    def __init__(self, robot, cm, scene, budget_s: float, start: np.ndarray, log,
+                 body_margin_m: float = BODY_MARGIN_M) -> None:
         import dataclasses
 
         import generality
@@ -412,6 +421,7 @@ class Truth:
         from humanoid_reach_ros.testing.truth import TrajectoryAudit
 
         self.robot, self.cm, self.scene, self.budget_s = robot, cm, scene, budget_s
+        self.body_margin_m = float(body_margin_m)
         self.audit = TrajectoryAudit(robot, cm, scene.primitives)
         self.gaze = GazeSolver(robot)
         params = generality.planner_params()
@@ -423,7 +433,7 @@ class Truth:
         policy = {"resolution_m": params.resolution_m, "safety_margin_m": params.safety_margin_m,
                   "unobserved_space": "occupied"}
         if "body_clearance_m" in fields:     # the robot's own volume (grown by the margin) is known free
-            policy["body_clearance_m"] = BODY_MARGIN_M
+            policy["body_clearance_m"] = self.body_margin_m
         self.planner = ReachPlanner(robot, params=params, scene=PlanningScene(robot, SceneParams(**policy), cm))
         self.planner.set_map(scene.voxelize(params.resolution_m, TRUTH_EXTENT))
         self.planner.scene.set_unobserved(shell, np.zeros((0, 3)))
@@ -466,7 +476,7 @@ class Truth:
         B0, B1, BR = body_capsules(self.robot, self.cm, start)
         body = np.zeros(len(C), bool)
         for a, b, r in zip(B0, B1, BR):
-            body |= point_segment_distance(C, a, b)[0] <= r + BODY_MARGIN_M
+            body |= point_segment_distance(C, a, b)[0] <= r + self.body_margin_m
         unobs = (~seen & ~body).reshape(dims)
         inner = unobs.copy()
         for ax in range(3):          # a cell with a seen (or body) neighbour is on the shell
@@ -506,7 +516,10 @@ def truth_for(records: list[dict[str, Any]], truth: Truth, log) -> None:
             except (ValueError, KeyError, IndexError) as exc:
                 rec["check_error"] = str(exc)
         if "start_joints" in rec:
-            try:
+            try:     # where the looks before it left the robot (they execute: a balanced gaze moves the legs)
+                c = truth.audit.clearance(np.asarray(rec["start_joints"], float))
+                rec["start_check"] = {"penetrating": c.penetrating, "distance_mm": round(c.distance_m * 1e3, 2),
+                                      "primitive": c.primitive, "shape": c.shape}
                 rec["truth"] = truth.feasibility(rec)
             except (ValueError, KeyError, RuntimeError) as exc:
                 rec["truth_error"] = str(exc)
@@ -528,12 +541,15 @@ def summarize(records: list[dict[str, Any]], max_looks: int = MAX_LOOKS) -> dict
     fo = fo_reached = truth_missing = feasible_unobservable = 0
     unobservable = unobserved = 0
     looks = looks_failed = 0
+    starts_inside: list[dict[str, Any]] = []
     for r in records:
         fc = r.get("final_code") if "error" not in r else None
         codes[code_name(fc) if fc is not None else "NO_ANSWER"] += 1
         unobservable += fc == ErrorCode.UNOBSERVABLE_SPACE
         unobserved += fc == ErrorCode.UNOBSERVED_SPACE
         looks += int(r.get("looks") or 0)
+        if (r.get("start_check") or {}).get("penetrating"):
+            starts_inside.append(r)
         looks_failed += 0 if r.get("looks_ok", True) else 1
         success = fc == ErrorCode.SUCCESS
         clean = False
@@ -584,6 +600,11 @@ def summarize(records: list[dict[str, Any]], max_looks: int = MAX_LOOKS) -> dict
         "targets": len(records),
         "targets_by_sector": dict(sorted(Counter(str(r.get("sector")) for r in records).items())),
         "auto_looks": looks, "targets_with_a_failed_look": looks_failed,
+        # the robot's measured posture at a target's start inside a true obstacle: an executed look went there
+        "starts_inside_true_obstacles": len(starts_inside),
+        "starts_inside": [{"scene": r.get("scene"), "index": r.get("index"),
+                           "depth_mm": -r["start_check"]["distance_mm"], "primitive": r["start_check"]["primitive"],
+                           "shape": r["start_check"]["shape"]} for r in starts_inside],
         "penetrating_cases": cases,
     }
 
@@ -618,11 +639,13 @@ def main(argv: list[str] | None = None) -> int:
                     "truth's plans (default %(default)s)")
     ap.add_argument("--quick", action="store_true", help=f"one scene (the first seed), {QUICK_TARGETS} targets")
     ap.add_argument("--out", default="out/unseen", help="scenes, logs, records and a copy of the JSON")
+    ap.add_argument("--body-margin", type=float, default=BODY_MARGIN_M, help="the oracle's known-free space: "
+                    "the robot's own volume grown by this [m] (default %(default)s: issue 31's self-filter margin)")
     ap.add_argument("--truth-only", action="store_true", help="no graph: the truth of the scenes and records an "
                     "earlier run left in --out, computed again (same --seeds, --quick and --robot)")
     args = ap.parse_args(argv)
-    if args.targets_per_scene < 1 or not (0 < args.budget <= 60):
-        ap.error("--targets-per-scene must be >= 1 and --budget in (0, 60]")
+    if args.targets_per_scene < 1 or not (0 < args.budget <= 60) or not (0 <= args.body_margin <= 0.5):
+        ap.error("--targets-per-scene must be >= 1, --budget in (0, 60] and --body-margin in [0, 0.5]")
     seeds = args.seeds[:1] if args.quick else args.seeds
     per_scene = min(args.targets_per_scene, QUICK_TARGETS) if args.quick else args.targets_per_scene
     out = Path(args.out).resolve()
@@ -667,7 +690,8 @@ def main(argv: list[str] | None = None) -> int:
             log(f"  graph done in {info['wall_s']} s; the truth ...")
         starts = [r["start_joints"] for r in recs if "start_joints" in r]
         if starts:
-            truth_for(recs, Truth(robot, cm, scene, args.budget, np.asarray(starts[0], float), log), log)
+            truth_for(recs, Truth(robot, cm, scene, args.budget, np.asarray(starts[0], float), log,
+                                  args.body_margin), log)
         else:
             for r in recs:
                 r["truth_error"] = "no target ran"
@@ -685,7 +709,7 @@ def main(argv: list[str] | None = None) -> int:
         head = {"commit": head}
     figures.update(**head)
     figures.update(seeds=seeds, targets_per_scene=per_scene, budget_s=args.budget, robot=args.robot,
-                   truth_recomputed=bool(args.truth_only),
+                   truth_recomputed=bool(args.truth_only), body_margin_m=args.body_margin,
                    scenes=scenes, machine=machine(), bench="unseen",
                    wall_s=round(time.monotonic() - t0, 1))
     (out / "unseen.json").write_text(json.dumps(figures, indent=2))

@@ -150,8 +150,10 @@ def test_summary_counts_every_target_and_names_the_worst_penetration():
             record(1, ErrorCode.SUCCESS, check=INSIDE, truth=FO),           # reached through an obstacle: missed
             record(2, ErrorCode.UNOBSERVABLE_SPACE, truth=NOT_OBSERVABLE),
             record(3, ErrorCode.UNOBSERVED_SPACE, truth=FO, looks=3),        # looked 3 times, still unobserved
-            record(4, ErrorCode.TARGET_OUT_OF_REACH, truth=INFEASIBLE)]
+            record(4, ErrorCode.TARGET_OUT_OF_REACH, truth=INFEASIBLE,      # an earlier look left it in a box
+                   start_check={"penetrating": True, "distance_mm": -3.0, "primitive": "hidden_2", "shape": "l_thigh"})]
     s = unseen.summarize(recs)
+    assert s["starts_inside_true_obstacles"] == 1 and s["starts_inside"][0]["depth_mm"] == 3.0
     assert s["targets"] == 5 and s["unseen_plans"] == 2
     assert s["plans_penetrating_true_obstacles"] == 1 and s["penetrating_through_hidden"] == 1
     assert s["worst_penetration_mm"] == pytest.approx(7.5)
