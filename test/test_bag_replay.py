@@ -277,6 +277,27 @@ def test_replay_beside_a_live_graph_leaves_its_map_and_joint_states_alone(start_
     print(f"\nlive map {before_voxels} voxels before and {voxels()} after; {len(replay_states)} joint states and "
           f"{len(replay_clouds)} clouds replayed under /replay; {len(live)} live joint states, none of them replayed")
 
+    # the same measurements see a replay that does reach the live graph (--into-live, asked for):
+    # the mapper counts the recording's clouds and the live /joint_states carry its head angles
+    live_states.clear()
+    with open(log, "wb") as f:
+        proc = subprocess.Popen(play + ["--into-live", "--rate", "4", "--topics", "/joint_states",
+                                        "/head_camera/points", "--start-offset", "10"],
+                                env=dict(ros_env), cwd=REPO_ROOT, stdout=f, stderr=subprocess.STDOUT)
+    try:
+        ros_probe.spin_until(lambda: proc.poll() is not None, 120.0, "the --into-live replay to end",
+                             on_timeout=log.read_text)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0 and "--into-live: playing INTO THE LIVE GRAPH" in log.read_text(), log.read_text()
+    ros_probe.spin_until(lambda: received() > before_clouds, 30.0, "the mapper to count the replayed clouds",
+                         on_timeout=lambda: str(mapper_inputs(diagnostics)))
+    yaws = [joint_value(m, head_yaw) for m in live_states.messages]
+    assert max(abs(y - live_yaw) for y in yaws) > 0.3, (len(yaws), sorted(set(round(y, 3) for y in yaws)))
+    print(f"--into-live: the mapper received {received() - before_clouds} clouds of the recording; live map "
+          f"{voxels()} voxels")
+
 
 def operator_md_replay_recipe() -> list[list[str]]:
     """The commands of docs/operator.md's "To replay the shipped head scan into a planner" block."""
