@@ -142,6 +142,17 @@ def test_replay_topic_names() -> None:
             names(topics, ns, remaps)
 
 
+def test_refusal_names_the_live_publishers_and_the_ways_on() -> None:
+    from humanoid_reach_ros.nodes.bag_play import LiveGraph, refusal
+    live = LiveGraph({"/joint_states": ["/joint_driver"], "/head_camera/points": ["/scene_sim", "/x"]})
+    text = refusal(live, 0)
+    assert text.startswith("hr_play: not playing: a live graph publishes the topics of this replay "
+                           "(/head_camera/points by /scene_sim, /x; /joint_states by /joint_driver)"), text
+    assert all(w in text for w in ("--namespace /replay", "--remap OLD:=NEW", "--into-live", "the live map"))
+    assert "stopped after 62 messages:" in refusal(live, 62)
+    assert "played 900 messages, then saw:" in refusal(live, 900, finished=True)
+
+
 def test_recorder_topic_choice_and_qos_matching() -> None:
     from humanoid_reach_ros.io.endpoints import recording_qos as subscription_qos
     from humanoid_reach_ros.nodes.bag_record import is_hidden

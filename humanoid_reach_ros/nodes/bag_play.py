@@ -128,7 +128,7 @@ class BagPlayerNode(Node):
         """Topics still without a subscriber after ``timeout_s``."""
         deadline = time.monotonic() + timeout_s
         while stop.signal is None:
-            lonely = [t for t, p in self.publishers_.items() if p.get_subscription_count() == 0]
+            lonely = [self.out_topics[t] for t, p in self.publishers_.items() if p.get_subscription_count() == 0]
             if not lonely or time.monotonic() > deadline:
                 return lonely
             time.sleep(0.02)
@@ -252,9 +252,11 @@ DISCOVERY_WAIT_S = 3.5
 PUBLISHER_CHECK_PERIOD_S = 0.5   # ... and while playing, those that appear, looked for this often
 
 
-def refusal(exc: LiveGraph, published: int) -> str:
-    """What ``hr_play`` says when a live graph publishes topics it would publish."""
-    what = "not playing" if published == 0 else f"stopped after {published} messages"
+def refusal(exc: LiveGraph, published: int, finished: bool = False) -> str:
+    """What ``hr_play`` says when a live graph publishes topics it would publish (seen before it
+    played, while it played, or at its last look after ``finished``)."""
+    what = ("not playing" if published == 0 else f"played {published} messages, then saw" if finished
+            else f"stopped after {published} messages")
     return (f"hr_play: {what}: a live graph publishes the topics of this replay ({exc.describe()}). Played "
             "there, the recording would feed the live nodes: its clouds into the live map the next plan "
             "trusts, its /joint_states and /robot_description to the planner and the executor. To look at it "
@@ -294,6 +296,7 @@ def main(argv: list[str] | None = None) -> int:
     rclpy.init(args=argv[:1] + ros_args, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     code = 0
+    finished = False
     try:
         node = BagPlayerNode(reader, topics, args.stamps_now, out_topics, args.into_live)
         deadline = time.monotonic() + DISCOVERY_WAIT_S   # discovery shows the other publishers first
@@ -325,6 +328,7 @@ def main(argv: list[str] | None = None) -> int:
                                f"at rate {args.rate:g}{', looping' if args.loop else ''}")
         while node.play(args.rate, args.start_offset, stop) and args.loop:
             pass
+        finished = True
         if stop.signal is None:
             unacked = node.wait_for_acks(ACK_TIMEOUT_S)
             if unacked:
@@ -337,7 +341,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"hr_play: {exc}", file=sys.stderr)
         code = 1
     except LiveGraph as exc:
-        print(refusal(exc, node.published if node is not None else 0), file=sys.stderr)
+        print(refusal(exc, node.published if node is not None else 0, finished), file=sys.stderr)
         code = EXIT_LIVE_GRAPH
     finally:
         published = node.published if node is not None else 0
