@@ -118,3 +118,34 @@ def test_a_hand_beside_the_frontier_is_not_in_contact(robot) -> None:
     out = pl.plan(j, PlanRequest(valve_region(), seed=0))
     assert out.error != PlanError.START_IN_COLLISION, out.message
     assert not out.retreat, out.message
+
+
+def test_the_stance_zone_is_where_the_robot_stands_not_where_it_reached(robot, cm) -> None:
+    """The mapper counts the shapes at the reference posture grown by stance_clearance_m as
+    observed (the operator keeps that clear) from the first joint state on, and after a clear; a
+    later posture counts only its own volume grown by the self-filter margin: 8 cm beside the
+    hanging hand is observed, 8 cm beside the same hand stretched forward is not."""
+    j0 = robot.half_sitting_joints.copy()
+    j1 = _arm_moved(robot, 1.4)
+    side = np.array([0.0, -1.0, 0.0])
+    hand = cm.index("r_hand")
+
+    def beside(j: np.ndarray) -> np.ndarray:
+        P0, P1, R = cm.world_shapes(robot.config(j, robot.base_on_feet(j)))
+        return 0.5 * (P0[hand] + P1[hand]) + side * (R[hand] + 0.08)
+
+    def swept(pipe, p) -> bool:
+        return bool(pipe.map.swept[tuple(np.floor(p / 0.02).astype(int) - pipe.map.index_lo)])
+
+    states = [(1.0, j0), (1.05, j1)]
+    pipe = MappingPipeline(MappingConfig(), robot, cm, joint_states=lambda: states[:])
+    assert MappingConfig().stance_clearance_m == pytest.approx(0.10)
+    pipe.sweep_robot()
+    assert swept(pipe, beside(j0)) and not swept(pipe, beside(j1))
+    pipe.clear()
+    states[:] = [(2.0, j1)]
+    pipe.sweep_robot()
+    assert swept(pipe, beside(j0))                      # the zone again after a clear
+    none = MappingPipeline(MappingConfig(stance_clearance_m=0.0), robot, cm, joint_states=lambda: [(1.0, j1)])
+    none.sweep_robot()
+    assert not swept(none, beside(j0)) and not swept(none, beside(j1))

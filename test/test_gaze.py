@@ -477,3 +477,29 @@ def test_a_look_from_a_start_near_the_map_may_come_nearer_by_the_margin_only() -
     floor = max(d_s + 0.002, d0 - margin)
     assert coll.min_distance(robot.config(x, robot.base_on_feet(x))) >= floor - 0.003
     assert req.look_clearance(j0, away) == (1.0, "")
+
+
+def test_the_scan_looks_all_around_the_body() -> None:
+    """Issue 31: the points 6 and 12 cm around the body at half-sitting, which the head poses of
+    the scan barely see, are mostly seen after the gazes cover_gazes picks; the rest no gaze sees
+    (behind the back, between the arms and the torso)."""
+    from humanoid_reach_ros.control.gaze import GazeSolver, cover_gazes, surroundings_points
+    from humanoid_reach_ros.robot.model import RobotModel
+    from humanoid_reach_ros.robot.shapes import load_collision_model
+
+    robot = RobotModel()
+    cm = load_collision_model(None, robot)
+    j = robot.half_sitting_joints
+    P0, P1, R = cm.world_shapes(robot.config(j, robot.base_on_feet(j)))
+    P = surroundings_points(P0, P1, R)
+    from humanoid_reach_ros.robot.shapes import point_segment_distance
+    d = point_segment_distance(P[:, None, :], P0[None], P1[None])[0] - R[None]
+    assert len(P) > 300 and d.min() >= 0.06 - 1e-9 and np.all(P[:, 2] >= 0.05)
+    solver = GazeSolver(robot)
+    points, info = cover_gazes(solver, j, P, None, max_gazes=3, min_gain=0.02, grid_m=0.4)
+    assert 1 <= len(points) <= 3
+    seen = np.zeros(len(P), bool)
+    for p in points:
+        seen |= solver.sees(solver.solve(j, p).joints, P)
+    assert int(seen.sum()) == info["seen_after"] > 0.3 * len(P)
+    assert info["never_seen"] > 0                       # behind the back: no gaze sees it

@@ -573,4 +573,58 @@ class GazeSolver:
         return sees(*self._aim(q, point, x, self._all))
 
 
-__all__ = ["DEFAULT_IMAGE", "DEFAULT_MIN_RANGE_M", "Gaze", "GazeCamera", "GazeParams", "GazeSet", "GazeSolver"]
+def surroundings_points(P0: np.ndarray, P1: np.ndarray, radii: np.ndarray, distances_m=(0.06, 0.12),
+                        floor_z_m: float = 0.05) -> np.ndarray:
+    """Points (N, 3) around a body of capsules (P0, P1 (S, 3), radii (S,)): at the ends and the
+    middle of each capsule, in 14 directions (the axes and the cube's diagonals), ``d`` beyond its
+    surface for each of ``distances_m``; those inside a capsule grown by the smallest distance
+    (another link) or below ``floor_z_m`` left out. The space a balanced reach moves the limbs and
+    the trunk through first (issue 31)."""
+    dirs = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)
+                     if (x, y, z) != (0, 0, 0) and (abs(x) + abs(y) + abs(z) in (1, 3))], float)
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    pts = []
+    for a, b, r in zip(P0, P1, radii):
+        for t in (0.0, 0.5, 1.0):
+            c = a + t * (b - a)
+            for d in distances_m:
+                pts.append(c + dirs * (r + d))
+    P = np.vstack(pts)
+    from humanoid_reach_ros.robot.shapes import point_segment_distance
+    d = point_segment_distance(P[:, None, :], np.asarray(P0)[None], np.asarray(P1)[None])[0] - np.asarray(radii)[None]
+    keep = (d.min(axis=1) >= min(distances_m) - 1e-9) & (P[:, 2] >= floor_z_m)
+    return P[keep]
+
+
+def cover_gazes(solver: "GazeSolver", joints, points: np.ndarray, seen: np.ndarray | None = None,
+                max_gazes: int = 4, min_gain: float = 0.03, grid_m: float = 0.15) -> tuple[np.ndarray, dict]:
+    """Gaze points (K, 3) whose gazes, from ``joints``, see most of ``points`` (N, 3) not yet
+    ``seen`` (N,) bool: a greedy set cover (each gaze the one that sees the most points still
+    unseen; candidates: the points on a ``grid_m`` grid, aimed at with :meth:`GazeSolver.solve`),
+    at most ``max_gazes``, each adding at least ``min_gain`` of the points. Returns the points
+    and figures: how many were seen before and after, how many no candidate sees."""
+    P = np.asarray(points, float).reshape(-1, 3)
+    done = np.zeros(len(P), bool) if seen is None else np.asarray(seen, bool).copy()
+    before = int(done.sum())
+    keys = np.round(P / grid_m).astype(int)
+    _, first = np.unique(keys, axis=0, return_index=True)
+    cover = []
+    for k in sorted(first):
+        g = solver.solve(joints, P[k])
+        if g.visible:
+            cover.append((P[k], solver.sees(g.joints, P)))
+    chosen = []
+    reachable = np.any([c[1] for c in cover], axis=0) if cover else np.zeros(len(P), bool)
+    while len(chosen) < max_gazes and cover:
+        gains = [int(np.count_nonzero(c[1] & ~done)) for c in cover]
+        k = int(np.argmax(gains))
+        if gains[k] < max(1, min_gain * len(P)):
+            break
+        chosen.append(cover[k][0])
+        done |= cover[k][1]
+    return (np.array(chosen).reshape(-1, 3), {"points": len(P), "seen_before": before, "seen_after": int(done.sum()),
+                                              "never_seen": int(np.count_nonzero(~(reachable | done)))})
+
+
+__all__ = ["DEFAULT_IMAGE", "DEFAULT_MIN_RANGE_M", "Gaze", "GazeCamera", "GazeParams", "GazeSet", "GazeSolver",
+           "cover_gazes", "surroundings_points"]

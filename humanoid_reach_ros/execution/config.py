@@ -101,6 +101,11 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
                                  "yaw/pitch) by a whole-body gaze at the point this far from its camera [m]",
                                  (0.1, 20.0)),
     "scan_dwell_s": ParamSpec(1.0, "the look action holds each head pose this long by default [s]", (0.0, 60.0)),
+    "scan_surroundings_looks": ParamSpec(8, "after its head poses the scan gazes at the space around the robot's own "
+                                         "body (control/gaze.py cover_gazes: the points 6 and 12 cm from its shapes "
+                                         "at the reference posture, as many as these gazes see): the space a "
+                                         "balanced reach moves the arms and trunk through first, which the head "
+                                         "poses do not see; at most this many gazes, 0 = none", (0, 20)),
     "head_speed_rad_s": ParamSpec(1.0, "peak head joint speed of the look action [rad/s]", (0.01, 10.0)),
     "warn_throttle_s": ParamSpec(1.0, "minimum interval between repeated warnings [s]", (0.0, 3600.0)),
     # ---- dual-arm mode (MODE_DUAL_ARM goals, /dual_arm/targets)
@@ -161,6 +166,7 @@ class ExecutionConfig:
     look_clearance_m: float = NODE_PARAMETERS["look_clearance_m"].default
     look_distance_m: float = NODE_PARAMETERS["look_distance_m"].default
     scan_dwell_s: float = NODE_PARAMETERS["scan_dwell_s"].default
+    scan_surroundings_looks: int = NODE_PARAMETERS["scan_surroundings_looks"].default
     head_speed_rad_s: float = NODE_PARAMETERS["head_speed_rad_s"].default
     warn_throttle_s: float = NODE_PARAMETERS["warn_throttle_s"].default
     dual_arm_regression: str = NODE_PARAMETERS["dual_arm_regression"].default

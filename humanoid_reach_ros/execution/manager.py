@@ -381,9 +381,11 @@ class ExecutionManager:
         try:
             goal = build()
             points, poses, directions = goal.points, None, False
+            scan = points is None and not len(goal.yaw) and not len(goal.pitch)
             if points is None:   # head angles; a robot without a neck looks in their directions by a gaze
                 poses, points = self.requests.look_targets(list(goal.yaw), list(goal.pitch))
                 directions = points is not None
+            around = self.requests.surroundings_points() if scan else np.zeros((0, 3))
             dwell = float(goal.dwell_s) if math.isfinite(goal.dwell_s) and goal.dwell_s > 0 else \
                 self.config.scan_dwell_s
             if dwell > 60.0:
@@ -391,23 +393,30 @@ class ExecutionManager:
         except Exception as exc:
             code = self.reject("goals_rejected", label, exc)
             return Outcome(code, str(exc))
+        # the scan's gazes around the body follow its head poses (or its directions' gaze points)
+        items = ([("pose", p) for p in poses] if points is None else [("point", p) for p in points]) \
+            + [("point", p) for p in around]
         count, what, item = (len(poses), "head poses", "pose") if points is None else (len(points), "gaze points",
                                                                                        "point")
         self.log.info(f"{label}: accepted: {counted(count, what)}, {dwell:g} s each"
-                      + (" (the directions asked, for a robot without a neck)" if directions else ""))
+                      + (" (the directions asked, for a robot without a neck)" if directions else "")
+                      + (f", then {counted(len(around), 'gaze')} around the body" if len(around) else ""))
+        count = len(items)
         out, unseen = Outcome(int(C.SUCCESS), ""), []
         for k in range(count):
+            kind, target = items[k]
+            item = kind
             try:
-                if points is None:
-                    yaw, pitch = poses[k]
+                if kind == "pose":
+                    yaw, pitch = target
                     motion = self.requests.look(next(self._motion_ids), f"{label} pose {k}", (yaw, pitch),
                                                 *self.joints())
                 else:
-                    motion, gaze = self.requests.gaze(next(self._motion_ids), f"{label} point {k}", points[k],
+                    motion, gaze = self.requests.gaze(next(self._motion_ids), f"{label} point {k}", target,
                                                       *self.joints())
                     yaw, pitch = self.requests.head_targets(gaze.joints)
                     if not gaze.visible:
-                        unseen.append(f"point {k} {np.round(points[k], 3).tolist()} {gaze.unseen_reason}")
+                        unseen.append(f"point {k} {np.round(target, 3).tolist()} {gaze.unseen_reason}")
             except RequestError as exc:
                 out.code, out.message = int(exc.code), f"{item} {k}: {exc}"
                 break
@@ -427,7 +436,9 @@ class ExecutionManager:
             out.poses_done = k + 1
         out.duration_s = time.monotonic() - t0
         if out.success and points is None:
-            out.message = f"{counted(count, 'head poses')} reached and held {dwell:g} s each"
+            out.message = f"{counted(len(poses), 'head poses')} reached and held {dwell:g} s each" + (
+                f", then {counted(len(around), 'gaze')} around the body" + (f" ({'; '.join(unseen)})" if unseen else "")
+                if len(around) else "")
         elif out.success:
             out.message = (f"{counted(count, 'gaze points')} looked at and held {dwell:g} s each"
                            + (f"; {'; '.join(unseen)}" if unseen else ": every point in view"))

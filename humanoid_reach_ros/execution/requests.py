@@ -26,10 +26,13 @@ Every refusal is a :class:`~humanoid_reach_ros.codes.RequestError` whose code is
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
+import os
 import threading
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -43,6 +46,13 @@ from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.scene.planning_scene import PlanningScene, SceneParams
 
 HAND_LIMBS = {"right": "right_arm", "left": "left_arm"}
+def _cache_dir() -> Path:
+    """Where computed per-robot data is kept between runs: ``$XDG_CACHE_HOME/humanoid_reach_ros``."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "humanoid_reach_ros"
+
+
+#: one computation of the scan's gaze points around the body at a time (ExecutionRequests.surroundings_points)
+_SURROUNDINGS_LOCK = threading.Lock()
 #: serialises the gaze solves of every ExecutionRequests (a GazeSolver owns one pinocchio data)
 _GAZE_LOCK = threading.Lock()
 
@@ -467,6 +477,68 @@ class ExecutionRequests:
                 _ = self.robot.stance_soles      # cached on the shared data now, never under a gaze
             solver = self._gaze_solver = GazeSolver(self.robot)
         return solver
+
+    def surroundings_points(self) -> np.ndarray:
+        """The scan's gaze points at the space around the robot's own body (K, 3) [m, world]:
+        ``control/gaze.py`` ``cover_gazes`` over ``surroundings_points`` of the shapes at the
+        reference posture, the points the head poses of ``scan_poses_deg`` already see left out;
+        at most ``scan_surroundings_looks``. Computed once per robot and count (about 3 s for
+        HRP-2 here), then cached."""
+        with _SURROUNDINGS_LOCK:
+            return self._surroundings_points()
+
+    def warm_surroundings(self) -> threading.Thread:
+        """Compute :meth:`surroundings_points` in a thread (the node's start-up: the first scan
+        then does not wait for it)."""
+        t = threading.Thread(target=self.surroundings_points, name="scan_surroundings", daemon=True)
+        t.start()
+        return t
+
+    def _surroundings_points(self) -> np.ndarray:
+        k = int(self.config.scan_surroundings_looks)
+        cache = getattr(self, "_surroundings", None)
+        if cache is not None and cache[0] == k:
+            return cache[1]
+        if k <= 0:
+            self._surroundings = (k, np.zeros((0, 3)))
+            return self._surroundings[1]
+        from humanoid_reach_ros.control.gaze import cover_gazes, surroundings_points
+        from humanoid_reach_ros.robot.shapes import load_collision_model
+        hs = self.robot.half_sitting_joints
+        with self._fk_lock:
+            cm = load_collision_model(None, self.robot)
+            q = self.robot.config(hs, self.robot.base_on_feet(hs))
+            P0, P1, R = cm.world_shapes(q)
+            camera = self.robot.frame_pose(q, self.robot.camera_frame)
+        poses = self.head_poses([], []) if self.robot.spec.has_neck else np.zeros((0, 2))
+        solver = self.gaze_solver()
+        # what the result depends on: the body, the camera, the gaze joints' limits, the scan, the count
+        key = hashlib.sha1(np.concatenate([np.round(x, 6).ravel() for x in (
+            P0, P1, np.asarray(R), camera.homogeneous, solver.lower, solver.upper, poses,
+            np.array([k, solver.camera.half_fov_rad, solver.camera.min_range_m, solver.camera.max_range_m, 1.0]))
+        ]).tobytes()).hexdigest()[:16]
+        cache = _cache_dir() / f"scan_surroundings_{key}.npy"
+        try:
+            points = np.load(cache)
+        except (OSError, ValueError):
+            P = surroundings_points(P0, P1, R)
+            seen = np.zeros(len(P), bool)
+            with _GAZE_LOCK:
+                idx = [self.robot.joint_index[n] for n in self.head_joints]
+                for pose in poses:
+                    j = hs.copy()
+                    j[idx] = pose
+                    seen |= solver.sees(j, P)
+                points, _ = cover_gazes(solver, hs, P, seen, max_gazes=k, min_gain=0.02, grid_m=0.25)
+            try:
+                cache.parent.mkdir(parents=True, exist_ok=True)
+                tmp = cache.with_suffix(f".{os.getpid()}.tmp.npy")
+                np.save(tmp, points)
+                os.replace(tmp, cache)
+            except OSError:
+                pass   # a read-only home: computed again next time
+        self._surroundings = (k, points)
+        return points
 
     def gaze(self, mid: int, label: str, point, joints: np.ndarray | None, reason: str):
         """A whole-body motion that aims the head camera at ``point`` (3,) [m, world] from the

@@ -132,6 +132,7 @@ class ReachExecutorNode(Node):
             lock_memory=p["lock_memory"], status_period_s=min(p["feedback_period_s"], 0.1),
             domain_id=self.context.get_domain_id()), m.on_event, LOOP_ENTRY)
         m.attach(self.loop)
+        m.requests.warm_surroundings()   # the scan's gazes around the body, while the loop process starts
         info = self.loop.wait_ready(p["loop_start_timeout_s"])
         rt = "; ".join(f"{k}: {v}" for k, v in info.realtime())
         self.get_logger().info(f"control loop process ready in {time.perf_counter() - t0:.1f} s (kernels warmed "

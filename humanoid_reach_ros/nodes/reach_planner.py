@@ -56,6 +56,7 @@ from sensor_msgs.msg import JointState, PointCloud2
 from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
+from humanoid_reach_ros.geometry.body_sweep import DEFAULT_SELF_FILTER_MARGIN_M
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.io.endpoints import LATCHED, RELIABLE_LATEST, LatestOnDemand
 from humanoid_reach_ros.nodes.common import declare_parameters, run_node
@@ -110,8 +111,10 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
                                   constraints="one of: occupied, free", read_only=False),
     "unobserved_block_m": ParamSpec(0.1, "edge of the blocks of /voxel_map/unobserved_blocks [m] (voxel_mapper's "
                                     "unobserved_block_voxels * resolution_m)", (0.001, 10.0)),
-    "body_clearance_m": ParamSpec(0.25, "the robot's shapes grown by this, at the start of every request, count as "
-                                  "observed free space in the planning scene [m]", (0.0, 1.0)),
+    "body_clearance_m": ParamSpec(DEFAULT_SELF_FILTER_MARGIN_M, "the robot-volume policy: the robot's shapes "
+                                  "grown by this (the depth sensor's self-filter margin), at the start of every "
+                                  "request, count as observed free space in the planning scene; more counts space "
+                                  "no sensor saw as seen [m]", (0.0, 0.1)),
     "joint_states_timeout_s": ParamSpec(0.5, "/joint_states older than this [s] -> NO_JOINT_STATES",
                                         (0.001, 3600.0), read_only=False),
     "target_timeout_s": ParamSpec(1.0, "/target_pose older than this [s] -> NO_TARGET for use_marker_target",

@@ -109,14 +109,18 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
                                          "space is published (/voxel_map/unobserved): the robot's reach [m, "
                                          "map_frame]"),
     "unobserved_region_max_m": ParamSpec(list(_M.unobserved_region_max_m), "... its upper corner [m, map_frame]"),
-    "unobserved_robot_clearance_m": ParamSpec(_M.unobserved_robot_clearance_m, "space within this distance of the "
-                                              "robot's collision shapes, at every posture /joint_states reported and "
-                                              "swept between them, counts as observed free for the unobserved-space "
-                                              "layers (occupied voxels stay occupied). Known defect (issue 31): 0.25 "
-                                              "counts 25 cm around the body as seen [m]", (0.0, 1.0)),
-    "self_filter_margin_m": ParamSpec(_M.self_filter_margin_m, "depth points within this distance of the robot's "
-                                      "collision shapes at their stamp are the robot's own links: dropped before "
-                                      "fusion (points_self) [m]", (0.0, 0.2)),
+    "unobserved_robot_clearance_m": ParamSpec(_M.unobserved_robot_clearance_m, "the self-filter margin and the "
+                                              "robot-volume policy: depth points within this distance of the robot's "
+                                              "collision shapes are its own links (dropped), and the shapes grown by "
+                                              "it, at every posture /joint_states reported and swept between them, "
+                                              "count as observed free for the unobserved-space layers (occupied "
+                                              "voxels stay occupied); more counts space no sensor saw as seen [m]",
+                                              (0.0, 0.1)),
+    "stance_clearance_m": ParamSpec(_M.stance_clearance_m, "the stance assumption: the robot's shapes at the "
+                                    "reference posture it stands in, grown by this, count as observed free: keep this "
+                                    "much clear around the robot where it is placed (no gaze sees behind its waist or "
+                                    "in front of its chest, where every balanced reach moves the trunk); 0 = none [m]",
+                                    (0.0, 0.3)),
     "unobserved_block_voxels": ParamSpec(_M.unobserved_block_voxels, "edge of the coarse blocks of "
                                          "/voxel_map/unobserved_blocks [voxels]", (1, 50)),
     "minor_change_voxels": ParamSpec(_M.minor_change_voxels, "a map change of fewer voxels than this (occupied "

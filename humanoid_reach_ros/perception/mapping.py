@@ -28,17 +28,27 @@ messages to numpy and back; :class:`MappingPipeline` decides everything else):
   reached that touch observed free space) and the unobserved blocks (cubes of
   ``unobserved_block_voxels``^3 voxels no ray has reached) inside
   ``unobserved_region_{min,max}_m``. The space the robot's body has been in counts as observed
-  free there (``geometry/body_sweep.py``): its collision shapes grown by
-  ``unobserved_robot_clearance_m`` at every posture ``/joint_states`` reported, and swept
-  between consecutive ones (swept before each publication; a named simplification: an
-  obstacle that moved into the body's space since would not be known). **Known defect (issue
-  31, open):** the clearance is still 0.25 m, so 25 cm *around* the body counts as seen; the
-  robot-volume policy (the clearance = the self-filter margin, 0.03 m) waits on a stance
-  assumption for the trunk, whose balancing motion crosses space no gaze sees (docs/operator.md).
-* **Self filter.** The points of a depth map within ``self_filter_margin_m`` (0.03 m, derived
-  in ``geometry/body_sweep.py``) of the robot's shapes at its stamp are the robot's own links
-  (a real head camera sees its arms): they are dropped before fusion and counted
-  (``points_self``), so that the body never becomes occupied voxels.
+  free there, under the robot-volume policy of ``geometry/body_sweep.py``: its collision shapes
+  grown by ``unobserved_robot_clearance_m`` (the self-filter margin, 0.03 m, derived there) at
+  every posture ``/joint_states`` reported, and swept between consecutive ones (swept before
+  each publication). Nothing around the body counts as observed by being near it (a named
+  simplification: an obstacle that moved into the body's space since would not be known) --
+  except the **stance zone**, an assumption, named and bounded: the robot's shapes at the
+  reference posture it stands in (the feet where they are), grown by ``stance_clearance_m``
+  (0.10 m), count as observed free from the first joint state on (and after a clear): the
+  operator keeps that much clear around the robot where it is placed. No reachable gaze of a
+  head camera sees behind the waist, in front of its own chest or between the arms and the
+  torso, yet every balanced reach moves the body there (HRP-2 at the plant's valve: the waist
+  and backpack 11-15 cm back, the chest 17-19 cm forward); with the body's volume alone, and a
+  scan that also looks all around the body, no target in front of HRP-2 could be planned.
+  Unlike the 0.25 m shell it replaces, it does not follow the robot: an arm stretched behind
+  the back does not make the space around it "seen". It is marked here, where the frontier is
+  computed, so that the frontier bounds unobserved space at the zone's edge.
+* **Self filter.** The points of a depth map within ``unobserved_robot_clearance_m`` of the
+  robot's shapes at its stamp are the robot's own links (a real head camera sees its arms):
+  they are dropped before fusion and counted (``points_self``), so that the body never becomes
+  occupied voxels. The same margin grows the swept space: what the filter hides is counted
+  with the body, and no more.
 * **Throughput.** Inputs are only stored (:meth:`MappingPipeline.post`) in a bounded mailbox
   of ``input_queue_depth``; a worker thread converts them (the adapter's function) in
   arrival order and integrates them in the numba kernel. A short stall (a busy core, the
@@ -96,8 +106,8 @@ class MappingConfig:
     still_integration_period_s: float = 1.0
     unobserved_region_min_m: Vec3 = (-1.0, -1.0, 0.1)
     unobserved_region_max_m: Vec3 = (1.3, 1.0, 2.0)
-    unobserved_robot_clearance_m: float = 0.25
-    self_filter_margin_m: float = DEFAULT_SELF_FILTER_MARGIN_M
+    unobserved_robot_clearance_m: float = DEFAULT_SELF_FILTER_MARGIN_M
+    stance_clearance_m: float = 0.10
     unobserved_block_voxels: int = 5
     minor_change_voxels: int = 100
     minor_change_period_s: float = 5.0
@@ -223,6 +233,7 @@ class MappingPipeline:
         self.sweep = BodySweep(model, self.collision_model, config.unobserved_robot_clearance_m,
                                step_m=0.5 * config.fusion.resolution_m, max_gap_s=config.joint_states_max_gap_s)
         self._swept_stamp = -math.inf      # the newest joint-state stamp swept
+        self._stance_marked = False        # the stance zone is in the map (module doc)
         self.published_version = -1       # VoxelMap.version last published
         self._published_mask: np.ndarray | None = None     # occupied voxels last published
         self._published_counts = (0, 0)   # observed and swept voxels last published
@@ -293,14 +304,14 @@ class MappingPipeline:
 
     def self_filter(self, world_points: np.ndarray, joints: np.ndarray | None) -> np.ndarray:
         """Which of ``world_points`` (N, 3) are NOT the robot's own links at ``joints`` (bool
-        (N,); all True without joints): outside its shapes grown by ``self_filter_margin_m``."""
+        (N,); all True without joints): outside its shapes grown by the margin (module doc)."""
         keep = np.ones(len(world_points), dtype=bool)
         if joints is None or not len(world_points):
             return keep
-        P0, P1, R = self.collision_model.world_shapes(self.model.config(joints, self.model.base_on_feet(joints)))
+        P0, P1, R = self.sweep.capsules(joints)
         keep = ~points_within_capsules(np.ascontiguousarray(world_points, dtype=np.float64),
                                        np.ascontiguousarray(P0), np.ascontiguousarray(P1),
-                                       np.asarray(R, dtype=np.float64) + self.config.self_filter_margin_m)
+                                       np.ascontiguousarray(R, dtype=np.float64))
         return keep
 
     # ------------------------------------------------------------ mailbox and worker
@@ -438,6 +449,7 @@ class MappingPipeline:
             self.map.clear()
             self.sweep.reset()
             self._swept_stamp = -math.inf
+            self._stance_marked = False
         self.count("clears")
         return n
 
@@ -455,12 +467,26 @@ class MappingPipeline:
         if not states:
             return 0
         self._swept_stamp = states[-1][0]
+        added = 0
+        if not self._stance_marked:
+            self._stance_marked = True
+            if self.config.stance_clearance_m > 0.0:
+                p0, p1, radii = self.stance_zone()
+                with self._map_lock:
+                    added += self.map.mark_swept(p0, p1, radii)
         postures = self.sweep.postures(states)
         if not postures:
-            return 0
+            return added
         p0, p1, radii = self.sweep.capsules_of(postures)
         with self._map_lock:
-            return self.map.mark_swept(p0, p1, radii)   # bumps map.version
+            return added + self.map.mark_swept(p0, p1, radii)   # bumps map.version
+
+    def stance_zone(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The stance zone's capsules (module doc): the shapes at the reference posture, on the
+        feet, grown by ``stance_clearance_m``."""
+        j = self.model.half_sitting_joints
+        p0, p1, radii = self.collision_model.world_shapes(self.model.config(j, self.model.base_on_feet(j)))
+        return p0, p1, np.asarray(radii, float) + self.config.stance_clearance_m
 
     def layers_to_publish(self, force: bool = False) -> MapLayers | None:
         """The robot swept in, then the layers when the publish policy (module docstring) says

@@ -10,10 +10,14 @@ sensors. Everything the package knows about the world is held here, once:
   space, ``/voxel_map/unobserved``) and its coarse blocks no ray reached
   (``/voxel_map/unobserved_blocks``), everywhere in the mapped extent: behind and beside the
   robot as well as in front of it;
-* **body-swept** space -- the voxels within ``body_clearance_m`` of the robot's collision
-  shapes at every posture the scene was told of (:meth:`PlanningScene.mark_body`), counted
-  as observed free: nothing else can be where the robot was, and a head camera never sees
-  around its own body. Frontier voxels and blocks inside it are not unobserved any more;
+* **body-swept** space -- the voxels within the robot's collision shapes grown by
+  ``body_clearance_m`` (the depth sensor's self-filter margin, 0.03 m: the robot-volume policy
+  of ``geometry/body_sweep.py``) at every posture the scene was told of
+  (:meth:`PlanningScene.mark_body`: the planner marks each request's start posture, which the
+  voxel mapper may not have swept yet; the mapper's layers already leave out what the body
+  swept between reported postures, and its stance zone), counted as observed free: nothing
+  else can be where the robot was. The space *around* the body is not observed by being near
+  it. Frontier voxels and blocks inside it are not unobserved any more;
 * **allowed contacts** -- a hand may touch the voxels around the object it rests on (the
   retreat of ``planning/retreat.py`` asks for them per plan: :class:`AllowedContact`);
 * a **version**, bumped by every change, and cheap immutable :class:`SceneSnapshot`\\ s: a
@@ -43,6 +47,7 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
+from humanoid_reach_ros.geometry.body_sweep import DEFAULT_SELF_FILTER_MARGIN_M
 from humanoid_reach_ros.geometry.distance import RobotCollision
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree
 from humanoid_reach_ros.geometry.voxels import mark_capsules, without_target
@@ -60,7 +65,8 @@ class SceneParams:
     every environment sphere radius; ``target_exclusion_radius_m``: the object around a target
     left out (0: keep all); ``unobserved_space``: ``occupied`` | ``free``;
     ``unobserved_block_m``: edge of the mapper's unobserved blocks; ``body_clearance_m``: the
-    robot's shapes grown by this at each posture count as observed free space;
+    robot's shapes grown by this at each posture count as observed free space (the self-filter
+    margin of ``geometry/body_sweep.py``; more counts unseen space as seen);
     ``body_extent_min_m`` / ``body_extent_max_m``: the box (world) in which body-swept space is
     remembered (a dense grid: 150 x 150 x 130 voxels at 0.02 m, 2.9 MB); ``tree_cache_size``:
     sphere trees kept (per version and exclusion)."""
@@ -70,7 +76,7 @@ class SceneParams:
     target_exclusion_radius_m: float = 0.0
     unobserved_space: str = "occupied"
     unobserved_block_m: float = 0.1
-    body_clearance_m: float = 0.25
+    body_clearance_m: float = DEFAULT_SELF_FILTER_MARGIN_M
     body_extent_min_m: tuple[float, float, float] = (-1.5, -1.5, -0.1)
     body_extent_max_m: tuple[float, float, float] = (1.5, 1.5, 2.5)
     tree_cache_size: int = 8
