@@ -143,7 +143,7 @@ def test_replay_topic_names() -> None:
 
 
 def test_refusal_names_the_live_publishers_and_the_ways_on() -> None:
-    from humanoid_reach_ros.nodes.bag_play import LiveGraph, refusal
+    from humanoid_reach_ros.io.mcap_bag import LiveGraph, refusal
     live = LiveGraph({"/joint_states": ["/joint_driver"], "/head_camera/points": ["/scene_sim", "/x"]})
     text = refusal(live, 0)
     assert text.startswith("hr_play: not playing: a live graph publishes the topics of this replay "

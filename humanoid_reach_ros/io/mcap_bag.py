@@ -557,6 +557,61 @@ def replay_topic_names(topics: Sequence[str], namespace: str = "", remaps: Seque
     return out
 
 
-__all__ = ["BagError", "BagMessage", "BagReader", "BagWriter", "QosInfo", "TopicInfo", "describe",
-           "full_type_name", "message_class", "message_definition", "parse_qos_yaml", "playback_schedule",
-           "qos_yaml", "replay_qos", "replay_topic_names", "split_type"]
+# ---------------------------------------------------------------- a replay beside a live graph
+_UNNAMED = "_NODE_NAME_UNKNOWN_"   # rmw's node name of an endpoint whose node is not discovered yet
+UNNAMED_NODE = "a node discovery has not named yet"
+
+
+def other_nodes(publishers: Sequence[str], me: str) -> list[str]:
+    """The nodes (``/ns/name``) of a topic's ``publishers`` other than ``me``, sorted, each once.
+    An endpoint whose node discovery has not named yet (the player's own, early on) shows as
+    ``_NODE_NAME_UNKNOWN_``: ``me`` is taken out by name, else as one unnamed endpoint; the other
+    unnamed ones are ``UNNAMED_NODE`` (named at a later look)."""
+    nodes = list(publishers)
+    unnamed = [n for n in nodes if _UNNAMED in n]
+    if me in nodes:
+        nodes.remove(me)
+    elif unnamed:
+        nodes.remove(unnamed[0])
+    return sorted({UNNAMED_NODE if _UNNAMED in n else n for n in nodes})
+
+
+class LiveGraph(Exception):
+    """Other nodes publish topics a replay would publish: ``found`` {topic: [nodes]}."""
+
+    def __init__(self, found: Mapping[str, Sequence[str]]) -> None:
+        super().__init__(dict(found))
+        self.found = dict(found)
+
+    def describe(self) -> str:
+        return "; ".join(f"{t} by {', '.join(n)}" for t, n in sorted(self.found.items()))
+
+
+def refusal(exc: LiveGraph, published: int, finished: bool = False) -> str:
+    """What ``hr_play`` says when a live graph publishes topics it would publish (seen before it
+    played, while it played, or at its last look after ``finished``)."""
+    what = ("not playing" if published == 0 else f"played {published} messages, then saw" if finished
+            else f"stopped after {published} messages")
+    return (f"hr_play: {what}: a live graph publishes the topics of this replay ({exc.describe()}). Played "
+            "there, the recording would feed the live nodes: its clouds into the live map the next plan "
+            "trusts, its /joint_states and /robot_description to the planner and the executor. To look at it "
+            "beside the graph: --namespace /replay (every topic under /replay; or --remap OLD:=NEW); to replay "
+            "into the live graph on purpose: --into-live; to reproduce a run: stop the graph's publishers of "
+            "these topics first.")
+
+
+def split_ros_args(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    """``(own, ros)``: a tool's arguments, and ``--ros-args ... [--]`` (rclpy's). Not rclpy's
+    ``remove_ros_args``: it would take ``--remap``'s ``OLD:=NEW`` for a legacy node remapping rule."""
+    argv = list(argv)
+    if "--ros-args" not in argv:
+        return argv, []
+    i = argv.index("--ros-args")
+    j = argv.index("--", i) if "--" in argv[i:] else len(argv)
+    return argv[:i] + argv[j + 1:], argv[i:j + 1]
+
+
+__all__ = ["BagError", "BagMessage", "BagReader", "BagWriter", "LiveGraph", "QosInfo", "TopicInfo", "UNNAMED_NODE",
+           "describe", "full_type_name", "message_class", "message_definition", "other_nodes", "parse_qos_yaml",
+           "playback_schedule", "qos_yaml", "refusal", "replay_qos", "replay_topic_names", "split_ros_args",
+           "split_type"]

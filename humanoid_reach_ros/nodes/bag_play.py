@@ -6,20 +6,11 @@ Usage::
     python -m humanoid_reach_ros.nodes.bag_play run.mcap --info
     python -m humanoid_reach_ros.nodes.bag_play run.mcap --namespace /replay   # beside a live graph
 
-* **A replay never changes a live graph unless asked to.** Before it plays, the player looks
-  (``DISCOVERY_WAIT_S``) for other publishers of the topics it would publish: when a live graph
-  publishes any of them (a ``joint_driver``'s ``/joint_states``, a ``scene_sim``'s clouds), it
-  refuses (exit 3) and names them: played there, the recording's clouds would be fused into the
-  live map that the next plan trusts, and its ``/joint_states`` and ``/robot_description``
-  would reach the planner and the executor. ``--namespace /replay`` plays every topic under
-  ``/replay`` (``/replay/joint_states``, ``/replay/head_camera/points``: for RViz or Foxglove
-  beside the live graph; nothing of the package subscribes there), ``--remap OLD:=NEW`` moves
-  single topics (``ros2 bag play --remap``'s form), ``--into-live`` plays into the live graph on
-  purpose and says loudly what that does. Into an EMPTY graph (no other publisher of a played
-  topic: nodes waiting for recorded input, docs/operator.md's recipe) it plays as recorded, as
-  ``ros2 bag play`` does. A live publisher that appears while playing stops the replay (exit 3)
-  unless ``--into-live``. (The package publishes no ``/tf``; a bag that holds one is played
-  under the namespace like any topic, so RViz needs ``/tf`` remapped to see its frames.)
+* **A replay never changes a live graph unless asked to** (docs/operator.md, bags): when other
+  nodes publish a topic it would publish, it refuses (exit 3, naming them; ``LiveGraph``);
+  ``--namespace /replay`` plays every topic under ``/replay``, ``--remap OLD:=NEW`` moves
+  single topics (``replay_topic_names``), ``--into-live`` plays into the live graph and says
+  loudly what that does. Into an empty graph it plays as recorded, as ``ros2 bag play``.
 
 * One publisher per topic with the recorded type (the message class is imported from the
   type name: ``pkg/msg/Type`` -> ``pkg.msg.Type``); messages go out as their recorded
@@ -49,10 +40,9 @@ Usage::
   time is not used by this package).
 * ``--wait-subscribers S``: before playing, wait up to S s until every played topic has a
   subscriber (so that the first messages are not lost to discovery).
-* Other live publishers of a played topic are looked for (``get_publishers_info_by_topic``,
-  its own left out) for ``DISCOVERY_WAIT_S`` before it starts and every
-  ``PUBLISHER_CHECK_PERIOD_S`` while playing (discovery of a running node can take over a
-  second); with ``--into-live`` each is named in a warning (two sources mixed).
+* Other publishers of a played topic are looked for (``get_publishers_info_by_topic``, its own
+  left out) for ``DISCOVERY_WAIT_S`` before it starts and every ``PUBLISHER_CHECK_PERIOD_S``
+  while playing (one appearing then stops the replay); with ``--into-live`` each is named.
 * Replaying into running nodes: a node that rejects stale input (the planner's 0.5 s
   ``/joint_states``) fails once a single pass has ended; ``--loop`` keeps the stream going.
 * At the end the player waits up to ``ACK_TIMEOUT_S`` (5 s) until the subscribers of its
@@ -78,25 +68,13 @@ from rclpy.serialization import deserialize_message, serialize_message
 from rclpy.signals import SignalHandlerOptions
 
 from humanoid_reach_ros.io.endpoints import has_header, replay_publisher_qos, restamp_ns
-from humanoid_reach_ros.io.mcap_bag import (BagError, BagReader, describe, message_class, playback_schedule,
-                                            replay_topic_names)
+from humanoid_reach_ros.io.mcap_bag import (UNNAMED_NODE, BagError, BagReader, LiveGraph, describe, message_class,
+                                            other_nodes, playback_schedule, refusal, replay_topic_names,
+                                            split_ros_args)
 from humanoid_reach_ros.nodes.bag_record import StopSignals
 
 NODE_NAME = "bag_play"
-_UNNAMED = "_NODE_NAME_UNKNOWN_"   # rmw's node name of an endpoint whose node is not discovered yet
-UNNAMED_NODE = "a node discovery has not named yet"
 EXIT_LIVE_GRAPH = 3
-
-
-class LiveGraph(Exception):
-    """Other nodes publish topics the player would publish: ``found`` {topic: [nodes]}."""
-
-    def __init__(self, found: dict[str, list[str]]) -> None:
-        super().__init__(found)
-        self.found = found
-
-    def describe(self) -> str:
-        return "; ".join(f"{t} by {', '.join(n)}" for t, n in sorted(self.found.items()))
 
 
 class BagPlayerNode(Node):
@@ -138,21 +116,10 @@ class BagPlayerNode(Node):
         """Topics this player publishes that other nodes publish too -> those nodes (``/ns/name``;
         ``UNNAMED_NODE`` for one discovery has not named yet), as discovery shows them now (this
         player's own publisher left out)."""
-        found: dict[str, list[str]] = {}
         me = f"{self.get_namespace().rstrip('/')}/{self.get_name()}"
-        for topic in self.out_topics.values():
-            nodes = [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in self.get_publishers_info_by_topic(topic)]
-            # an endpoint whose node discovery has not named yet (this player's own, early on) shows as
-            # _NODE_NAME_UNKNOWN_: this player's publisher is taken out by name, else as one unnamed
-            unnamed = [n for n in nodes if _UNNAMED in n]
-            if me in nodes:
-                nodes.remove(me)
-            elif unnamed:
-                nodes.remove(unnamed[0])
-            nodes = [UNNAMED_NODE if _UNNAMED in n else n for n in nodes]   # named at a later look
-            if nodes:
-                found[topic] = sorted(set(nodes))
-        return found
+        found = {t: other_nodes([f"{i.node_namespace.rstrip('/')}/{i.node_name}"
+                                 for i in self.get_publishers_info_by_topic(t)], me) for t in self.out_topics.values()}
+        return {t: nodes for t, nodes in found.items() if nodes}
 
     def check_live_graph(self, found: dict[str, list[str]] | None = None) -> None:
         """Other publishers of the played topics (``found``, or as discovery shows them now):
@@ -245,35 +212,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 ACK_TIMEOUT_S = 5.0   # at the end, reliable subscribers get this long to acknowledge what was played
 # before playing, other publishers of the played topics are looked for this long (a live graph is
-# refused) ... Fast DDS announces a participant in a burst when it starts, then every 3 s (its
-# lease announcement period): a burst missed on a busy machine is heard at the next one (a running
-# joint_driver was seen after 1.8 s once, and only after 2 s -- 62 messages into the replay -- once)
+# refused) ... Fast DDS announces a participant in a burst, then every 3 s: a burst missed on a busy
+# machine is heard at the next (a running joint_driver was seen after 1.8 s, once after 2 s: too late)
 DISCOVERY_WAIT_S = 3.5
 PUBLISHER_CHECK_PERIOD_S = 0.5   # ... and while playing, those that appear, looked for this often
-
-
-def refusal(exc: LiveGraph, published: int, finished: bool = False) -> str:
-    """What ``hr_play`` says when a live graph publishes topics it would publish (seen before it
-    played, while it played, or at its last look after ``finished``)."""
-    what = ("not playing" if published == 0 else f"played {published} messages, then saw" if finished
-            else f"stopped after {published} messages")
-    return (f"hr_play: {what}: a live graph publishes the topics of this replay ({exc.describe()}). Played "
-            "there, the recording would feed the live nodes: its clouds into the live map the next plan "
-            "trusts, its /joint_states and /robot_description to the planner and the executor. To look at it "
-            "beside the graph: --namespace /replay (every topic under /replay; or --remap OLD:=NEW); to replay "
-            "into the live graph on purpose: --into-live; to reproduce a run: stop the graph's publishers of "
-            "these topics first.")
-
-
-def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
-    """``(own, ros)``: the player's arguments, and ``--ros-args ... [--]`` (rclpy's). Not
-    rclpy's ``remove_ros_args``: it would take ``--remap``'s ``OLD:=NEW`` for a legacy node
-    remapping rule."""
-    if "--ros-args" not in argv:
-        return list(argv), []
-    i = argv.index("--ros-args")
-    j = argv.index("--", i) if "--" in argv[i:] else len(argv)
-    return argv[:i] + argv[j + 1:], argv[i:j + 1]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -315,13 +257,10 @@ def main(argv: list[str] | None = None) -> int:
             node.check_live_graph()
         if args.into_live:
             live = node.other_publishers()
-            node.get_logger().warning(
-                "--into-live: playing INTO THE LIVE GRAPH: " + (
-                    f"{LiveGraph(live).describe()} publish the same topics; the recording's messages mix with "
-                    "theirs: its clouds are fused into the live map, its /joint_states and /robot_description "
-                    "reach the planner and the executor" if live else
-                    "no other publisher of these topics seen yet; any node that subscribes to them gets the "
-                    "recording"))
+            node.get_logger().warning("--into-live: playing INTO THE LIVE GRAPH: " + (
+                f"{LiveGraph(live).describe()} publish the same topics; the recording mixes with them: its clouds "
+                "go into the live map, its joint states and robot description to the planner and the executor"
+                if live else "no other publisher of these topics seen yet; their subscribers get the recording"))
         moved = [f"{t} -> {out_topics[t]}" for t in topics if out_topics[t] != t]
         node.get_logger().info(f"playing {reader.path} ({', '.join(moved if moved else topics)}"
                                f"{', the rest as recorded' if moved and len(moved) < len(topics) else ''}) "
