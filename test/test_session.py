@@ -129,6 +129,9 @@ def test_a_session_of_reaches_ends_at_half_sitting(start_node, ros_env, ros_prob
     assert out["plan"]["success"] and out["plan"]["statistics"]["map_voxels"] > 1000, out["plan"]
     ex = out["execution"]
     assert ex["min_distance_m"] >= 0.0 and ex["final_hand_error_m"] < 2e-3, ex
+    # the hand ends on the valve's rim: a touch the result names (issue 33), what makes the next plan retreat
+    assert ex["hand_in_contact"] and "on the target object (" in ex["contact_with"], ex
+    assert ex["contact_distance_m"] < 0.05, ex
 
     # gaze points through /look: bad ones refused; a good one looked at, one beyond the camera's range not in view
     for goal, words in ((Look.Goal(gaze_points=[Point(x=math.nan, z=1.0)]), "gaze point 0 has NaN/inf"),
@@ -143,6 +146,7 @@ def test_a_session_of_reaches_ends_at_half_sitting(start_node, ros_env, ros_prob
     # the hand rests at the valve: the next plan leaves it first
     out = step("touch", "--target", *TOUCH, "--execute", "--budget", "10")
     assert "first a retreat" in out["plan"]["message"], out["plan"]["message"]
+    assert out["execution"]["hand_in_contact"], out["execution"]   # resting on the passage pipe's top
 
     # ... and now on the passage pipe: again a retreat first
     out = step("under the shoulder pipe", "--target", *UNDER_PIPE, "--execute", "--budget", "10")
@@ -150,6 +154,8 @@ def test_a_session_of_reaches_ends_at_half_sitting(start_node, ros_env, ros_prob
 
     out = step("home", "--home", "--execute", "--budget", "10")
     assert "way home" in out["plan"]["message"], out["plan"]["message"]
+    ex = out["execution"]     # in free air at half-sitting: no contact, and how far the nearest voxel is
+    assert not ex["hand_in_contact"] and ex["contact_with"] == "" and ex["contact_distance_m"] > 0.05, ex
 
     # the measured joints settle at half-sitting
     robot = RobotModel()
