@@ -139,7 +139,7 @@ def test_the_stance_zone_is_where_the_robot_stands_not_where_it_reached(robot, c
 
     states = [(1.0, j0), (1.05, j1)]
     pipe = MappingPipeline(MappingConfig(), robot, cm, joint_states=lambda: states[:])
-    assert MappingConfig().stance_clearance_m == pytest.approx(0.10)
+    assert MappingConfig().stance_clearance_m == pytest.approx(0.12)
     pipe.sweep_robot()
     assert swept(pipe, beside(j0)) and not swept(pipe, beside(j1))
     pipe.clear()

@@ -393,14 +393,17 @@ class ExecutionManager:
         except Exception as exc:
             code = self.reject("goals_rejected", label, exc)
             return Outcome(code, str(exc))
-        # the scan's gazes around the body follow its head poses (or its directions' gaze points)
-        items = ([("pose", p) for p in poses] if points is None else [("point", p) for p in points]) \
-            + [("point", p) for p in around]
+        # a scan first gazes around the body, then returns to the posture it began in (the gazes turn
+        # the chest, which a head pose holds), then its head poses (or its directions' gaze points):
+        # it ends looking at the workspace in front, as before
+        start = self.joints()[0] if len(around) else None
+        items = [("point", p) for p in around] + ([("back", start)] if start is not None else []) \
+            + ([("pose", p) for p in poses] if points is None else [("point", p) for p in points])
         count, what, item = (len(poses), "head poses", "pose") if points is None else (len(points), "gaze points",
                                                                                        "point")
         self.log.info(f"{label}: accepted: {counted(count, what)}, {dwell:g} s each"
                       + (" (the directions asked, for a robot without a neck)" if directions else "")
-                      + (f", then {counted(len(around), 'gaze')} around the body" if len(around) else ""))
+                      + (f", then {counted(len(around), 'gazes')} around the body" if len(around) else ""))
         count = len(items)
         out, unseen = Outcome(int(C.SUCCESS), ""), []
         for k in range(count):
@@ -411,6 +414,10 @@ class ExecutionManager:
                     yaw, pitch = target
                     motion = self.requests.look(next(self._motion_ids), f"{label} pose {k}", (yaw, pitch),
                                                 *self.joints())
+                elif kind == "back":
+                    motion = self.requests.back_to(next(self._motion_ids), f"{label} back {k}", target,
+                                                   *self.joints())
+                    yaw, pitch = self.requests.head_targets(target)
                 else:
                     motion, gaze = self.requests.gaze(next(self._motion_ids), f"{label} point {k}", target,
                                                       *self.joints())
@@ -436,9 +443,9 @@ class ExecutionManager:
             out.poses_done = k + 1
         out.duration_s = time.monotonic() - t0
         if out.success and points is None:
-            out.message = f"{counted(len(poses), 'head poses')} reached and held {dwell:g} s each" + (
-                f", then {counted(len(around), 'gaze')} around the body" + (f" ({'; '.join(unseen)})" if unseen else "")
-                if len(around) else "")
+            around_text = f", then {counted(len(around), 'gazes')} around the body" if len(around) else ""
+            out.message = (f"{counted(len(poses), 'head poses')} reached and held {dwell:g} s each{around_text}"
+                           + (f" ({'; '.join(unseen)})" if unseen else ""))
         elif out.success:
             out.message = (f"{counted(count, 'gaze points')} looked at and held {dwell:g} s each"
                            + (f"; {'; '.join(unseen)}" if unseen else ": every point in view"))

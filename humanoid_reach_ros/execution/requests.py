@@ -455,6 +455,19 @@ class ExecutionRequests:
         return Motion(mid, label, "trajectory", spline=self._look_spline(start, goal), arm="right",
                       params=self._executor_params(), q_measured=q0, note=note)
 
+    def back_to(self, mid: int, label: str, goal: np.ndarray, joints: np.ndarray | None, reason: str):
+        """A whole-body motion from the measured joints back to ``goal`` (joints the robot stood in,
+        e.g. when a scan began: its gazes around the body leave the chest turned), timed as a look
+        (:meth:`_look_spline`) and executed like one (feet and exact COG first)."""
+        from humanoid_reach_ros.execution.supervisor import Motion
+        q0 = self.measured_start(joints, reason)
+        start = np.asarray(joints, float)
+        goal = np.asarray(goal, float).reshape(-1)
+        if goal.shape != start.shape or not np.all(np.isfinite(goal)):
+            raise RequestError(C.INVALID_REQUEST, f"back_to: {len(start)} finite joint angles needed")
+        return Motion(mid, label, "trajectory", spline=self._look_spline(start, goal), arm="right",
+                      params=self._executor_params(), q_measured=q0, note="back to the posture the scan began in")
+
     def _look_spline(self, start: np.ndarray, goal: np.ndarray):
         """The reference of a look or gaze motion from ``start`` to ``goal``: a joint's peak speed
         is ``head_speed_rad_s``, or the share of its URDF limit the executor may command
