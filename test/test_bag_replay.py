@@ -279,22 +279,28 @@ def test_replay_beside_a_live_graph_leaves_its_map_and_joint_states_alone(start_
 
     # the same measurements see a replay that does reach the live graph (--into-live, asked for):
     # the mapper counts the recording's clouds and the live /joint_states carry its head angles
+    # (looped until both are seen: on a loaded machine the probe's subscription matched the player's
+    # publisher only after a short pass had ended)
     live_states.clear()
+
+    def leaked() -> bool:
+        return received() > before_clouds and any(abs(joint_value(m, head_yaw) - live_yaw) > 0.3
+                                                  for m in live_states.messages)
     with open(log, "wb") as f:
-        proc = subprocess.Popen(play + ["--into-live", "--rate", "4", "--topics", "/joint_states",
+        proc = subprocess.Popen(play + ["--into-live", "--loop", "--rate", "4", "--topics", "/joint_states",
                                         "/head_camera/points", "--start-offset", "10"],
                                 env=dict(ros_env), cwd=REPO_ROOT, stdout=f, stderr=subprocess.STDOUT)
     try:
-        ros_probe.spin_until(lambda: proc.poll() is not None, 120.0, "the --into-live replay to end",
-                             on_timeout=log.read_text)
+        ros_probe.spin_until(lambda: leaked() or proc.poll() is not None, 120.0,
+                             "the recording's clouds at the mapper and its joint states on /joint_states",
+                             on_timeout=lambda: f"{mapper_inputs(diagnostics)}\n{log.read_text()}")
+        assert proc.poll() is None, log.read_text()
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(30.0) == 0, log.read_text()
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert proc.returncode == 0 and "--into-live: playing INTO THE LIVE GRAPH" in log.read_text(), log.read_text()
-    ros_probe.spin_until(lambda: received() > before_clouds, 30.0, "the mapper to count the replayed clouds",
-                         on_timeout=lambda: str(mapper_inputs(diagnostics)))
-    yaws = [joint_value(m, head_yaw) for m in live_states.messages]
-    assert max(abs(y - live_yaw) for y in yaws) > 0.3, (len(yaws), sorted(set(round(y, 3) for y in yaws)))
+    assert "--into-live: playing INTO THE LIVE GRAPH" in log.read_text(), log.read_text()
     print(f"--into-live: the mapper received {received() - before_clouds} clouds of the recording; live map "
           f"{voxels()} voxels")
 
