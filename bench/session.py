@@ -7,10 +7,10 @@ runs it):
 
 1. ``--scan``;
 2. the scene's steps (``SCENES``: each given target with why it is there), ``--target X Y Z
-   --execute``: one that needs an automatic look (reachable, but in space the scan did not
-   see: the operator looks there through ``/look`` ``gaze_points`` and plans again; checked
-   with the JSON's ``auto_looks``) -- first after the scan, as every motion marks the space
-   its body went through as observed; ``--marker --execute`` where the head can see a marker
+   --execute``: one that needs an automatic look (reachable, but in space nobody has seen:
+   the operator looks there through ``/look`` ``gaze_points`` and plans again; checked with
+   the JSON's ``auto_looks``) -- before the scan (issue 31: the scan sees everything in reach
+   that a gaze can), so this one is step 1 and the scan step 2; ``--marker --execute`` where the head can see a marker
    (plant; dense_pipes' marker is hidden behind its upper pipe, two_valves and wide_pipes have
    none: skipped, and said why under ``scenes``); one target touching a surface (on or 1-2 cm
    in front of a pipe or a panel), so that the NEXT step starts with the hand in contact and
@@ -130,11 +130,12 @@ SCENES: dict[str, dict[str, Any]] = {
     "plant": {
         "scene": "scenes/plant.yaml", "marker": True,
         "targets": [
-            {"name": "right_side", "kind": "look", "target": [0.30, -0.60, 1.40],
-             "why": "above and beside the right shoulder, in the right arm's reach: the scan looks down (head "
-                    "poses and gazes around the body) and leaves it unobserved, a gaze sees it. First after the "
-                    "scan, before a motion sweeps near it (issue 31: the scan's gazes around the body now see "
-                    "(0.20, -0.60, 1.00), the target before)"},
+            {"name": "right_side", "kind": "look", "target": [0.20, -0.60, 1.00],
+             "why": "beside the right shoulder, 81 deg right of the head, within the right arm's reach: the "
+                    "first step, before the scan (the operator reaches at once; the plan names what it must see, "
+                    "the operator looks there). Issue 31: after the scan nothing in reach that a gaze can see is "
+                    "left unobserved (its gazes around the body see this target too; above the shoulders, where "
+                    "no ray returns, nothing is ever observed), so the look step comes first"},
             MARKER,
             {"name": "passage_pipe_top", "kind": "touch", "target": [0.35, -0.15, 0.78],
              "why": "1 cm above the top of the passage pipe (axis x 0.35, z 0.72, radius 0.05), right of the "
@@ -150,7 +151,7 @@ SCENES: dict[str, dict[str, Any]] = {
                           "any head pose (the marker localizer never saw it in the scan; reach_operator --marker, "
                           "which turns the head only, waits 15 s and ends NO_INPUT (6))",
         "targets": [
-            {"name": "right_side", "kind": "look", "target": [0.30, -0.60, 1.40],
+            {"name": "right_side", "kind": "look", "target": [0.20, -0.60, 1.00],
              "why": "beside the right shoulder: not seen by the scan, within the right arm's reach (first: see "
                     "plant)"},
             {"name": "valve", "kind": "plain", "contact": True, "target": [0.71, 0.03, 0.90],
@@ -166,7 +167,7 @@ SCENES: dict[str, dict[str, Any]] = {
     "two_valves": {
         "scene": "scenes/two_valves.yaml", "marker": False,
         "targets": [
-            {"name": "left_side", "kind": "look", "target": [0.30, 0.60, 1.40],
+            {"name": "left_side", "kind": "look", "target": [0.20, 0.60, 1.00],
              "why": "beside the left shoulder: not seen by the scan, within the left arm's reach (first: see "
                     "plant)"},
             {"name": "panel_face", "kind": "touch", "target": [0.645, -0.20, 1.10],
@@ -182,7 +183,7 @@ SCENES: dict[str, dict[str, Any]] = {
     "wide_pipes": {
         "scene": "scenes/wide_pipes.yaml", "marker": False,
         "targets": [
-            {"name": "right_side", "kind": "look", "target": [0.30, -0.60, 1.40],
+            {"name": "right_side", "kind": "look", "target": [0.20, -0.60, 1.00],
              "why": "beside the right shoulder: not seen by the scan, within the right arm's reach (first: see "
                     "plant)"},
             {"name": "lower_pipe_top", "kind": "touch", "target": [0.55, 0.05, 0.89],
@@ -546,8 +547,14 @@ def run_session(out: Path, scene_name: str, seed: int, robot: str | None, log) -
     try:   # the graph is stopped whatever happens, Ctrl-C (KeyboardInterrupt) included
         try:
             # (name, kind, args, whether the hand ends on something: the next step must retreat first)
-            plan_steps: list[tuple[str, str, list[str], bool]] = [("scan", "scan", ["--scan"], False)]
-            for tgt in spec["targets"]:
+            # the step that needs an automatic look comes before the scan (issue 31: the scan now sees
+            # everything in reach that a gaze can, 6-12 cm around the body included)
+            plan_steps: list[tuple[str, str, list[str], bool]] = []
+            looks = [t for t in spec["targets"] if t["kind"] == "look"]
+            for tgt in looks + [{"kind": "scan"}] + [t for t in spec["targets"] if t["kind"] != "look"]:
+                if tgt["kind"] == "scan":
+                    plan_steps.append(("scan", "scan", ["--scan"], False))
+                    continue
                 if tgt["kind"] == "marker":
                     args = ["--marker", "--execute"]
                 else:
