@@ -39,6 +39,7 @@ from humanoid_reach_ros.graph import (  # noqa: F401  (Graph, GRAPH_NODES: also 
     GRAPH_NODES, STOP_DEADLINE_S, Graph, allocate_domain, graph_env, nodes_text, wait_for)
 from humanoid_reach_ros.execution.config import PARAMETERS
 from humanoid_reach_ros.paths import run_directory
+from humanoid_reach_ros.operator.report import contact_line, execution_summary
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT, robots
 
 # the topics the MCAP recording keeps (camera images are left out: 10 Hz of 640x480 RGB is 9 MB/s)
@@ -429,6 +430,8 @@ def run(args: argparse.Namespace) -> dict:
         result, exec_s = execute(op, traj, resp.arm)
         if not result.success:
             raise RuntimeError(f"/execute_reach failed ({result.error_code.val}): {result.message}")
+        contact = execution_summary("done", result)   # where the hand ended (issue 33): as reach_operator says it
+        print(f"[demo] {contact_line(contact)}")
         op.spin_for(0.5)
         in_region = final_hand_in_region(op, region, arm, robot_name=args.robot)
         measured = measured_balance(op.samples, args.robot)
@@ -450,6 +453,7 @@ def run(args: argparse.Namespace) -> dict:
             "final_hand_error_m": float(result.final_hand_error_m),
             "final_hand_error_rad": float(result.final_hand_error_rad),
             "final_hand_in_wgr": in_region,
+            **{k: contact[k] for k in ("hand_in_contact", "contact_distance_m", "contact_with")},
             **measured,
             "target_from_marker": args.target is None,
         }

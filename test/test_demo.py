@@ -45,6 +45,9 @@ def test_whole_graph_reaches_the_valve(tmp_path):
     # executor: exact COG held (< 1 mm); measured from /joint_states it includes the driver's tracking lag
     assert report["max_com_drift_m"] < 1e-3 and report["com_drift_measured_m"] < 3e-3
     assert report["map_voxels"] > 1000
+    # where the hand ended, the target's object included (issue 33): the valve reach ends touching it
+    assert report["hand_in_contact"] and "on the target object (" in report["contact_with"], report
+    assert "[demo] hand IN CONTACT (" in proc.stdout
     assert (run / "demo_execution.png").stat().st_size > 10_000
     assert {p.name.split(".")[0] for p in run.glob("*.log")} >= {"joint_driver", "reach_planner", "reach_executor"}
     assert "stopped 7 processes cleanly" in proc.stdout
