@@ -225,8 +225,32 @@ class SceneSnapshot:
         c = np.zeros(3) if exclude is None else exclude
         V = without_target(self.occupied, c, r)
         if unobserved and self.frontier is not None and len(self.frontier):
-            V = np.vstack([V, without_target(self.frontier, c, r)])
+            V = np.vstack([V, self._frontier_without_object(c, r)])
         return V
+
+    def _frontier_without_object(self, c: np.ndarray, r: float) -> np.ndarray:
+        """The frontier less its voxels in the object's shadow: within ``r`` of a target AND next
+        to (within 1.5 voxels of) an occupied voxel left out as that object -- the unseen back of
+        the valve the hand reaches into. The rest of the frontier near a target stays an obstacle
+        (issue 31: leaving all of it out opened a 15 cm hole into unseen space around a target
+        beside the body, and a plan went through a hidden pipe there)."""
+        F = self.frontier
+        if r <= 0.0 or not len(F):
+            return F
+        C = np.asarray(c, float).reshape(-1, 3)
+        near = np.zeros(len(F), bool)
+        for p in C:
+            near |= np.sum((F - p) ** 2, axis=1) <= r * r
+        if not near.any():
+            return F
+        obj = self.occupied[np.any(np.sum((self.occupied[:, None, :] - C[None]) ** 2, axis=2) <= r * r, axis=1)] \
+            if len(self.occupied) else np.zeros((0, 3))
+        shadow = np.zeros(len(F), bool)
+        if len(obj):
+            from scipy.spatial import cKDTree
+            d, _ = cKDTree(obj).query(F[near], k=1)
+            shadow[np.flatnonzero(near)] = d <= 1.5 * self.params.resolution_m
+        return F[~shadow]
 
     def collision(self, robot: RobotModel, collision_model: CollisionModel, exclude: np.ndarray | None = None,
                   unobserved: bool = False) -> tuple[RobotCollision, float]:

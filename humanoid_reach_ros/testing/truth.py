@@ -96,7 +96,7 @@ def capsule_signed_distance(prim: Primitive, P0: np.ndarray, P1: np.ndarray, rad
 
 
 @dataclass(frozen=True)
-class Contact:
+class TruthContact:
     """The nearest (or deepest) pair found: distance [m] (< 0: penetration), the primitive's and
     the shape's names, the time [s, trajectory clock] and the index of the evaluated configuration."""
 
@@ -191,7 +191,7 @@ class TrajectoryAudit:
         ts = sample_times(t - t[0], sub)
         return ts + t[0], spline.position(ts)
 
-    def check(self, times, positions) -> tuple[Contact, int]:
+    def check(self, times, positions) -> tuple[TruthContact, int]:
         """The deepest penetration, or else the nearest approach (``distance_m`` = ``near_m`` when
         nothing comes that near), over the trajectory; and the configurations evaluated."""
         ts, J = self.configurations(times, positions)
@@ -202,12 +202,12 @@ class TrajectoryAudit:
         i = int(np.argmin(d))
         c, s = divmod(i, S)
         name = self.prims[which[i]].name if which[i] >= 0 else ""
-        return Contact(float(d[i]), name, self.cm.names[s] if name else "", float(ts[c]), c), C
+        return TruthContact(float(d[i]), name, self.cm.names[s] if name else "", float(ts[c]), c), C
 
-    def clearance(self, joints: np.ndarray) -> Contact:
+    def clearance(self, joints: np.ndarray) -> TruthContact:
         """:meth:`check` of one posture (time 0)."""
         return self.check(np.zeros(1), np.atleast_2d(joints))[0]
 
 
-__all__ = ["Contact", "TrajectoryAudit", "capsule_signed_distance", "model_positions", "sample_times",
+__all__ = ["TruthContact", "TrajectoryAudit", "capsule_signed_distance", "model_positions", "sample_times",
            "segment_min_sdf", "shapes_vs_primitives"]
