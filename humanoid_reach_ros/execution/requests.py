@@ -41,7 +41,6 @@ import pinocchio as pin
 from humanoid_reach_ros.counters import Counters
 from humanoid_reach_ros.execution.config import ExecutionConfig
 from humanoid_reach_ros.codes import ARM_AUTO, ARM_NAMES, ExecuteCode as C, RequestError
-from humanoid_reach_ros.geometry.body_sweep import DEFAULT_SELF_FILTER_MARGIN_M
 from humanoid_reach_ros.geometry.sphere_tree import SphereTree
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.scene.planning_scene import PlanningScene, SceneParams
@@ -656,15 +655,8 @@ class ExecutionRequests:
             if getattr(self, "_look_tree", None) is None or self._look_tree[0] != snap.version:
                 tree = self._tree_cache if self._tree_cache is not None else self._tree(None)
                 if snap.frontier is not None and len(snap.frontier):
-                    # the frontier's spheres are the self-filter margin: the body then keeps that margin
-                    # (and the look's clearance) from every frontier voxel, so the space a look sweeps
-                    # (the body grown by that margin: voxel_mapper) never covers an unobserved voxel --
-                    # else each look would push the frontier out by a voxel (bench/unseen F2: after a
-                    # target's three looks, a forearm 19.5 mm inside a hidden box behind the back)
-                    r = 0.5 * self.config.resolution_m + self.config.safety_margin_m
-                    occ = snap.occupied if snap.has_map else np.zeros((0, 3))
-                    tree = SphereTree.build(np.vstack([occ, snap.frontier]), np.concatenate(
-                        [np.full(len(occ), r), np.full(len(snap.frontier), max(r, DEFAULT_SELF_FILTER_MARGIN_M))]))
+                    tree = snap.tree(None, unobserved=True)[0] if snap.has_map else SphereTree.from_voxels(
+                        snap.frontier, self.config.resolution_m, self.config.safety_margin_m)
                 self._look_tree = (snap.version, tree)
             tree = self._look_tree[1]
         if self._look_cm is None:
