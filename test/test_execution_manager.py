@@ -190,27 +190,6 @@ def test_a_scan_gazes_around_the_body_comes_back_then_looks_ahead(robot) -> None
     assert none.look(lambda: LookGoal((), (), None, 0.01), Port()).poses_done == 1
 
 
-def test_a_gaze_keeps_the_arms_out_of_unobserved_space(robot) -> None:
-    """Issue 31 (bench/unseen: after the automatic looks a hand ended 92 mm inside a hidden box
-    behind the back): a look or gaze that turns the chest swings the arms with it, and stops short
-    where they would enter /voxel_map/unobserved's frontier; a malformed frontier is refused."""
-    from types import SimpleNamespace
-    m, _, log, _ = make(robot)
-    rq = m.requests
-    j0 = robot.half_sitting_joints.copy()
-    goal = j0.copy()
-    goal[robot.joint_index[robot.spec.chest_joints[0]]] = -0.7        # the chest turned right
-    assert rq.look_clearance(j0, goal)[0] == 1.0                      # nothing known: all the way
-    q = robot.config(goal, robot.base_on_feet(goal))
-    hand = robot.frame_pose(q, robot.hand_frames["left"]).translation
-    wall = hand + 0.02 * np.array([[0, y, z] for y in range(-3, 4) for z in range(-3, 4)], float)
-    assert m.unobserved_message(lambda: SimpleNamespace(points=wall, frame_id="world"))
-    share, why = rq.look_clearance(j0, goal)
-    assert 0.0 < share < 0.9 and "of the map" in why, (share, why)
-    assert not m.unobserved_message(lambda: SimpleNamespace(points=wall, frame_id="base_link"))
-    assert "/voxel_map/unobserved" in rq.counters.last_rejection and rq.counters.unobserved_voxels == len(wall)
-
-
 def test_stale_joint_states_abort_the_running_motion_once(robot) -> None:
     m, loop, log, state = make(robot, FakeLoop(hold=True))
     assert m.trajectory_topic(lambda: TrajectoryGoal(reference(robot)))

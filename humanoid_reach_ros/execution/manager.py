@@ -540,19 +540,6 @@ class ExecutionManager:
             self.log.debug(line)
         return True
 
-    def unobserved_message(self, build: Callable[[], Any]) -> bool:
-        """``/voxel_map/unobserved`` (``build()``: the parsed cloud): the frontier looks and gazes
-        keep out of; a malformed one is counted and the previous one kept."""
-        try:
-            line = self.requests.unobserved_map(build())
-        except Exception as exc:  # malformed cloud: keep the previous frontier
-            self.requests.reject_map(exc, "/voxel_map/unobserved")
-            self.log.warning(f"rejected /voxel_map/unobserved: {exc}; keeping the previous frontier",
-                             throttle_duration_sec=self.config.warn_throttle_s)
-            return False
-        self.log.debug(line)
-        return True
-
     def watch_joint_states(self) -> bool:
         """A running motion whose /joint_states went stale (``joint_states_abort_s``) is aborted
         (the loop holds the last command); True when it sent the stop."""

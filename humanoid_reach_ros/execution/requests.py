@@ -177,7 +177,6 @@ class RequestCounters(Counters):
     map_source: str = "none"
     map_voxels: int = 0
     map_build_ms: float = 0.0
-    unobserved_voxels: int = 0            # the frontier looks keep out of (/voxel_map/unobserved)
     dual_arm_goals: int = 0
     dual_arm_infeasible: int = 0
     last_infeasible: str = ""
@@ -261,9 +260,9 @@ class ExecutionRequests:
         return tree, (f"map source: /voxel_map ({len(cloud.points)} voxels{dropped}, sphere tree built in "
                       f"{c.map_build_ms:.1f} ms; replaces {previous})"), changed
 
-    def reject_map(self, exc: Exception, topic: str = "/voxel_map") -> None:
+    def reject_map(self, exc: Exception) -> None:
         self.counters.count("maps_rejected")
-        self.counters.set(last_rejection=f"{topic}: {type(exc).__name__}: {exc}")
+        self.counters.set(last_rejection=f"/voxel_map: {type(exc).__name__}: {exc}")
 
     def _aim_map_at(self, positions: np.ndarray, arm: str, log: Callable[[str], None] | None) -> None:
         """Before a motion: leave the voxels around its hand's start and final positions out of
@@ -631,34 +630,13 @@ class ExecutionRequests:
             last = float(share)
         return 1.0, ""
 
-    def unobserved_map(self, cloud) -> str:
-        """A parsed ``/voxel_map/unobserved`` (the frontier of unobserved space): looks and gazes
-        keep out of it (:meth:`look_clearance`); the reach trajectories were planned clear of it."""
-        if cloud.frame_id not in ("", self.config.map_frame):
-            raise ValueError(f"frame_id {cloud.frame_id!r} is not the map frame {self.config.map_frame!r}")
-        with self._map_lock:
-            self.scene.set_unobserved(frontier=cloud.points)
-            self._look_tree = None
-        self.counters.set(unobserved_voxels=int(len(cloud.points)))
-        return f"/voxel_map/unobserved: {len(cloud.points)} frontier voxels (looks keep out of them)"
-
     def _look_collision(self):
-        """A :class:`~humanoid_reach_ros.geometry.distance.RobotCollision` on the current map and
-        the unobserved frontier (cached per map version) for :meth:`look_clearance`: a gaze turns
-        the chest, the arms swing with it, and they must not swing into space no sensor has seen
-        (issue 31: bench/unseen found hands up to 92 mm inside hidden boxes behind the back after
-        the automatic looks)."""
+        """A :class:`~humanoid_reach_ros.geometry.distance.RobotCollision` on the current map
+        (cached per sphere tree) for :meth:`look_clearance`."""
         from humanoid_reach_ros.geometry.distance import RobotCollision
         from humanoid_reach_ros.robot.shapes import load_collision_model
         with self._map_lock:
-            snap = self.scene.snapshot()
-            if getattr(self, "_look_tree", None) is None or self._look_tree[0] != snap.version:
-                tree = self._tree_cache if self._tree_cache is not None else self._tree(None)
-                if snap.frontier is not None and len(snap.frontier):
-                    tree = snap.tree(None, unobserved=True)[0] if snap.has_map else SphereTree.from_voxels(
-                        snap.frontier, self.config.resolution_m, self.config.safety_margin_m)
-                self._look_tree = (snap.version, tree)
-            tree = self._look_tree[1]
+            tree = self._tree_cache if self._tree_cache is not None else self._tree(None)
         if self._look_cm is None:
             self._look_cm = load_collision_model(None, self.robot)
         if self._look_coll is None or self._look_coll.tree is not tree:

@@ -148,8 +148,6 @@ class ReachExecutorNode(Node):
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(PointCloud2, "voxel_map", lambda msg: m.map_message(
             lambda: msgs.points_from_cloud(msg)), LATCHED, callback_group=inputs)
-        self.create_subscription(PointCloud2, "voxel_map/unobserved", lambda msg: m.unobserved_message(
-            lambda: msgs.points_from_cloud(msg)), LATCHED, callback_group=inputs)
         self.create_subscription(JointTrajectory, "reach_trajectory", lambda msg: m.trajectory_topic(
             lambda: TrajectoryGoal(exec_msgs.reference_from_trajectory(msg, self.robot), msg.header.frame_id)),
             RELIABLE_LATEST, callback_group=inputs)
