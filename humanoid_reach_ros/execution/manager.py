@@ -399,22 +399,19 @@ class ExecutionManager:
         start = self.joints()[0] if len(around) else None
         items = [("point", p) for p in around] + ([("back", start)] if start is not None else []) \
             + ([("pose", p) for p in poses] if points is None else [("point", p) for p in points])
-        count, what, item = (len(poses), "head poses", "pose") if points is None else (len(points), "gaze points",
-                                                                                       "point")
-        self.log.info(f"{label}: accepted: {counted(count, what)}, {dwell:g} s each"
+        asked, what = (len(poses), "head poses") if points is None else (len(points), "gaze points")
+        self.log.info(f"{label}: accepted: {counted(asked, what)}, {dwell:g} s each"
                       + (" (the directions asked, for a robot without a neck)" if directions else "")
                       + (f", then {counted(len(around), 'gazes')} around the body" if len(around) else ""))
-        count = len(items)
         out, unseen = Outcome(int(C.SUCCESS), ""), []
-        for k in range(count):
-            kind, target = items[k]
-            item = kind
+        count = len(items)
+        for k, (item, target) in enumerate(items):
             try:
-                if kind == "pose":
+                if item == "pose":
                     yaw, pitch = target
                     motion = self.requests.look(next(self._motion_ids), f"{label} pose {k}", (yaw, pitch),
                                                 *self.joints())
-                elif kind == "back":
+                elif item == "back":
                     motion = self.requests.back_to(next(self._motion_ids), f"{label} back {k}", target,
                                                    *self.joints())
                     yaw, pitch = self.requests.head_targets(target)
@@ -447,7 +444,7 @@ class ExecutionManager:
             out.message = (f"{counted(len(poses), 'head poses')} reached and held {dwell:g} s each{around_text}"
                            + (f" ({'; '.join(unseen)})" if unseen else ""))
         elif out.success:
-            out.message = (f"{counted(count, 'gaze points')} looked at and held {dwell:g} s each"
+            out.message = (f"{counted(asked, 'gaze points')} looked at and held {dwell:g} s each"
                            + (f"; {'; '.join(unseen)}" if unseen else ": every point in view"))
         line = (f"{label}: {code_name(out.code)}: {out.message} "
                 f"[{out.duration_s:.1f} s, max COG error {out.max_com_error_m * 1e3:.2f} mm]")

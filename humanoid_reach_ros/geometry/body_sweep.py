@@ -90,14 +90,15 @@ class BodySweep:
         self.gaps = 0                 # consecutive states too far apart to interpolate
 
     def _ends(self, joints: np.ndarray) -> np.ndarray:
-        P0, P1, _ = self.collision_model.world_shapes(self.model.config(joints, self.model.base_on_feet(joints)))
+        P0, P1, _ = self.capsules(joints)
         return np.vstack([P0, P1])
 
-    def capsules(self, joints) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The shapes at ``joints`` (standing on the feet) grown by ``margin_m``: P0, P1 (S, 3), radii (S,)."""
+    def capsules(self, joints, margin_m: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The shapes at ``joints`` (standing on the feet) grown by ``margin_m`` (None: this
+        sweep's): P0, P1 (S, 3), radii (S,)."""
         j = np.asarray(joints, dtype=float).reshape(-1)
         P0, P1, R = self.collision_model.world_shapes(self.model.config(j, self.model.base_on_feet(j)))
-        return P0, P1, np.asarray(R, float) + self.margin_m
+        return P0, P1, np.asarray(R, float) + (self.margin_m if margin_m is None else float(margin_m))
 
     def capsules_of(self, postures: Iterable[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The grown shapes of several postures stacked: P0, P1 (K S, 3), radii (K S,)."""

@@ -486,9 +486,7 @@ class MappingPipeline:
     def stance_zone(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The stance zone's capsules (module doc): the shapes at the reference posture, on the
         feet, grown by ``stance_clearance_m``."""
-        j = self.model.half_sitting_joints
-        p0, p1, radii = self.collision_model.world_shapes(self.model.config(j, self.model.base_on_feet(j)))
-        return p0, p1, np.asarray(radii, float) + self.config.stance_clearance_m
+        return self.sweep.capsules(self.model.half_sitting_joints, self.config.stance_clearance_m)
 
     def layers_to_publish(self, force: bool = False) -> MapLayers | None:
         """The robot swept in, then the layers when the publish policy (module docstring) says
