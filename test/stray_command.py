@@ -1,9 +1,11 @@
 """A stray ``/joint_command`` publisher (test_hosts.py runs it on one of the three hosts).
 
 Waits for ``/joint_states``, then for ``--seconds`` publishes a command that moves one joint
-``--delta`` rad from where it stands, at 50 Hz, while it watches ``/joint_states``. Prints one
-JSON line: the joint, whether the publisher matched a subscription, and how far the joint
-moved. Not a test module (no ``test_`` prefix): a program run inside a network namespace.
+``--delta`` rad from where it stands, towards zero (a joint the looks left at a limit, the chest's
+yaw at 45 deg, would be clipped where it stands and not move), at 50 Hz, while it watches
+``/joint_states`` (after waiting ``--match-timeout`` for the publisher to match a
+subscription). Prints one JSON line: the joint, where it started, whether the publisher
+matched a subscription, and how far the joint moved. Not a test module (no ``test_`` prefix): a program run inside a network namespace.
 """
 from __future__ import annotations
 
@@ -20,6 +22,9 @@ def main() -> None:
     p.add_argument("--seconds", type=float, default=3.0)
     p.add_argument("--joint", default="")
     p.add_argument("--delta", type=float, default=0.05)
+    p.add_argument("--match-timeout", type=float, default=20.0,
+                   help="wait this long for the publisher to match a subscription before the --seconds start "
+                        "(discovery on a loaded host took longer than the 3 s of publishing)")
     a = p.parse_args()
     rclpy.init()
     node = rclpy.create_node("stray_command")
@@ -36,7 +41,11 @@ def main() -> None:
     joint = a.joint or names[0]
     i = names.index(joint)
     start = states[-1].position[i]
-    cmd = JointState(name=[joint], position=[start + a.delta])
+    delta = -a.delta if start > 0.0 else a.delta
+    cmd = JointState(name=[joint], position=[start + delta])
+    match_deadline = time.monotonic() + a.match_timeout
+    while pub.get_subscription_count() == 0 and time.monotonic() < match_deadline:
+        rclpy.spin_once(node, timeout_sec=0.05)
     matched, moved = 0, 0.0
     t_end = time.monotonic() + a.seconds
     while time.monotonic() < t_end:
@@ -46,7 +55,7 @@ def main() -> None:
         while time.monotonic() < t_next:
             rclpy.spin_once(node, timeout_sec=0.005)
         moved = max(moved, abs(states[-1].position[i] - start))
-    print(json.dumps({"joint": joint, "matched_subscriptions": matched, "moved_rad": moved}))
+    print(json.dumps({"joint": joint, "start_rad": start, "matched_subscriptions": matched, "moved_rad": moved}))
     node.destroy_node()
     rclpy.try_shutdown()
 
