@@ -7,6 +7,7 @@ import pytest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
+from humanoid_reach_interfaces.msg import PlantMetrics
 from sensor_msgs.msg import JointState
 
 from humanoid_reach_ros.io import msgs
@@ -33,6 +34,7 @@ def test_mujoco_plant_publishes_measured_joints_base_and_metrics(start_node, ros
     states = ros_probe.collect(JointState, "/joint_states")
     poses = ros_probe.collect(PoseStamped, "/base_pose")
     diags = ros_probe.collect(DiagnosticArray, "/diagnostics")
+    plant = ros_probe.collect(PlantMetrics, "/physics/metrics")
     ros_probe.spin_until(lambda: len(states) > 200 and len(poses) > 200, 30.0, "/joint_states and /base_pose",
                          on_timeout=driver.log_tail)
     st = ros_probe.spin_until(lambda: physics_status(diags), 15.0, "a physics diagnostic", on_timeout=driver.log_tail)
@@ -50,6 +52,18 @@ def test_mujoco_plant_publishes_measured_joints_base_and_metrics(start_node, ros
     base = msgs.se3_from_pose(poses.last)
     feet = model.base_on_feet(last)
     assert 0.0 < np.linalg.norm(base.translation - feet.translation) < 0.01
+    # the plant's own topic: the same figures, typed, with the worst since start
+    ros_probe.spin_until(lambda: len(plant) > 10, 15.0, "/physics/metrics", on_timeout=driver.log_tail)
+    pm = plant.last
+    print(f"/physics/metrics: cop margin {pm.cop_margin_m * 1e3:.1f} mm, base vs feet odometry "
+          f"{pm.base_vs_feet_odometry_m * 1e3:.2f} mm / {np.degrees(pm.base_vs_feet_odometry_rad):.3f} deg, "
+          f"rtf {pm.real_time_factor:.2f}")
+    assert pm.cop_valid and pm.right_foot_contact and pm.left_foot_contact and not pm.fallen
+    assert pm.right_foot_force_n > 50.0 and pm.left_foot_force_n > 50.0
+    assert 0.03 < pm.cop_margin_m and 0.03 < pm.cop_margin_m_worst <= pm.cop_margin_m + 1e-9
+    assert pm.foot_slip_m_worst < 1e-3 and pm.joint_tracking_error_rad_worst >= pm.joint_tracking_error_rad > 0.0
+    assert 0.0 < pm.base_vs_feet_odometry_m < 0.01 and 0.0 < pm.base_vs_feet_odometry_rad < 0.05
+    assert pm.sim_time_s > 1.0 and pm.real_time_factor > 0.5
 
 
 @pytest.mark.node

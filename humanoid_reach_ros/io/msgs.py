@@ -753,3 +753,36 @@ def marker_array(markers: Iterable[Marker], clear: bool = True, frame_id: str = 
         out.append(Marker(header=header(frame_id, stamp), action=Marker.DELETEALL))
     out.extend(markers)
     return MarkerArray(markers=out)
+
+
+# ---------------------------------------------------------------- the physics plant (issue 32)
+def plant_metrics(snap: Any, frame_id: str, stamp: Time | None = None) -> Any:
+    """``msg/PlantMetrics`` of a ``sim.physics.driver.PlantSnapshot``."""
+    from humanoid_reach_interfaces.msg import PlantMetrics
+
+    m = snap.metrics
+
+    def point(xy: Any) -> Point:
+        return Point() if xy is None else Point(x=float(xy[0]), y=float(xy[1]), z=0.0)
+    return PlantMetrics(
+        header=header(frame_id, stamp), sim_time_s=float(snap.sim_time_s),
+        right_foot_contact=m.foot_cop[0] is not None, right_foot_cop=point(m.foot_cop[0]),
+        right_foot_force_n=float(m.foot_force_n[0]),
+        left_foot_contact=m.foot_cop[1] is not None, left_foot_cop=point(m.foot_cop[1]),
+        left_foot_force_n=float(m.foot_force_n[1]),
+        cop_valid=m.cop is not None, cop=point(m.cop), cop_margin_m=float(m.cop_margin_m),
+        right_foot_slip_m=float(m.sole_slip_m[0]), left_foot_slip_m=float(m.sole_slip_m[1]),
+        base_tilt_rad=math.radians(m.base_tilt_deg), base_height_m=float(m.base_height_m),
+        capture_point_out_m=float(m.capture_point_out_m),
+        right_hand_force_n=float(m.hand_force_n.get("right", 0.0)),
+        left_hand_force_n=float(m.hand_force_n.get("left", 0.0)),
+        joint_tracking_error_rad=float(snap.joint_tracking_error_rad),
+        base_vs_feet_odometry_m=float(snap.base_vs_feet_odometry_m),
+        base_vs_feet_odometry_rad=float(snap.base_vs_feet_odometry_rad),
+        fallen=bool(snap.fall_reason), fall_reason=snap.fall_reason,
+        real_time_factor=float(snap.real_time_factor), capacity_x_real_time=float(snap.capacity_x_real_time),
+        plant_cpu_pct=float(snap.plant_cpu_pct), cop_margin_m_worst=float(snap.cop_margin_m_worst),
+        foot_slip_m_worst=float(snap.foot_slip_m_worst), base_tilt_rad_worst=float(snap.base_tilt_rad_worst),
+        hand_force_n_worst=float(snap.hand_force_n_worst),
+        joint_tracking_error_rad_worst=float(snap.joint_tracking_error_rad_worst),
+        real_time_factor_worst=float(snap.real_time_factor_worst))

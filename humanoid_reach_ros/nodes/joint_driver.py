@@ -10,7 +10,9 @@ participant of its own with localhost discovery, ``io/host_local.py``) and every
   odometry (right foot fixed on the floor, see ``humanoid_reach_ros.sim.joint_sim``);
   with ``plant: mujoco`` the joints and the base are those a MuJoCo plant measures
   (``humanoid_reach_ros.sim.physics``: the kinematic simulator's joints are its servos'
-  targets) and ``/diagnostics`` carries a ``physics`` status (CoP, margin, slip, tilt, fall);
+  targets), ``/diagnostics`` carries a ``physics`` status (CoP, margin, slip, tilt, fall) and
+  ``/physics/metrics`` (msg/PlantMetrics, every ``physics_metrics_period_s``) the same figures typed,
+  with their worst since start;
 * ``/robot_description`` std_msgs/String, the URDF (with the robot description's added frames as
   fixed links), once, transient local (depth 1);
 * ``/diagnostics``   diagnostic_msgs/DiagnosticArray every ``diagnostics_period_s``:
@@ -64,6 +66,9 @@ PARAMETERS: dict[str, ParamSpec] = {
     "plant": ParamSpec("kinematic", "what the commands move: kinematic (joints placed where commanded, the waist "
                        "on the feet) or mujoco (a MuJoCo physics plant: servos, contacts, a measured floating base; "
                        "docs/physics.md)", constraints=f"one of {', '.join(PLANTS)}"),
+    "physics_metrics_period_s": ParamSpec(0.02, "with plant mujoco: period of /physics/metrics (msg/PlantMetrics: "
+                                          "CoP, margin, slip, tilt, hand forces, fall; its worst fields since start)",
+                                          (0.005, 60.0)),
     "physics_scene": ParamSpec("", "scene the mujoco plant stands in (relative to config/ or absolute); empty: the "
                                "robot description's demo scene"),
     "initial_posture": ParamSpec("half_sitting", "posture at start", constraints=f"one of {', '.join(POSTURES)}"),
@@ -160,6 +165,11 @@ class JointDriver(Node):
         self._pose_key = b""
 
         self.description_pub.publish(String(data=self.model.description_xml))
+        self.plant_metrics_pub = None
+        if self.physics is not None:
+            from humanoid_reach_interfaces.msg import PlantMetrics
+
+            self.plant_metrics_pub = self.create_publisher(PlantMetrics, "physics/metrics", reliable10)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         # the 200 Hz loop runs in a thread of its own at absolute deadlines: an executor wake-up per tick
         # (wait set, callback dispatch) cost more than the tick itself
@@ -176,6 +186,8 @@ class JointDriver(Node):
             make_feeder_thread_realtime(self._p["rt_priority"])
             sys.setswitchinterval(REALTIME_SWITCH_INTERVAL_S)
         self.diagnostics_timer = self.create_timer(p["diagnostics_period_s"], self._publish_diagnostics, clock=steady)
+        if self.plant_metrics_pub is not None:
+            self.create_timer(p["physics_metrics_period_s"], self._publish_plant_metrics, clock=steady)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.get_logger().info(
             f"simulated {self.hardware_id}: {self.model.n_joints} joints at {1.0 / self.period_s:.0f} Hz "
@@ -259,6 +271,10 @@ class JointDriver(Node):
         stamp = self.get_clock().now().to_msg()
         self._joint_states_out.publish(msgs.fill_joint_state(self._joint_state, q, dq, stamp))
         self._base_pose_out.publish(msgs.pose_stamped(base, self.world_frame_id, stamp))
+
+    def _publish_plant_metrics(self) -> None:
+        self.plant_metrics_pub.publish(msgs.plant_metrics(self.physics.snapshot(), self.world_frame_id,
+                                                          self.get_clock().now().to_msg()))
 
     def _publish_diagnostics(self) -> None:
         now = time.monotonic()

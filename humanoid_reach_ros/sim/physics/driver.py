@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import math
 import threading
+import time
+from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
@@ -28,6 +30,30 @@ from humanoid_reach_ros.sim.physics.model_builder import build_for_robot
 from humanoid_reach_ros.sim.physics.stepper import PhysicsPlant
 
 OK, WARN, ERROR = 0, 1, 2     # diagnostic_msgs/DiagnosticStatus levels
+#: the real-time factor's worst is taken over windows this long [s], after the first one
+RTF_WINDOW_S = 1.0
+
+
+@dataclass(frozen=True)
+class PlantSnapshot:
+    """What the plant measured, now and worst since start (``msg/PlantMetrics``; no ROS here).
+    Points in the world frame [m], forces [N], angles [rad]."""
+
+    sim_time_s: float
+    metrics: ContactMetrics
+    joint_tracking_error_rad: float
+    base_vs_feet_odometry_m: float
+    base_vs_feet_odometry_rad: float
+    real_time_factor: float
+    capacity_x_real_time: float
+    plant_cpu_pct: float
+    cop_margin_m_worst: float
+    foot_slip_m_worst: float
+    base_tilt_rad_worst: float
+    hand_force_n_worst: float
+    joint_tracking_error_rad_worst: float
+    real_time_factor_worst: float
+    fall_reason: str
 
 
 class PhysicsDriver:
@@ -41,6 +67,10 @@ class PhysicsDriver:
         self._worst = {"cop_margin_mm_min": math.inf, "foot_slip_mm_max": 0.0, "base_tilt_deg_max": 0.0,
                        "hand_contact_force_n_max": 0.0, "joint_tracking_error_rad_max": 0.0}
         self.fallen_reason = ""
+        self.tracking_error_rad = 0.0
+        self._rtf_window: tuple[float, float] | None = None    # (wall, sim) at the window's start
+        self._rtf_worst = math.inf
+        self._rtf_windows = 0
 
     def step(self, targets: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, pin.SE3]:
         """Set the servos' targets, simulate ``dt`` and measure; returns (joints, velocities, base pose)."""
@@ -56,18 +86,55 @@ class PhysicsDriver:
             w["base_tilt_deg_max"] = max(w["base_tilt_deg_max"], m.base_tilt_deg)
             w["hand_contact_force_n_max"] = max(w["hand_contact_force_n_max"], *m.hand_force_n.values())
             joints = plant.joints
-            w["joint_tracking_error_rad_max"] = max(w["joint_tracking_error_rad_max"],
-                                                    float(np.abs(plant.targets - joints).max()))
+            self.tracking_error_rad = float(np.abs(plant.targets - joints).max())
+            w["joint_tracking_error_rad_max"] = max(w["joint_tracking_error_rad_max"], self.tracking_error_rad)
             if m.fallen and not self.fallen_reason:
                 self.fallen_reason = m.fall_reason
             return joints, plant.joint_velocities, plant.base_pose
 
-    def statuses(self) -> list[tuple[str, int, str, dict]]:
-        """The ``physics`` status (module doc), as (name suffix, level, message, values)."""
+    def base_vs_feet(self) -> tuple[float, float]:
+        """How far the measured base is from the base kinematic odometry puts on the right sole
+        (``RobotModel.base_on_feet`` of the measured joints: what every node but the plant assumes):
+        (distance [m], rotation angle [rad])."""
+        with self.lock:
+            joints, base = self.plant.joints, self.plant.base_pose
+        feet = self.model.base_on_feet(joints)
+        d = feet.actInv(base)
+        return float(np.linalg.norm(base.translation - feet.translation)), float(np.linalg.norm(pin.log3(d.rotation)))
+
+    def snapshot(self) -> PlantSnapshot:
+        """The figures of now and the worst since start (``msg/PlantMetrics``). The real-time
+        factor's worst is over windows of :data:`RTF_WINDOW_S` (the first one, while the graph
+        starts, left out)."""
+        offset_m, offset_rad = self.base_vs_feet()
         with self.lock:
             m, t, w = self.metrics, self.plant.timing(), dict(self._worst)
-            joints, base = self.plant.joints, self.plant.base_pose
-        feet_base = self.model.base_on_feet(joints)
+            err = self.tracking_error_rad
+            now = (time.perf_counter(), t.sim_time_s)
+            if self._rtf_window is None:
+                self._rtf_window = now
+            elif now[0] - self._rtf_window[0] >= RTF_WINDOW_S:
+                if self._rtf_windows:     # the first window (the graph starting) is left out
+                    rtf = (now[1] - self._rtf_window[1]) / (now[0] - self._rtf_window[0])
+                    self._rtf_worst = min(self._rtf_worst, rtf)
+                self._rtf_windows += 1
+                self._rtf_window = now
+            rtf_worst = self._rtf_worst
+        return PlantSnapshot(
+            sim_time_s=t.sim_time_s, metrics=m, joint_tracking_error_rad=err, base_vs_feet_odometry_m=offset_m,
+            base_vs_feet_odometry_rad=offset_rad, real_time_factor=t.real_time_factor,
+            capacity_x_real_time=t.capacity, plant_cpu_pct=t.cpu_pct,
+            cop_margin_m_worst=1e-3 * w["cop_margin_mm_min"], foot_slip_m_worst=1e-3 * w["foot_slip_mm_max"],
+            base_tilt_rad_worst=math.radians(w["base_tilt_deg_max"]), hand_force_n_worst=w["hand_contact_force_n_max"],
+            joint_tracking_error_rad_worst=w["joint_tracking_error_rad_max"],
+            real_time_factor_worst=rtf_worst if math.isfinite(rtf_worst) else t.real_time_factor,
+            fall_reason=self.fallen_reason)
+
+    def statuses(self) -> list[tuple[str, int, str, dict]]:
+        """The ``physics`` status (module doc), as (name suffix, level, message, values)."""
+        offset_m, offset_rad = self.base_vs_feet()
+        with self.lock:
+            m, t, w = self.metrics, self.plant.timing(), dict(self._worst)
         values = {
             "real_time_factor": t.real_time_factor, "capacity_x_real_time": t.capacity, "plant_cpu_pct": t.cpu_pct,
             "step_cost_us": t.step_cost_us, "sim_time_s": t.sim_time_s, "timestep_s": self.plant.pm.timestep_s,
@@ -78,7 +145,7 @@ class PhysicsDriver:
             "right_foot_slip_mm": 1e3 * m.sole_slip_m[0], "left_foot_slip_mm": 1e3 * m.sole_slip_m[1],
             "base_tilt_deg": m.base_tilt_deg, "base_z_m": m.base_height_m,
             "capture_point_out_mm": 1e3 * m.capture_point_out_m,
-            "base_vs_feet_odometry_mm": 1e3 * float(np.linalg.norm(base.translation - feet_base.translation)),
+            "base_vs_feet_odometry_mm": 1e3 * offset_m, "base_vs_feet_odometry_deg": math.degrees(offset_rad),
             **{f"{side}_hand_force_n": f for side, f in m.hand_force_n.items()},
             **{k: (v if math.isfinite(v) else "no foot contact yet") for k, v in w.items()},
             "fallen": bool(self.fallen_reason), "fall_reason": self.fallen_reason,
@@ -95,4 +162,4 @@ class PhysicsDriver:
                  f"real time x{t.real_time_factor:.2f}", values)]
 
 
-__all__ = ["PhysicsDriver"]
+__all__ = ["RTF_WINDOW_S", "PhysicsDriver", "PlantSnapshot"]
