@@ -248,14 +248,21 @@ def host_nodes(host: str, sim_sensors: bool = True) -> tuple[str, ...]:
     return tuple(n for n in GRAPH_NODES if n in HOST_NODES[host] and (sim_sensors or n not in SIM_NODES))
 
 
-def launch_params(name: str, scene: str | Path | None = None, robot: str | None = None) -> dict[str, Any]:
+def launch_params(name: str, scene: str | Path | None = None, robot: str | None = None,
+                  plant: str | None = None) -> dict[str, Any]:
     """What ``reach.launch.py`` gives node ``name`` besides its YAML file: ``scene_file`` (its
-    ``scene:=``) for the nodes that read a scene; ``robot_config`` when a robot is named."""
+    ``scene:=``) for the nodes that read a scene; ``robot_config`` when a robot is named; the
+    joint driver's ``plant`` (its ``plant:=``, kinematic or mujoco) and, with a scene, the scene
+    the physics plant stands in (``physics_scene``: the one the sensors render)."""
     params: dict[str, Any] = {}
     if scene is not None and name in SCENE_NODES:
         params["scene_file"] = str(scene)
     if robot is not None:
         params["robot_config"] = robot
+    if plant is not None and name == "joint_driver":
+        params["plant"] = plant
+        if scene is not None:
+            params["physics_scene"] = str(scene)
     return params
 
 

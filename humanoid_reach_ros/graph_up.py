@@ -6,7 +6,8 @@ nodes, each a process with its ``config/<name>.yaml`` (``graph.Graph``, the demo
 tests' orchestration), and the launch file's arguments: ``--scene FILE`` (its ``scene:=``, to
 ``scene_sim``, ``reach_planner`` and ``reach_executor``) and ``--no-sim-sensors`` (its
 ``use_sim_sensors:=false``: no ``joint_driver`` and ``scene_sim``, the real robot's drivers
-stand in); ``--robot NAME`` sets every node's ``robot_config``; ``--host robot|compute``
+stand in); ``--robot NAME`` sets every node's ``robot_config``; ``--plant mujoco`` puts the
+simulated robot on the MuJoCo physics plant (its ``plant:=``; docs/physics.md); ``--host robot|compute``
 starts one host's share (its ``host:=``, ``graph.HOST_NODES``; docs/deployment.md).
 
 A node is *up* when its main interface is visible in the ROS graph, as another shell sees it
@@ -36,6 +37,7 @@ from humanoid_reach_ros.graph import (ENCLAVE_ENV, HOST_NODES, STOP_DEADLINE_S, 
                                       host_nodes, launch_params, nodes_text)
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.robot.spec import robots
+from humanoid_reach_ros.sim.physics import PLANTS
 
 # node -> (what shows it is up, names): "pub" topics it publishes, "srv" services it serves
 UP_WHEN: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -58,6 +60,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--robot", choices=robots(), help="robot_config of every node (default: the YAML files')")
     p.add_argument("--scene", help="scene file of scene_sim, reach_planner and reach_executor (reach.launch.py's "
                    "scene:=; default: the YAML files', config/scenes/plant.yaml, or the robot's demo_scene)")
+    p.add_argument("--plant", choices=PLANTS, default=None,
+                   help="what joint_driver simulates (reach.launch.py's plant:=): kinematic (joints where commanded, "
+                        "the waist on the feet) or mujoco (a physics plant: servos, contacts, a measured base; "
+                        "docs/physics.md); default: config/joint_driver.yaml's (kinematic)")
     p.add_argument("--no-sim-sensors", action="store_true", help="leave out joint_driver and scene_sim "
                    "(reach.launch.py's use_sim_sensors:=false: the real robot's drivers publish)")
     p.add_argument("--host", choices=sorted(HOST_NODES), default="all",
@@ -152,7 +158,7 @@ def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
                   f"{env.get('ROS_AUTOMATIC_DISCOVERY_RANGE', '-')}); logs in {log_dir}/\n")
         out.flush()
         for name in names:
-            graph.start(name, launch_params(name, args.scene, args.robot))
+            graph.start(name, launch_params(name, args.scene, args.robot, args.plant))
         watch = GraphWatch()
         pending = list(names)
         ready = False

@@ -17,6 +17,10 @@ Arguments:
                        robot too small for the plant names its own scene (robot.yaml demo_scene):
                        give it as scene:=, e.g. robot:=g1 scene:=<share>/config/robots/g1/plant.yaml
                        (hr_graph --robot g1 picks it by itself)
+    plant              what joint_driver simulates: kinematic (default: joints where commanded, the
+                       waist on the feet) or mujoco (a MuJoCo physics plant standing in the scene:=
+                       file; servos, contacts, a measured floating base, /physics/metrics;
+                       docs/physics.md)
     host               all (default), robot (driver, sensors, mapper, localizer, executor) or compute
                        (the planner): the graph across hosts (docs/deployment.md), e.g.
                        ros2 launch humanoid_reach_ros reach.launch.py host:=robot   # on the robot
@@ -67,6 +71,8 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("robot", default_value="",
                               description="robot_config of every node (a name of config/robots or a robot.yaml "
                                           "path); empty: the parameter files'"),
+        DeclareLaunchArgument("plant", default_value="kinematic", choices=["kinematic", "mujoco"],
+                              description="joint_driver's plant: kinematic or mujoco (physics, docs/physics.md)"),
         DeclareLaunchArgument("host", default_value="all", choices=list(HOSTS),
                               description="the nodes of one host: robot, compute (the planner) or all"),
         DeclareLaunchArgument("enclave", default_value="",
@@ -87,6 +93,8 @@ def generate_launch_description() -> LaunchDescription:
         params = [os.path.join(config, f"{exe}.yaml")]
         if exe in ("scene_sim", "reach_planner", "reach_executor"):
             params.append({"scene_file": scene})
+        if exe == "joint_driver":   # the physics plant stands in the scene the sensors render
+            params.append({"plant": LaunchConfiguration("plant"), "physics_scene": scene})
         # one of two: with robot:= its robot_config overrides the parameter file's, without it the file's holds
         for named in (False, True):
             actions.append(Node(

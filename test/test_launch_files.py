@@ -225,3 +225,20 @@ def test_the_launch_file_starts_each_node_once_with_the_robot_asked_for(robot, h
         assert overrides.get("robot_config") == (robot or None), (exe, overrides)
         if exe in ("scene_sim", "reach_planner", "reach_executor"):
             assert overrides["scene_file"].endswith("plant.yaml"), overrides
+
+
+@pytest.mark.parametrize("plant", ["kinematic", "mujoco"])
+def test_the_launch_file_gives_the_plant_to_the_joint_driver(plant) -> None:
+    """reach.launch.py's plant:= reaches joint_driver alone, with the scene the sensors render as the
+    physics plant's scene (as hr_graph --plant: graph.launch_params)."""
+    from humanoid_reach_ros.graph import launch_params
+
+    started = dict(_evaluate_reach_launch({"plant": plant}))
+    overrides = {exe: {k: v for p in params if isinstance(p, dict) for k, v in p.items()}
+                 for exe, params in started.items()}
+    assert overrides["joint_driver"]["plant"] == plant
+    assert overrides["joint_driver"]["physics_scene"] == overrides["scene_sim"]["scene_file"]
+    assert all("plant" not in o for exe, o in overrides.items() if exe != "joint_driver")
+    scene = overrides["scene_sim"]["scene_file"]
+    assert launch_params("joint_driver", scene, None, plant) == {"plant": plant, "physics_scene": scene}
+    assert "plant" not in launch_params("scene_sim", scene, None, plant)
