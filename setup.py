@@ -25,6 +25,7 @@ EXECUTABLES = {
     "voxel_mapper": "humanoid_reach_ros.nodes.voxel_mapper:main",
     "marker_localizer": "humanoid_reach_ros.nodes.marker_localizer:main",
     "reach_operator": "humanoid_reach_ros.nodes.reach_operator:main",
+    "operator_console": "humanoid_reach_ros.nodes.operator_console:main",   # the console in a browser
     "hr_record": "humanoid_reach_ros.nodes.bag_record:main",
     "hr_play": "humanoid_reach_ros.nodes.bag_play:main",
     "hr_demo": "humanoid_reach_ros.demo:main",
@@ -35,6 +36,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
+    package_data={PACKAGE: ["operator/console/static/*"]},   # the console's page (three.js: npm, make setup)
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

@@ -50,7 +50,8 @@ def plan_request(args: argparse.Namespace) -> Any:
 class Operator:
     """The rclpy side: one node, service + action clients, waits that honour Ctrl-C."""
 
-    def __init__(self, timeout_s: float, err: TextIO) -> None:
+    def __init__(self, timeout_s: float, err: TextIO, init: bool = True) -> None:
+        """``init``: initialise rclpy here (the CLI); False: a process that did (the console node)."""
         import rclpy
         from action_msgs.msg import GoalStatusArray
         from rclpy.action import ActionClient
@@ -61,8 +62,9 @@ class Operator:
         from humanoid_reach_interfaces.action import ExecuteReach, Look
         from humanoid_reach_interfaces.srv import PlanReach
 
-        self.rclpy, self.timeout_s, self.err, self.interrupted = rclpy, timeout_s, err, False
-        rclpy.init(args=sys.argv, signal_handler_options=SignalHandlerOptions.NO)
+        self.rclpy, self.timeout_s, self.err, self.interrupted, self.owns_rclpy = rclpy, timeout_s, err, False, init
+        if init:
+            rclpy.init(args=sys.argv, signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node(f"reach_operator_{int(time.time() * 1e3) % 10**9}")
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(self.node)
@@ -83,7 +85,8 @@ class Operator:
         self.look_client.destroy()
         self.exec_client.destroy()
         self.node.destroy_node()
-        self.rclpy.try_shutdown()
+        if self.owns_rclpy:
+            self.rclpy.try_shutdown()
 
     def spin_until(self, done: Callable[[], bool], timeout_s: float | None, cancelable: bool = True) -> bool:
         """Spin until ``done()``; False on timeout; ``Canceled`` on Ctrl-C when ``cancelable``."""
