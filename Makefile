@@ -25,11 +25,11 @@ lint: setup
 	@$(ENV) ruff check .
 
 demo: setup
-	@$(ENV) python -m humanoid_reach_ros.demo $(if $(ROBOT),--robot $(ROBOT))
+	@$(ENV) python -m humanoid_reach_ros.demo $(if $(ROBOT),--robot $(ROBOT)) $(if $(PLANT),--plant $(PLANT))
 
 # the whole graph (the six nodes with their YAML files, as reach.launch.py) until Ctrl-C
 up: setup
-	@$(ENV) hr_graph $(if $(ROBOT),--robot $(ROBOT))
+	@$(ENV) hr_graph $(if $(ROBOT),--robot $(ROBOT)) $(if $(PLANT),--plant $(PLANT))
 
 bench: setup
 	@$(ENV) for b in bench/graph.py $$(ls bench/*.py | grep -v '^bench/graph.py$$'); do echo "== $$b"; python $$b || exit 1; done

@@ -49,7 +49,8 @@ class Gain:
 
 @dataclass(frozen=True)
 class FallThresholds:
-    """The robot has fallen when its base drops ``base_drop_m`` below its start height, tilts by
+    """The robot has fallen when its base drops ``base_drop_m`` below where its joints hold it on
+    its feet (metrics.py), tilts by
     more than ``tilt_deg``, or its capture point leaves the support polygon by more than
     ``capture_point_out_m`` (IHMC's rule: 5 cm)."""
 

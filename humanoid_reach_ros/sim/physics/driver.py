@@ -5,8 +5,9 @@ does for the kinematic plant -- validating commands, rate-limiting and smoothing
 on a stale command -- and its joint angles become the servos' position targets here: the
 interpolator of a real joint controller, with the physics plant as the hardware under it. Each
 loop tick advances the plant by the tick's measured period (so simulated time follows the wall
-clock) and publishes what the plant measures: joint angles and velocities, and the floating
-base's pose (not placed on the feet).
+clock), the servos' targets ramped over its 1 ms steps (``PhysicsPlant.advance_ramped``: a tick
+that came late under load moves them in small steps, not one jump), and publishes what the
+plant measures: joint angles and velocities, and the floating base's pose (not placed on the feet).
 
 :meth:`PhysicsDriver.statuses` adds one ``physics`` diagnostics status: the plant's timing
 (real-time factor, capacity, own CPU, step cost), the contact metrics now and their extremes
@@ -76,8 +77,7 @@ class PhysicsDriver:
         """Set the servos' targets, simulate ``dt`` and measure; returns (joints, velocities, base pose)."""
         with self.lock:
             plant = self.plant
-            plant.set_targets(targets)
-            plant.advance(dt)
+            plant.advance_ramped(targets, dt)
             m = self.metrics = plant.metrics()
             w = self._worst
             if m.cop is not None:

@@ -17,7 +17,10 @@ sole slip, base tilt, hand forces, capture point and the fall flag.
   carrying the hand frame and those below it) and the world.
 * **Capture point** (the linear inverted pendulum's): ``xi = c + cdot / omega``,
   ``omega = sqrt(g / h)`` with ``c`` the centre of mass and ``h`` its height above the soles.
-* **Fall** when the base has dropped ``base_drop_m`` below its reference height, tilts more
+* **Fall** when the base has dropped ``base_drop_m`` below where its joints hold it with the
+  right sole flat on its stance pose (``RobotModel.base_on_feet`` of the measured joints: a
+  crouch the plan commands is no fall, a robot tipping over its sole edge or sinking is; without
+  that height, its start height), tilts more
   than ``tilt_deg``, or the capture point is more than ``capture_point_out_m`` outside the
   support polygon (of both soles when none carries load); thresholds in physics.yaml.
 
@@ -129,8 +132,11 @@ def _rectangle_xy(pm: PhysicsModel, sole: np.ndarray) -> np.ndarray:
     return (corners @ sole.T)[:, :2]
 
 
-def contact_metrics(pm: PhysicsModel, data: mujoco.MjData, ref: StandReference) -> ContactMetrics:
-    """The figures of the state in ``data`` (after ``mj_step`` or ``mj_forward``), module doc."""
+def contact_metrics(pm: PhysicsModel, data: mujoco.MjData, ref: StandReference,
+                    base_z_held: float | None = None) -> ContactMetrics:
+    """The figures of the state in ``data`` (after ``mj_step`` or ``mj_forward``), module doc;
+    ``base_z_held``: the base height the measured joints hold with the feet on the floor (None:
+    the reference's start height)."""
     model = pm.model
     force6 = np.zeros(6)
     fsum = [0.0, 0.0]
@@ -172,8 +178,10 @@ def contact_metrics(pm: PhysicsModel, data: mujoco.MjData, ref: StandReference) 
     cp_out = max(0.0, -polygon_margin(polygon, cp))
     fall = pm.config.fall
     reason = ""
-    if ref.base_z - base_z > fall.base_drop_m:
-        reason = f"base {1e3 * (ref.base_z - base_z):.0f} mm below its start height (> {1e3 * fall.base_drop_m:.0f})"
+    held = ref.base_z if base_z_held is None else base_z_held
+    if held - base_z > fall.base_drop_m:
+        reason = (f"base {1e3 * (held - base_z):.0f} mm below " + ("its start height" if base_z_held is None else
+                  "where its joints hold it on its feet") + f" (> {1e3 * fall.base_drop_m:.0f})")
     elif tilt > fall.tilt_deg:
         reason = f"base tilted {tilt:.1f} deg (> {fall.tilt_deg:g})"
     elif cp_out > fall.capture_point_out_m:

@@ -122,8 +122,10 @@ class PhysicsPlant:
         return float(self.data.time)
 
     def metrics(self) -> ContactMetrics:
-        """Contact and balance figures of the current state (metrics.py)."""
-        return contact_metrics(self.pm, self.data, self.reference)
+        """Contact and balance figures of the current state (metrics.py); the base's drop is
+        measured from where the measured joints hold it on the feet."""
+        held = float(self.pm.robot.base_on_feet(self.joints).translation[2])
+        return contact_metrics(self.pm, self.data, self.reference, held)
 
     def timing(self) -> PlantTiming:
         wall = 0.0 if self._wall_start is None else time.perf_counter() - self._wall_start
@@ -152,6 +154,25 @@ class PhysicsPlant:
         self._carry_s = total - n * dt
         if n:
             self.step(n)
+        return n
+
+    def advance_ramped(self, targets: np.ndarray, duration_s: float) -> int:
+        """Simulate ``duration_s`` (as :meth:`advance`) with the servos' targets ramped linearly from
+        the current ones to ``targets`` over its steps: the interpolator of a real joint controller
+        (1 kHz under a 200 Hz command). A tick that came late (a loaded machine) moves the targets
+        in as many small steps as it simulates, not in one jump. Returns the steps taken."""
+        dt = self.pm.timestep_s
+        total = self._carry_s + duration_s
+        n = int(total / dt + 1e-9)
+        if n <= 1:
+            self.set_targets(targets)
+            return self.advance(duration_s)
+        start = self.targets
+        goal = np.clip(np.asarray(targets, float), self._lo, self._hi)
+        self._carry_s = total - n * dt
+        for k in range(1, n + 1):
+            self.data.ctrl[self.pm.actuator_ids] = start + (k / n) * (goal - start)
+            self.step(1)
         return n
 
     def run(self, duration_s: float, pace: bool = False, stop_on_fall: bool = False) -> ContactMetrics | None:
