@@ -104,6 +104,8 @@ BUDGET_S = 10.0             # --budget of every plan: a cap (a plan ends when fo
 STEP_TIMEOUT_S = 300.0       # one reach_operator process at most
 HOME_TOL_RAD = 0.01          # after --home: every joint within this of half-sitting (measured, settled; the
                              # executor holds the exact COG of the motion's start, so the legs end up to 7 mrad off)
+PLANT_HOME_TOL_RAD = 0.02   # the same on the physics plant: its servos hold joints up to 0.010 rad off their targets
+                             # under gravity standing (docs/physics.md), so measured joints end that much further off
 MOTION_START_TFS_S = 0.2     # the first /executor/metrics of a motion: time_from_start_s below this
 READY_LOGS = {               # a node's log line once it serves (test_session's)
     "joint_driver": r"simulated \w+", "scene_sim": r"scene sensors ready", "voxel_mapper": r"voxel mapper ready",
@@ -291,19 +293,24 @@ def stop_on_signals() -> None:
 
 
 @contextlib.contextmanager
-def _graph_for_robot(robot: str | None):
+def _graph_for_robot(robot: str | None, plant: str | None = None, scene: Path | None = None,
+                     node_params: dict[str, dict[str, Any]] | None = None):
     """bench/graph.py's ``Bench`` starts each node with its YAML file and a few parameters, with
-    no robot option: while it starts, its ``Graph`` adds ``launch_params(name, robot=...)``."""
+    no robot or plant option: while it starts, its ``Graph`` adds ``launch_params(name, robot=...,
+    plant=...)`` (the physics plant standing in the session's scene) and ``node_params[name]``."""
     import graph as bench_graph
     from humanoid_reach_ros.graph import Graph, launch_params
 
-    if robot is None:
+    if robot is None and plant is None and not node_params:
         yield
         return
 
     class RobotGraph(Graph):
         def start(self, module: str, params: dict[str, Any] | None = None):
-            return super().start(module, {**(params or {}), **launch_params(module, None, robot)})
+            extra = launch_params(module, None, robot, plant)
+            if "physics_scene" not in extra and plant is not None and module == "joint_driver":
+                extra["physics_scene"] = str(scene)
+            return super().start(module, {**(params or {}), **extra, **(node_params or {}).get(module, {})})
     saved = bench_graph.Graph
     bench_graph.Graph = RobotGraph
     try:
@@ -316,13 +323,16 @@ class Session:
     """One graph (bench/graph.py's ``Bench``) and this bench's probe: /joint_states over the
     whole session, /executor/metrics receipt times."""
 
-    def __init__(self, out: Path, scene: Path, robot: str | None, log) -> None:
+    def __init__(self, out: Path, scene: Path, robot: str | None, log, plant: str | None = None,
+                 node_params: dict[str, dict[str, Any]] | None = None) -> None:
         from graph import Bench
 
         self.out, self.log = out, log
+        self.plant = plant
+        self.plant_metrics: list[Any] = []    # /physics/metrics (plant mujoco), every message
         self.bench = Bench.__new__(Bench)
         try:
-            with _graph_for_robot(robot):
+            with _graph_for_robot(robot, plant, scene, node_params):
                 self.bench.__init__(out, scene)
         except BaseException:    # the nodes did not come up: stop those that did
             for name in ("op", "graph", "lease"):
@@ -355,6 +365,9 @@ class Session:
                 self.metric_starts.append(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9)
             self._last_tfs = m.time_from_start_s
         self.op.node.create_subscription(ExecutorMetrics, "/executor/metrics", on_metrics, 400)
+        if self.plant == "mujoco":
+            from humanoid_reach_interfaces.msg import PlantMetrics
+            self.op.node.create_subscription(PlantMetrics, "/physics/metrics", self.plant_metrics.append, 200)
         self.op.spin_until(lambda: self.op.joint_states is not None, 30.0, "/joint_states")
         self.op.samples.clear()
         self.op.recording = True                 # every /joint_states from here on
@@ -533,15 +546,21 @@ def failed_step(name: str, why: str) -> dict[str, Any]:
 
 
 # ---------------------------------------------------------------- a session
-def run_session(out: Path, scene_name: str, seed: int, robot: str | None, log) -> dict[str, Any]:
+def run_session(out: Path, scene_name: str, seed: int, robot: str | None, log, plant: str | None = None,
+                scene_steps: dict[str, Any] | None = None,
+                node_params: dict[str, dict[str, Any]] | None = None) -> dict[str, Any]:
+    """One session (module doc) on ``plant`` (None: joint_driver's YAML, kinematic); with
+    ``mujoco`` the result's ``physics`` holds the plant's figures (sim/physics/summary.py).
+    ``scene_steps``: the scene's entry of SCENES to use instead; ``node_params``: parameters per node on
+    top of their YAML files (bench/physics.py's stress session)."""
     from humanoid_reach_ros.paths import config_path
 
-    spec = SCENES[scene_name]
+    spec = scene_steps or SCENES[scene_name]
     shutil.rmtree(out, ignore_errors=True)    # this session's logs and events only
     out.mkdir(parents=True, exist_ok=True)
     res: dict[str, Any] = {"scene": scene_name, "seed": seed, "steps": []}
     t0 = time.monotonic()
-    sess = Session(out, config_path(spec["scene"]), robot, log)
+    sess = Session(out, config_path(spec["scene"]), robot, log, plant, node_params)
     res["graph_up_s"] = round(time.monotonic() - t0, 1)
     spans: list[tuple[int, int]] = []     # each step's /joint_states (recorded messages)
     try:   # the graph is stopped whatever happens, Ctrl-C (KeyboardInterrupt) included
@@ -578,7 +597,8 @@ def run_session(out: Path, scene_name: str, seed: int, robot: str | None, log) -
                     err = np.abs(sess.joints_now() - sess.robot.half_sitting_joints)
                     fig["home_joint_error_mrad"] = float(err.max() * 1e3)
                     fig["home_joint_error_worst"] = sess.robot.joint_names[int(np.argmax(err))]
-                    fig["success"] = fig["success"] and float(err.max()) <= HOME_TOL_RAD
+                    fig["success"] = fig["success"] and float(err.max()) <= (
+                        PLANT_HOME_TOL_RAD if plant == "mujoco" else HOME_TOL_RAD)
                 spans.append((i0, len(sess.op.samples)))
                 res["steps"].append(fig)
                 wait = fig.get("operator_wait_ms")
@@ -601,6 +621,10 @@ def run_session(out: Path, scene_name: str, seed: int, robot: str | None, log) -
         for st, d in zip(res["steps"], drift.pop("per_step_feet_drift_mm")):
             st["feet_drift_mm_max"] = d
         res.update(drift, joint_state_samples=len(series))
+        if plant == "mujoco":
+            from humanoid_reach_ros.sim.physics.summary import plant_figures
+            sess.op.spin_for(0.1)
+            res["physics"] = plant_figures(sess.plant_metrics)
         np.savez_compressed(out / "joint_states.npz", joints=series, step_spans=np.array(
             [(idx[a], idx[b]) for a, b in spans]).reshape(-1, 2))
     finally:
@@ -722,6 +746,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sessions", type=int, default=3, help="sessions per scene (fresh graph, own seed) (default 3)")
     ap.add_argument("--robot", choices=robots(), default=None, help="robot_config of every node (default the YAML "
                     "files')")
+    ap.add_argument("--plant", choices=("kinematic", "mujoco"), default=None, help="joint_driver's plant (default "
+                    "its YAML's, kinematic); mujoco: the physics plant in the session's scene (bench/physics.py "
+                    "judges its figures)")
     ap.add_argument("--seed-base", type=int, default=1, help="session k of a scene uses seed base + k")
     ap.add_argument("--quick", action="store_true", help=f"one scene ({QUICK_SCENE}), one session")
     ap.add_argument("--out", default="out/bench_session", help="logs, events and a copy of the JSON")
@@ -743,7 +770,7 @@ def main(argv: list[str] | None = None) -> int:
             seed = args.seed_base + k
             log(f"{scene}, session {k + 1}/{n} (seed {seed}): graph up ...")
             try:
-                s = run_session(out / f"{scene}_s{seed}", scene, seed, args.robot, log)
+                s = run_session(out / f"{scene}_s{seed}", scene, seed, args.robot, log, args.plant)
             except (RuntimeError, AssertionError, TimeoutError) as exc:   # the graph did not come up
                 log(f"  session failed: {exc}")
                 s = {"scene": scene, "seed": seed, "steps": [failed_step("graph", str(exc))],
