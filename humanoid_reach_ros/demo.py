@@ -218,10 +218,12 @@ def wait_marker(op: DemoClient, look_at: tuple[float, float] | None, timeout: fl
     return op.targets[-1]
 
 
-def plan(op: DemoClient, args: argparse.Namespace, home: bool = False):
+def plan(op: DemoClient, args: argparse.Namespace, home: bool = False, relocate: Callable[[], Any] | None = None):
     """``/plan_reach`` as ``reach_operator`` asks it: while the answer is UNOBSERVED_SPACE with the
     points to look at, a whole-body gaze there (``/look``), then plan again (at most
-    ``--max-looks``). ``(response, operator wait [s] without the looks, region, looks)``."""
+    ``--max-looks``); ``relocate``: called after each such look (the marker target: the head turns
+    back to the marker, whose /target_pose went stale while it looked away). ``(response, operator
+    wait [s] without the looks, region, looks)``."""
     from humanoid_reach_ros.io import msgs
     from humanoid_reach_ros.planning.wgr import valve_region
 
@@ -250,6 +252,8 @@ def plan(op: DemoClient, args: argparse.Namespace, home: bool = False):
         print(f"[demo] the plan needs to see {np.round(pts, 2).tolist()} m (unobserved): looking there "
               f"(automatic look {looks}/{max_looks})")
         op.look([], [], args.settle, gaze_points=pts)
+        if relocate is not None:
+            relocate()
 
 
 class ProgressBar:
@@ -467,7 +471,12 @@ def run(args: argparse.Namespace) -> dict:
 
             p = msgs.se3_from_pose(target.pose).translation
             print(f"[demo] marker target (valve centre) at {np.round(p, 4).tolist()} m in world")
-        resp, wait_s, region, looks = plan(op, args)
+        relocate = None
+        if args.target is None:
+            def relocate() -> None:
+                print("[demo] looking back at the marker (its /target_pose went stale during the look)")
+                wait_marker(op, look, gaze=gaze)
+        resp, wait_s, region, looks = plan(op, args, relocate=relocate)
         if not resp.success:
             raise RuntimeError(f"/plan_reach failed: {code_name(resp.error_code.val)}: "
                                f"{resp.message}")
