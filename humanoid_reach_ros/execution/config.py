@@ -86,11 +86,13 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "diagnostics_period_s": ParamSpec(1.0, "period of /diagnostics [s]", (0.05, 60.0)),
     "max_overrun_fraction": ParamSpec(0.02, "diagnostics WARN when more than this fraction of the steps of the "
                                       "last window overran", (0.0, 1.0)),
-    "scan_poses_deg": ParamSpec([0.0, 35.0, -30.0, 30.0, 30.0, 30.0, 0.0, 45.0, -35.0, 45.0, 35.0, 45.0, -25.0, 5.0,
-                                 25.0, 5.0, 0.0, 10.0, 0.0, 25.0],
+    "scan_poses_deg": ParamSpec([0.0, 35.0, 0.0, 45.0, -35.0, 45.0, -30.0, 30.0, -25.0, 5.0, 0.0, 10.0, 25.0, 5.0,
+                                 30.0, 30.0, 35.0, 45.0, 0.0, 25.0],
                                 "head scan of the look action with no poses: yaw, pitch pairs [deg] (pitch > 0 looks "
                                 "down; the pitch-45 poses see the space in front of the chest the arms and the trunk "
-                                "move through); the last one looks at the workspace in front"),
+                                "move through), in an order that sweeps the head from one side to the other (210 deg "
+                                "of head travel; 375 in the order of the same poses before); the last one looks at "
+                                "the workspace in front"),
     "marker_look_deg": ParamSpec([2.0, 40.0], "where the head looks for the target's marker: yaw, pitch [deg] "
                                  "(reach_operator --marker turns it there when /target_pose is stale and no marker "
                                  "position is known; the plant's valve from half-sitting, the demo's aim)"),

@@ -43,6 +43,8 @@ from humanoid_reach_ros.execution.requests import ExecutionRequests, HandContact
 from humanoid_reach_ros.execution.supervisor import IDLE, Motion
 
 LEVEL_OK, LEVEL_WARN, LEVEL_ERROR = 0, 1, 2      # diagnostic levels (diagnostic_msgs' numbering)
+#: a gaze whose joints move less than this [rad] (held back at 0 %: nothing new in view) is not dwelt on
+STILL_RAD = 1e-3
 
 
 def counted(n: int, plural: str) -> str:
@@ -374,7 +376,9 @@ class ExecutionManager:
     def look(self, build: Callable[[], LookGoal], port: GoalPort) -> Outcome:
         """One whole-body motion per head pose, or per gaze point (the balanced whole-body gaze of
         ``control/gaze.py``, from the joints measured when its turn comes), each followed by
-        ``dwell_s`` of holding (the loop holds after a motion); ``port.feedback(LookProgress)``
+        ``dwell_s`` of holding (the loop holds after a motion; not after a scan's way back to its
+        start posture, nor after a gaze held back at 0 %: neither brings anything new into view);
+        ``port.feedback(LookProgress)``
         names the pose and the head joints' targets. A gaze point no reachable gaze brings into
         view is still looked at (the best effort) and the message says so."""
         label, t0 = self._goal_label("look"), time.monotonic()
@@ -406,6 +410,7 @@ class ExecutionManager:
         out, unseen = Outcome(int(C.SUCCESS), ""), []
         count = len(items)
         for k, (item, target) in enumerate(items):
+            still = item == "back"   # nothing new to see: no dwell (the way back; a gaze held back at 0 %)
             try:
                 if item == "pose":
                     yaw, pitch = target
@@ -416,11 +421,14 @@ class ExecutionManager:
                                                    *self.joints())
                     yaw, pitch = self.requests.head_targets(target)
                 else:
+                    joints = self.joints()
                     motion, gaze = self.requests.gaze(next(self._motion_ids), f"{label} point {k}", target,
-                                                      *self.joints())
+                                                      *joints)
                     yaw, pitch = self.requests.head_targets(gaze.joints)
                     if not gaze.visible:
                         unseen.append(f"point {k} {np.round(target, 3).tolist()} {gaze.unseen_reason}")
+                    if joints[0] is not None and np.abs(gaze.joints - joints[0]).max() < STILL_RAD:
+                        still = True
             except RequestError as exc:
                 out.code, out.message = int(exc.code), f"{item} {k}: {exc}"
                 break
@@ -431,7 +439,7 @@ class ExecutionManager:
                 out.code, out.message = int(pend.code), f"{item} {k}: {pend.message}"
                 break
             port.feedback(LookProgress(k, count, float(yaw), float(pitch), True))
-            end = time.monotonic() + dwell
+            end = time.monotonic() + (0.0 if still else dwell)
             while time.monotonic() < end and not port.cancel_requested() and self.ok():
                 time.sleep(min(0.05, max(0.0, end - time.monotonic())))
             if port.cancel_requested():
