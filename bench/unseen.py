@@ -48,7 +48,10 @@ is kept.
   10 x 10 postures within their limits), less the robot's own volume grown by ``BODY_MARGIN_M``
   = 3 cm (issue 31's policy: what the robot occupied is known free; the oracle's scene marks
   each target's start posture so, as the planner does); its outer layer goes to the oracle as
-  the frontier (a plan cannot cross it, so it never enters that space). Oracle SUCCESS:
+  the frontier (a plan cannot cross it, so it never enters that space). The stance zone is
+  known free to the oracle too (``--stance``, by default the voxel mapper's
+  ``stance_clearance_m``: the body at half-sitting grown by it, which the policy assumes the
+  operator keeps clear). Oracle SUCCESS:
   feasible and observable; UNOBSERVED_SPACE: feasible only through unobservable space (the
   planner's own check on the true voxels alone); other codes: not feasible within the budget.
   Simplifications, named: the gaze grid, not ``GazeSolver.observable``'s search, decides (a
@@ -64,7 +67,10 @@ checked counts as penetrating; a target whose truth could not be computed counts
 and observable (and so, unless reached, missed).
 
 Last line: one JSON object: ``unseen_plans`` (SUCCESS plans checked), ``plans_penetrating_true_obstacles``
-(target 0) with ``worst_penetration`` and ``penetrating_cases``, ``unobservable_answers``
+(target 0) with ``worst_penetration`` and ``penetrating_cases``, split into
+``penetrating_in_stance_zone`` (through a hidden obstacle the scene put nearer the body than the
+stance zone's clearance: the scene broke the policy's declared assumption) and
+``plans_penetrating_beyond_stance_zone``, ``unobservable_answers``
 (final UNOBSERVABLE_SPACE), ``unobserved_answers`` (final UNOBSERVED_SPACE after the looks),
 ``feasible_observable_targets``, ``feasible_observable_success_rate`` (target >= 0.95),
 ``codes`` (final code per target), ``targets``, ``seeds``, ``wall_s``, ``commit``, ``machine``;
@@ -108,6 +114,14 @@ TARGET_BODY_CLEARANCE_M = 0.10      # ... and from the robot's body in half-sitt
 TARGET_RADIUS_M = (0.25, 0.75)      # from the vertical through the stance origin
 TARGET_HEIGHT_M = (0.45, 1.45)
 BODY_MARGIN_M = 0.03                # the robot's volume at the start, grown by this, is known free space
+
+
+def stance_clearance_m() -> float:
+    """The voxel mapper's ``stance_clearance_m`` (config/voxel_mapper.yaml): the space within it
+    of the robot's shapes at its reference posture counts as observed free (the operator keeps
+    it clear where the robot is placed: a named assumption of the policy)."""
+    doc = yaml.safe_load((Path(__file__).resolve().parents[1] / "config/voxel_mapper.yaml").read_text())
+    return float(doc["/**"]["ros__parameters"]["stance_clearance_m"])
 CELL_M = 0.04                       # cells of the observability oracle [m]
 OBSERVE_BOX = ((-1.2, -1.2, 0.0), (1.4, 1.2, 2.0))   # ... over this box [m, world]: everything the arms reach
 SEEN_BY_MAP_M = 0.02                # a hidden primitive with a map voxel this near its surface was seen
@@ -411,7 +425,8 @@ class Truth:
     observable targets (module doc)."""
 
     def __init__(self, robot, cm, scene, budget_s: float, start: np.ndarray, log,
-                 body_margin_m: float = BODY_MARGIN_M) -> None:
+                 body_margin_m: float = BODY_MARGIN_M, stance_m: float = 0.0,
+                 hidden: list[dict[str, Any]] | None = None) -> None:
         import dataclasses
 
         import generality
@@ -422,6 +437,9 @@ class Truth:
 
         self.robot, self.cm, self.scene, self.budget_s = robot, cm, scene, budget_s
         self.body_margin_m = float(body_margin_m)
+        self.stance_m = float(stance_m)
+        # a hidden primitive's clearance to the body at half-sitting (make_scene's drawn distance)
+        self.hidden_clearance = {h["name"]: float(h["clearance_m"]) for h in (hidden or [])}
         self.audit = TrajectoryAudit(robot, cm, scene.primitives)
         self.gaze = GazeSolver(robot)
         params = generality.planner_params()
@@ -444,9 +462,11 @@ class Truth:
         pos = model_positions(self.robot, resp["joint_names"], resp["positions"])
         c, n = self.audit.check(np.asarray(resp["times"], float), pos)
         hidden = c.primitive and self.scene.primitive(c.primitive).group == HIDDEN_GROUP
+        # an obstacle the scene put inside the stance zone breaks the policy's declared assumption
+        in_stance = bool(hidden) and self.hidden_clearance.get(c.primitive, math.inf) < self.stance_m
         return {"penetrating": c.penetrating, "distance_mm": round(c.distance_m * 1e3, 2),
-                "primitive": c.primitive, "hidden": bool(hidden), "shape": c.shape, "time_s": round(c.time_s, 3),
-                "configurations": n}
+                "primitive": c.primitive, "hidden": bool(hidden), "in_stance_zone": in_stance, "shape": c.shape,
+                "time_s": round(c.time_s, 3), "configurations": n}
 
     def _gaze_grid(self, joints: np.ndarray) -> np.ndarray:
         """Joint vectors with the gaze joints over a grid of their limits (chest 9 x 7, neck 10 x 10)."""
@@ -460,7 +480,8 @@ class Truth:
     def unobservable_shell(self, start: np.ndarray, resolution_m: float) -> tuple[np.ndarray, int]:
         """The voxels (resolution ``resolution_m``) of the outer layer of the space no gaze
         reachable from ``start`` sees (``CELL_M`` cells of ``OBSERVE_BOX`` whose centre no gaze of
-        the grid sees, outside the start's body grown by ``BODY_MARGIN_M``): an obstacle a plan
+        the grid sees, outside the start's body grown by ``BODY_MARGIN_M`` and outside the stance
+        zone, the body at half-sitting grown by ``stance_m``): an obstacle a plan
         cannot cross, so that it never enters that space; and how many cells that space has."""
         from humanoid_reach_ros.robot.shapes import point_segment_distance
         lo, hi = (np.asarray(v, float) for v in OBSERVE_BOX)
@@ -477,6 +498,9 @@ class Truth:
         body = np.zeros(len(C), bool)
         for a, b, r in zip(B0, B1, BR):
             body |= point_segment_distance(C, a, b)[0] <= r + self.body_margin_m
+        if self.stance_m > 0.0:      # the stance zone: the body at half-sitting grown by stance_m, known free
+            for a, b, r in zip(*body_capsules(self.robot, self.cm)):
+                body |= point_segment_distance(C, a, b)[0] <= r + self.stance_m
         unobs = (~seen & ~body).reshape(dims)
         inner = unobs.copy()
         for ax in range(3):          # a cell with a seen (or body) neighbour is on the shell
@@ -579,7 +603,8 @@ def summarize(records: list[dict[str, Any]], max_looks: int = MAX_LOOKS) -> dict
         return {"scene": r.get("scene"), "seed": r.get("seed"), "index": r.get("index"), "target": r.get("target"),
                 "sector": r.get("sector"), "plan_seed": r.get("plan_seed"),
                 "depth_mm": -c["distance_mm"] if c else None, "primitive": c.get("primitive"),
-                "hidden": c.get("hidden"), "shape": c.get("shape"), "time_s": c.get("time_s"),
+                "hidden": c.get("hidden"), "in_stance_zone": c.get("in_stance_zone"), "shape": c.get("shape"),
+                "time_s": c.get("time_s"),
                 "looks": r.get("looks"), "unchecked": not c}
     cases = sorted((case(r) for r in penetrating + unchecked), key=lambda c: -(c["depth_mm"] or math.inf))
     worst = next((c for c in cases if c["depth_mm"] is not None), None)
@@ -590,6 +615,10 @@ def summarize(records: list[dict[str, Any]], max_looks: int = MAX_LOOKS) -> dict
         "worst_penetration_mm": worst["depth_mm"] if worst else 0.0,
         "worst_penetration": worst,
         "penetrating_through_hidden": sum(1 for c in cases if c["hidden"]),
+        # through an obstacle the scene put within stance_clearance_m of the body: the policy's declared
+        # assumption (that space is kept clear) broken by the scene, counted apart (still in the total above)
+        "penetrating_in_stance_zone": sum(1 for c in cases if c.get("in_stance_zone")),
+        "plans_penetrating_beyond_stance_zone": sum(1 for c in cases if not c.get("in_stance_zone")),
         "unobservable_answers": int(unobservable),
         "unobserved_answers": int(unobserved),
         "feasible_observable_targets": fo,
@@ -641,11 +670,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="out/unseen", help="scenes, logs, records and a copy of the JSON")
     ap.add_argument("--body-margin", type=float, default=BODY_MARGIN_M, help="the oracle's known-free space: "
                     "the robot's own volume grown by this [m] (default %(default)s: issue 31's self-filter margin)")
+    ap.add_argument("--stance", type=float, default=None, help="the oracle's stance zone [m] (default: the voxel "
+                    "mapper's stance_clearance_m, the policy's assumption; 0: none)")
     ap.add_argument("--truth-only", action="store_true", help="no graph: the truth of the scenes and records an "
                     "earlier run left in --out, computed again (same --seeds, --quick and --robot)")
     args = ap.parse_args(argv)
     if args.targets_per_scene < 1 or not (0 < args.budget <= 60) or not (0 <= args.body_margin <= 0.5):
         ap.error("--targets-per-scene must be >= 1, --budget in (0, 60] and --body-margin in [0, 0.5]")
+    stance = stance_clearance_m() if args.stance is None else args.stance
+    if not (0.0 <= stance <= 0.5):
+        ap.error(f"--stance must be in [0, 0.5], got {stance}")
     seeds = args.seeds[:1] if args.quick else args.seeds
     per_scene = min(args.targets_per_scene, QUICK_TARGETS) if args.quick else args.targets_per_scene
     out = Path(args.out).resolve()
@@ -691,7 +725,7 @@ def main(argv: list[str] | None = None) -> int:
         starts = [r["start_joints"] for r in recs if "start_joints" in r]
         if starts:
             truth_for(recs, Truth(robot, cm, scene, args.budget, np.asarray(starts[0], float), log,
-                                  args.body_margin), log)
+                                  args.body_margin, stance, info.get("hidden")), log)
         else:
             for r in recs:
                 r["truth_error"] = "no target ran"
@@ -709,7 +743,7 @@ def main(argv: list[str] | None = None) -> int:
         head = {"commit": head}
     figures.update(**head)
     figures.update(seeds=seeds, targets_per_scene=per_scene, budget_s=args.budget, robot=args.robot,
-                   truth_recomputed=bool(args.truth_only), body_margin_m=args.body_margin,
+                   truth_recomputed=bool(args.truth_only), body_margin_m=args.body_margin, stance_m=stance,
                    scenes=scenes, machine=machine(), bench="unseen",
                    wall_s=round(time.monotonic() - t0, 1))
     (out / "unseen.json").write_text(json.dumps(figures, indent=2))

@@ -163,6 +163,16 @@ def test_summary_counts_every_target_and_names_the_worst_penetration():
     assert s["feasible_observable_targets"] == 3 and s["feasible_observable_reached"] == 1
     assert s["feasible_observable_success_rate"] == pytest.approx(1 / 3, abs=1e-4)
     assert s["codes"] == {"SUCCESS": 2, "UNOBSERVABLE_SPACE": 1, "UNOBSERVED_SPACE": 1, "TARGET_OUT_OF_REACH": 1}
+    assert s["penetrating_in_stance_zone"] == 0 and s["plans_penetrating_beyond_stance_zone"] == 1
+
+
+def test_a_penetration_of_an_obstacle_inside_the_stance_zone_is_counted_apart_but_still_counted():
+    in_zone = dict(INSIDE, in_stance_zone=True)
+    s = unseen.summarize([record(0, ErrorCode.SUCCESS, check=in_zone, truth=FO),
+                          record(1, ErrorCode.SUCCESS, check=INSIDE, truth=FO)])
+    assert s["plans_penetrating_true_obstacles"] == 2
+    assert s["penetrating_in_stance_zone"] == 1 and s["plans_penetrating_beyond_stance_zone"] == 1
+    assert [c["in_stance_zone"] for c in s["penetrating_cases"]] == [True, None]
 
 
 def test_a_missing_measurement_or_a_failed_step_is_a_missed_target_never_skipped():
