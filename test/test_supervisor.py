@@ -425,3 +425,24 @@ def test_a_slow_step_is_logged_with_what_its_thread_did() -> None:
     assert len(slow) == 1 and "m1: step 5 took" in slow[0] and "ms of the solver thread's CPU" in slow[0], logs
     cpu = float(slow[0].split("took ")[1].split(" ms: ")[1].split(" ms")[0])
     assert cpu < SLOW_STEP_PERIODS * DT * 1e3, slow[0]     # it slept: the wall time is not CPU time
+
+
+@pytest.mark.parametrize("offset, tol, source", [(0.01, 0.05, "the last command"), (0.2, 0.05, "/joint_states"),
+                                                 (0.01, 0.0, "/joint_states")])
+def test_an_idle_start_resumes_from_the_last_command_when_the_measured_joints_are_close(offset, tol, source) -> None:
+    """After hold_timeout_s the executor is idle; the joint driver still holds its last command. A
+    plant whose servos sit off it under gravity (the physics plant) reports measured joints a little
+    off: within resume_tolerance_rad the next motion starts from the last command, else (someone
+    moved the robot, or the tolerance is 0) from the measured joints."""
+    h = Harness(hold_timeout_s=0.02, resume_tolerance_rad=tol)
+    h.sup.submit(h.motion(1, duration=0.05))
+    for _ in range(30):
+        h.cycle()
+    assert h.sup.mode == IDLE
+    last = h.sent[-1].copy()
+    q = np.zeros(NQ)
+    q[7:] = last + offset                       # the measured joints
+    h.sup.submit(h.motion(2, duration=0.05, q=q))
+    h.cycle()
+    assert h.started[-1].id == 2 and h.started[-1].source == source
+    assert np.allclose(h.engine.q0[7:], last if source == "the last command" else q[7:])

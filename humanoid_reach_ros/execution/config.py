@@ -72,6 +72,11 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "hold_timeout_s": ParamSpec(1.0, "republish the held command this long after a motion [s], then stop "
                                 "publishing (the joint driver holds its last command; the loop sleeps until the "
                                 "next motion); 0 = republish until the next motion", (0.0, 1e6)),
+    "resume_tolerance_rad": ParamSpec(0.05, "an idle executor (after hold_timeout_s) starts the next motion from "
+                                      "its last command when every measured joint is within this of it [rad] (the "
+                                      "driver holds that command; a physics plant's servos hold the joints a little "
+                                      "off it under gravity, and starting from the measured ones sank the robot by "
+                                      "as much each motion); 0 = always from /joint_states", (0.0, 1.0)),
     "lookahead_steps": ParamSpec(4, "the solver computes this many steps before their deadlines (1: only the "
                                  "next one); each one more absorbs a longer stall of the loop's threads at the "
                                  "cost of one period more before a stop or a new map reaches the command",
@@ -144,7 +149,8 @@ def executor_params(values: dict[str, Any]) -> ExecutorParams:
 def supervisor_config(values: dict[str, Any]) -> SupervisorConfig:
     return SupervisorConfig(period_s=values["period_s"], hold_settle_s=values["hold_settle_s"],
                             hold_timeout_s=values["hold_timeout_s"], dual_arm_brake_s=values["dual_arm_brake_s"],
-                            lookahead_steps=values["lookahead_steps"])
+                            lookahead_steps=values["lookahead_steps"],
+                            resume_tolerance_rad=values["resume_tolerance_rad"])
 
 
 @dataclasses.dataclass(frozen=True)

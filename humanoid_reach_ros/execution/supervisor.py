@@ -94,6 +94,7 @@ class SupervisorConfig:
     dual_arm_brake_s: float = 0.2     # a stopped dual-arm motion brakes on its path over this long [s]
     lookahead_steps: int = 4          # steps computed before their deadline (1: only the next one)
     step_history: int = 4000          # step times kept for the percentiles
+    resume_tolerance_rad: float = 0.0  # idle: start from the last command when every measured joint is this close
 
 
 @dataclass(eq=False)
@@ -338,7 +339,7 @@ class ExecutionSupervisor:
             if motion.code is not None:
                 return None
             previous = self.motion
-            if self.last_q is not None and self.mode != IDLE:
+            if self.last_q is not None and (self.mode != IDLE or self._resumable(motion.q_measured)):
                 q0, source = self.last_q.copy(), "the last command"
             else:
                 q0, source = motion.q_measured, "/joint_states"
@@ -354,6 +355,16 @@ class ExecutionSupervisor:
                 return None
         motion.source = source
         return q0, previous, mode_before
+
+    def _resumable(self, q_measured: np.ndarray | None) -> bool:
+        """Idle, may a motion start from the last command? When every measured joint is within
+        ``resume_tolerance_rad`` of it: the joint driver holds the last command, and a plant whose
+        servos sit a little off it under gravity (the physics plant: HRP-2's knees 0.01 rad) would
+        otherwise get the measured posture as its next targets and sink by as much each motion."""
+        tol = self.config.resume_tolerance_rad
+        if tol <= 0.0 or q_measured is None or self.last_q is None:
+            return False
+        return bool(np.max(np.abs(np.asarray(q_measured)[7:] - self.last_q[7:])) <= tol)
 
     def _start(self, motion: Motion) -> None:
         """Start ``motion`` from the last commanded configuration (measured when none)."""

@@ -79,6 +79,12 @@ class PhysicsPlant:
         self.data.qpos[pm.qpos_adr] = joints
         self._lo = self.model.actuator_ctrlrange[pm.actuator_ids, 0].copy()
         self._hi = self.model.actuator_ctrlrange[pm.actuator_ids, 1].copy()
+        # kv / kp of each servo (MuJoCo's position actuator: gain kp, bias -kp q - kv qdot): the shift of
+        # the position target that turns its damping into damping of the velocity error (advance_ramped)
+        kp = self.model.actuator_gainprm[pm.actuator_ids, 0]
+        self._kv_over_kp = np.where(kp > 0.0, -self.model.actuator_biasprm[pm.actuator_ids, 2] / np.where(
+            kp > 0.0, kp, 1.0), 0.0)
+        self._target = np.zeros(robot.n_joints)
         self.set_targets(joints)
         mujoco.mj_forward(self.model, self.data)
         self.reference: StandReference = stand_reference(pm, self.data)
@@ -90,12 +96,15 @@ class PhysicsPlant:
 
     # ------------------------------------------------------------ in and out
     def set_targets(self, joints: np.ndarray) -> None:
-        """The servos' position targets (robot model joint order), clipped into the joint ranges."""
-        self.data.ctrl[self.pm.actuator_ids] = np.clip(joints, self._lo, self._hi)
+        """The servos' position targets (robot model joint order), clipped into the joint ranges;
+        held still (no velocity feed-forward)."""
+        self._target = np.clip(joints, self._lo, self._hi)
+        self.data.ctrl[self.pm.actuator_ids] = self._target
 
     @property
     def targets(self) -> np.ndarray:
-        return self.data.ctrl[self.pm.actuator_ids].copy()
+        """The servos' position targets (without the velocity feed-forward's shift)."""
+        return self._target.copy()
 
     @property
     def joints(self) -> np.ndarray:
@@ -160,18 +169,30 @@ class PhysicsPlant:
         """Simulate ``duration_s`` (as :meth:`advance`) with the servos' targets ramped linearly from
         the current ones to ``targets`` over its steps: the interpolator of a real joint controller
         (1 kHz under a 200 Hz command). A tick that came late (a loaded machine) moves the targets
-        in as many small steps as it simulates, not in one jump. Returns the steps taken."""
+        in as many small steps as it simulates, not in one jump.
+
+        The servos track the ramp with **velocity feed-forward**: MuJoCo's position servo is
+        ``tau = kp (q_ref - q) - kv qdot``, whose damping brakes any motion, so at a speed ``v`` it lags
+        ``kv v / kp`` (HRP-2's torso, kv/kp 0.1 s: 0.1 rad behind a 1 rad/s gaze, enough to tip the
+        robot onto one foot). Its target shifted by ``(kv/kp) v_ref`` makes it
+        ``tau = kp (q_ref - q) + kv (v_ref - qdot)``: a PD on the tracking error, what a joint
+        controller does. Returns the steps taken."""
         dt = self.pm.timestep_s
         total = self._carry_s + duration_s
         n = int(total / dt + 1e-9)
-        if n <= 1:
-            self.set_targets(targets)
-            return self.advance(duration_s)
-        start = self.targets
         goal = np.clip(np.asarray(targets, float), self._lo, self._hi)
+        if n < 1:
+            self._carry_s = total
+            self.set_targets(goal)
+            return 0
+        start = self._target
         self._carry_s = total - n * dt
+        v_ref = (goal - start) / (n * dt)
+        shift = self._kv_over_kp * v_ref
+        ids = self.pm.actuator_ids
         for k in range(1, n + 1):
-            self.data.ctrl[self.pm.actuator_ids] = start + (k / n) * (goal - start)
+            self._target = start + (k / n) * (goal - start)
+            self.data.ctrl[ids] = self._target + shift
             self.step(1)
         return n
 
