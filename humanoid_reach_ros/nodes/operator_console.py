@@ -48,6 +48,10 @@ PARAMETERS = {
                                     "resolution_m)", (0.001, 1.0)),
     "target_map_distance_m": ParamSpec(0.06, "a clicked target or look point must lie this close to an occupied "
                                        "voxel [m]", (0.0, 1.0)),
+    "scan_dwell_s": ParamSpec(0.0, "Scan: hold each head pose this long [s] (reach_operator --dwell); 0.0: the "
+                              "executor's", (0.0, 10.0)),
+    "plan_budget_s": ParamSpec(0.0, "Plan and Home: the planning time budget [s] (reach_operator --budget); 0.0: "
+                               "the planner's", (0.0, 600.0)),
     "ghost_frames": ParamSpec(40, "postures of the plan's preview (ghost)", (2, 400)),
     "marker_dictionary": ParamSpec("DICT_4X4_50", "ArUco dictionary of the markers outlined in the image (the "
                                    "marker localizer's)"),
@@ -92,7 +96,7 @@ class OperatorConsole(Node):
             self.client, plan_request, self.feed.current_joints, self.feed.map_distance,
             lambda traj, start: robot.ghost(traj, start, p["ghost_frames"]),
             lambda m, to: self.server.emit(m, to), lambda f: self.server.emit_frame(f),
-            p["target_map_distance_m"], log)
+            p["target_map_distance_m"], log, p["scan_dwell_s"], p["plan_budget_s"])
         self.server = ConsoleServer(config, self.feed, robot, control, log)
         self.create_subscription(JointState, "joint_states", self._on_joints, sensor, raw=True)
         self.create_subscription(Image, "head_camera/image_raw", self._on_image, sensor, raw=True)

@@ -116,10 +116,13 @@ class ConsoleControl:
     def __init__(self, client: Any, plan_request: Callable[[Any], Any], joints: Callable[[], np.ndarray | None],
                  map_distance: Callable[[list[float]], float], ghost: Callable[[Any, np.ndarray], tuple[bytes, dict]],
                  emit: Callable[[dict[str, Any], Any], None], emit_frame: Callable[[bytes], None],
-                 target_map_distance_m: float, log: Callable[[str], None] = lambda s: None) -> None:
+                 target_map_distance_m: float, log: Callable[[str], None] = lambda s: None,
+                 scan_dwell_s: float = 0.0, plan_budget_s: float = 0.0) -> None:
         self.client, self.plan_request, self.joints, self.map_distance = client, plan_request, joints, map_distance
         self.ghost, self._emit, self.emit_frame, self.log = ghost, emit, emit_frame, log
         self.target_map_distance_m = float(target_map_distance_m)
+        self.scan_dwell_s = float(scan_dwell_s)    # each head pose of a Scan held this long [s]; 0: the executor's
+        self.plan_budget_s = float(plan_budget_s)  # the planning time budget of Plan and Home [s]; 0: the planner's
         self.lock = threading.Lock()
         self.holder: Any = None          # the page holding the controls (None: nobody)
         self.holder_since = 0.0
@@ -262,7 +265,8 @@ class ConsoleControl:
 
     def _plan(self, argv: list[str], target: list[float] | None, execute: bool = False) -> None:
         op = "home" if execute else "plan"
-        session = self._session(op, argv)
+        budget = ["--budget", repr(self.plan_budget_s)] if self.plan_budget_s > 0.0 else []
+        session = self._session(op, [*argv, *budget])
         start = self.joints()
         with self.lock:
             self.preview, self.preview_start, self.target = None, None, target
@@ -308,7 +312,8 @@ class ConsoleControl:
         self._result(op, ok, text, error=error, execution=e)
 
     def _scan(self) -> None:
-        self._look_result("scan", self._session("scan", ["--scan"]), None)
+        dwell = ["--dwell", repr(self.scan_dwell_s)] if self.scan_dwell_s > 0.0 else []
+        self._look_result("scan", self._session("scan", ["--scan", *dwell]), None)
 
     def _look(self, points: np.ndarray) -> None:
         self._look_result("look", self._session("look", ["--scan"]), points)

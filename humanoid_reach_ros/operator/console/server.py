@@ -145,7 +145,7 @@ class ConsoleServer:
         if loop is not None and not loop.is_closed():
             loop.call_soon_threadsafe(fn, *args)
 
-    def start(self, timeout_s: float = 10.0) -> str:
+    def start(self, timeout_s: float = 60.0) -> str:
         """Start serving; the page's URL. ``OSError`` when the port cannot be had."""
         self.thread = threading.Thread(target=self._serve, name="console-server", daemon=True)
         self.thread.start()

@@ -28,7 +28,7 @@ scene.add(new THREE.AxesHelper(0.3));
 let dirty = true;
 const hr = {                                      // what the page shows, for tests and the curious
   page: null, holder: null, busy: null, preview: false, picked: null,
-  counts: { occupied: 0, unobserved: 0, robotFrames: 0, ghostFrames: 0, images: 0, renders: 0 },
+  counts: { occupied: 0, unobserved: 0, robotFrames: 0, ghostFrames: 0, images: 0, markerImages: 0, renders: 0 },
   results: [], errors: [], status: null,
   project(x, y, z) {                              // a world point -> page pixel coordinates
     const v = new THREE.Vector3(x, y, z).project(camera);
@@ -211,6 +211,7 @@ async function onImage(h, payload) {
     imageCtx.stroke();
   }
   hr.counts.images++;
+  if (h.markers.length) hr.counts.markerImages++;
   $("imageinfo").textContent = `head camera ${h.w} x ${h.h}, ${h.markers.length ? "marker outlined" : "no marker in view"}`;
 }
 
@@ -224,8 +225,9 @@ function connect() {
 }
 function send(req) {
   if (!ws || ws.readyState !== WebSocket.OPEN) { say("not connected to the console", "bad"); return; }
-  ws.send(JSON.stringify(req));
+  ws.send(typeof req === "string" ? req : JSON.stringify(req));
 }
+hr.send = send;                                   // a request as the buttons send it (tests send bad ones)
 
 function onBinary(buf) {
   const n = new DataView(buf).getUint32(0, true);
