@@ -47,6 +47,7 @@ UP_WHEN: dict[str, tuple[str, tuple[str, ...]]] = {
     "marker_localizer": ("pub", ("/target_pose",)),
     "reach_planner": ("srv", ("/plan_reach",)),
     "reach_executor": ("srv", ("/execute_reach/_action/send_goal", "/look/_action/send_goal")),
+    "operator_console": ("srv", ("/operator_console/get_parameters",)),   # --console (its page: the URL line)
 }
 WAITING_EVERY_S = 15.0   # while starting: a line naming the nodes not up yet this often
 TAIL_LINES = 15          # log lines shown of a node that exited
@@ -73,8 +74,14 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--enclave", default="", help="SROS2 enclave of every node (reach.launch.py's enclave:=; "
                    "ROS_SECURITY_ENCLAVE_OVERRIDE), e.g. /humanoid/robot; the shell's ROS_SECURITY_* variables pass "
                    "through untouched (docs/deployment.md)")
+    p.add_argument("--console", action="store_true", help="also start operator_console, the operator's console in "
+                   "a browser (reach.launch.py's console:=true; docs/operator.md)")
+    p.add_argument("--console-port", type=int, default=None, metavar="PORT",
+                   help="its port (reach.launch.py's console_port:=; default config/operator_console.yaml's, 8765)")
     p.add_argument("--log-dir", default="out/graph", help="directory of the node logs (default out/graph)")
     a = p.parse_args(argv)
+    if a.console_port is not None and not (a.console and 1 <= a.console_port <= 65535):
+        p.error(f"--console-port {a.console_port}: needs --console and a port in 1..65535")
     if a.enclave and not a.enclave.startswith("/"):
         p.error(f"--enclave {a.enclave}: an enclave is an absolute name, e.g. /humanoid/robot")
     if a.scene is not None:
@@ -127,6 +134,14 @@ def report_dead(p: NodeProcess, out: TextIO) -> None:
     out.flush()
 
 
+def console_port(args: argparse.Namespace) -> int:
+    """``--console-port``, else config/operator_console.yaml's port."""
+    if args.console_port is not None:
+        return int(args.console_port)
+    import yaml
+    return int(yaml.safe_load(config_path("operator_console.yaml").read_text())["/**"]["ros__parameters"]["port"])
+
+
 def nodes_env(args: argparse.Namespace, shell: Mapping[str, str]) -> dict[str, str]:
     """The nodes' environment: the shell's (its ``ROS_SECURITY_*`` untouched), its domain, its
     discovery settings where it has them (else localhost), ``--enclave`` as rcl's
@@ -148,6 +163,9 @@ def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
     env = nodes_env(args, os.environ)
     domain = env["ROS_DOMAIN_ID"]
     names = list(host_nodes(args.host, sim_sensors=not args.no_sim_sensors))
+    console = {"port": args.console_port} if args.console_port is not None else {}
+    if args.console:
+        names.append("operator_console")
     graph = Graph(log_dir, env, new_session=True)   # Ctrl-C reaches hr_graph, which stops the nodes in order
     watch = None
     dead: set[str] = set()
@@ -158,7 +176,8 @@ def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
                   f"{env.get('ROS_AUTOMATIC_DISCOVERY_RANGE', '-')}); logs in {log_dir}/\n")
         out.flush()
         for name in names:
-            graph.start(name, launch_params(name, args.scene, args.robot, args.plant))
+            graph.start(name, {**launch_params(name, args.scene, args.robot, args.plant),
+                               **(console if name == "operator_console" else {})})
         watch = GraphWatch()
         pending = list(names)
         ready = False
@@ -175,6 +194,9 @@ def run(args: argparse.Namespace, out: TextIO = sys.stdout) -> int:
                 what = ", ".join(x.replace("/_action/send_goal", " (action)") for x in what)
                 out.write(f"[hr_graph] {name} up ({time.monotonic() - t0:.1f} s): "
                           f"{'serves' if kind == 'srv' else 'publishes'} {what}\n")
+                if name == "operator_console":
+                    out.write(f"[hr_graph] the console: open http://127.0.0.1:{console_port(args)}/ "
+                              f"(its log: {log_dir}/operator_console.*.log)\n")
                 out.flush()
             if not pending and not ready:
                 ready = True

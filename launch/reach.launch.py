@@ -21,6 +21,8 @@ Arguments:
                        waist on the feet) or mujoco (a MuJoCo physics plant standing in the scene:=
                        file; servos, contacts, a measured floating base, /physics/metrics;
                        docs/physics.md)
+    console            true: also start operator_console, the operator's console in a browser on
+                       http://127.0.0.1:<console_port>/ (default 8765; docs/operator.md, docs/deployment.md)
     host               all (default), robot (driver, sensors, mapper, localizer, executor) or compute
                        (the planner): the graph across hosts (docs/deployment.md), e.g.
                        ros2 launch humanoid_reach_ros reach.launch.py host:=robot   # on the robot
@@ -75,6 +77,10 @@ def generate_launch_description() -> LaunchDescription:
                               description="joint_driver's plant: kinematic or mujoco (physics, docs/physics.md)"),
         DeclareLaunchArgument("host", default_value="all", choices=list(HOSTS),
                               description="the nodes of one host: robot, compute (the planner) or all"),
+        DeclareLaunchArgument("console", default_value="false", choices=["true", "false"],
+                              description="also start operator_console, the operator's console in a browser"),
+        DeclareLaunchArgument("console_port", default_value="8765",
+                              description="operator_console's port (http://127.0.0.1:<port>/)"),
         DeclareLaunchArgument("enclave", default_value="",
                               description="SROS2 enclave of every node (ROS_SECURITY_ENCLAVE_OVERRIDE); empty: none"),
         SetEnvironmentVariable(ENCLAVE_ENV, LaunchConfiguration("enclave"), condition=IfCondition(
@@ -106,4 +112,13 @@ def generate_launch_description() -> LaunchDescription:
                 condition=IfCondition(PythonExpression(
                     started + [" and '", robot, "' " + ("!=" if named else "==") + " ''"])),
             ))
+    # the operator's console (console:=true), on any host: it reaches the others through /plan_reach,
+    # /execute_reach, /look and the topics, as reach_operator does (docs/operator.md)
+    for named in (False, True):
+        params = [os.path.join(config, "operator_console.yaml"), {"port": LaunchConfiguration("console_port")}]
+        actions.append(Node(
+            package=PACKAGE, executable="operator_console", name="operator_console",
+            parameters=params + [{"robot_config": robot}] if named else params, output="screen",
+            condition=IfCondition(PythonExpression(["'", LaunchConfiguration("console"), "' == 'true' and '", robot,
+                                                    "' " + ("!=" if named else "==") + " ''"]))))
     return LaunchDescription(actions)

@@ -127,11 +127,18 @@ def test_hr_graph_names_a_node_that_exits(ros_env, tmp_path: Path) -> None:
     (["--no-sim"], "unrecognized arguments: --no-sim"),   # no abbreviations
     (["--host", "laptop"], "argument --host: invalid choice: 'laptop'"),
     (["--enclave", "robot"], "--enclave robot: an enclave is an absolute name"),
+    (["--console-port", "9000"], "--console-port 9000: needs --console"),
+    (["--console", "--console-port", "70000"], "a port in 1..65535"),
 ])
 def test_bad_options_are_refused(argv: list[str], message: str, capsys: pytest.CaptureFixture) -> None:
     with pytest.raises(SystemExit) as exc:
         graph_up.parse_args(argv)
     assert exc.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_the_console_port_is_the_flag_or_the_parameter_file() -> None:
+    assert graph_up.console_port(graph_up.parse_args(["--console", "--console-port", "9000"])) == 9000
+    assert graph_up.console_port(graph_up.parse_args(["--console"])) == 8765   # config/operator_console.yaml
 
 
 def test_a_count_of_nodes_is_said_in_words() -> None:

@@ -58,6 +58,7 @@ def test_launch_file_names_installed_executables_and_params(path: Path) -> None:
 def test_full_graph_launch_starts_the_design_nodes() -> None:
     names = launched(REPO_ROOT / "launch" / "reach.launch.py")
     assert set(names) == {"joint_driver", "scene_sim", "voxel_mapper", "marker_localizer", "reach_planner",
+                          "operator_console",   # with console:=true only (test_the_launch_file_starts_the_console)
                           "reach_executor"}
 
 
@@ -242,3 +243,14 @@ def test_the_launch_file_gives_the_plant_to_the_joint_driver(plant) -> None:
     scene = overrides["scene_sim"]["scene_file"]
     assert launch_params("joint_driver", scene, None, plant) == {"plant": plant, "physics_scene": scene}
     assert "plant" not in launch_params("scene_sim", scene, None, plant)
+
+
+@pytest.mark.parametrize("robot", ["", "talos"])
+def test_the_launch_file_starts_the_console_when_asked(robot) -> None:
+    """console:=true adds operator_console (once, its port and the robot asked for), as hr_graph --console."""
+    assert "operator_console" not in dict(_evaluate_reach_launch({"robot": robot}))
+    started = [(exe, p) for exe, p in _evaluate_reach_launch({"console": "true", "console_port": "9001",
+                                                             "robot": robot}) if exe == "operator_console"]
+    assert len(started) == 1, started
+    overrides = {k: v for p in started[0][1] if isinstance(p, dict) for k, v in p.items()}
+    assert overrides["port"] == "9001" and overrides.get("robot_config") == (robot or None), overrides
