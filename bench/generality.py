@@ -15,8 +15,13 @@ states, then once more, timed (the operator's wait, and the first answer's apart
 Figures (per robot): ``feasible_success_rate``, ``feasible_ms_p50`` / ``_p95`` (wall time
 of the plan call, successes and failures alike), ``infeasible_correct_code_rate``,
 ``infeasible_ms_max`` and ``infeasible_geometric_ms_max`` (the TARGET_OUT_OF_REACH ones),
-per case and arm the codes and times. Targets (issue 13): success >= 0.95, p50 <= 300
-ms, correct codes on every infeasible case, geometric ones in <= 50 ms.
+``infeasible_ms_p95`` (every infeasible case) and ``infeasible_ms_p95_bound`` (the cases a
+reach bound decides: those expected TARGET_OUT_OF_REACH), ``samples_per_goal_p50`` / ``_p95``
+(goal-sampling draws per goal found, over the requests that found one), per case and arm the
+codes and times. Targets (issue 13): success >= 0.95, p50 <= 300 ms, correct codes on every
+infeasible case, geometric ones in <= 50 ms; issue 35: samples per goal <= 20, infeasible
+p95 <= 100 ms. ``--no-reach-map``: the planner without the robots' reach maps (the same run's
+baseline). The last line's ``summary``: per robot the issue's figures.
 
 Last stdout line: one JSON object.
 """
@@ -64,11 +69,13 @@ def ms_stats(values_ms: list[float]) -> dict:
             "mean": float(a.mean())}
 
 
-def library_runs(cases, seeds: int, budget_s: float, robot: str) -> list[dict]:
+def library_runs(cases, seeds: int, budget_s: float, robot: str, reach_map: bool = True) -> list[dict]:
+    from dataclasses import replace
+
     from humanoid_reach_ros.planning.reach import PlanRequest, ReachPlanner
     from humanoid_reach_ros.robot.model import RobotModel
 
-    rp = ReachPlanner(RobotModel(robot), params=planner_params())
+    rp = ReachPlanner(RobotModel(robot), params=replace(planner_params(), use_reach_map=reach_map))
     rp.warm_up()
     hs = rp.robot.half_sitting_joints
     runs = []
@@ -98,6 +105,7 @@ def summarize(runs: list[dict]) -> dict:
     infeas = [r for r in runs if r["expect"] not in ("reachable", "marginal")]
     marginal = [r for r in runs if r["expect"] == "marginal"]
     geo = [r for r in infeas if r["expect"] == "out_of_reach"]
+    spg = [r["samples"] / r["goals"] for r in runs if r["goals"] > 0]
     out = {
         "feasible_runs": len(feas), "infeasible_runs": len(infeas), "marginal_runs": len(marginal),
         "marginal_correct_code_rate": sum(r["correct"] for r in marginal) / len(marginal) if marginal else None,
@@ -108,6 +116,10 @@ def summarize(runs: list[dict]) -> dict:
         "infeasible_correct_code_rate": sum(r["correct"] for r in infeas) / len(infeas) if infeas else None,
         "infeasible_ms_max": max(r["ms"] for r in infeas) if infeas else None,
         "infeasible_geometric_ms_max": max(r["ms"] for r in geo) if geo else None,
+        "infeasible_ms_p95": float(np.percentile([r["ms"] for r in infeas], 95)) if infeas else None,
+        "infeasible_ms_p95_bound": float(np.percentile([r["ms"] for r in geo], 95)) if geo else None,
+        "samples_per_goal_p50": float(np.median(spg)) if spg else None,
+        "samples_per_goal_p95": float(np.percentile(spg, 95)) if spg else None,
         "trajectory_s_p50": float(np.median([r["duration_s"] for r in feas if r["duration_s"] is not None]))
         if any(r["duration_s"] is not None for r in feas) else None,
     }
@@ -187,6 +199,7 @@ def main() -> int:
     ap.add_argument("--budget-s", type=float, default=2.0, help="planning budget per request [s] (default 2)")
     ap.add_argument("--cases", nargs="*", default=None, help="only these suite cases (default: all)")
     ap.add_argument("--no-node", action="store_true", help="skip the /plan_reach subset")
+    ap.add_argument("--no-reach-map", action="store_true", help="plan without the robots' reach maps (baseline)")
     ap.add_argument("--robot", nargs="+", default=robots(), choices=robots(), metavar="ROBOT",
                     help=f"robots of config/robots (default: all of them, {' '.join(robots())})")
     args = ap.parse_args()
@@ -202,11 +215,12 @@ def main() -> int:
             ap.error(f"unknown case(s) {sorted(unknown)}; the suite has {[c.name for c in cases]}")
         cases = [c for c in cases if c.name in args.cases]
     result = {"bench": "generality", "machine": describe_machine(), "seeds": args.seeds, "budget_s": args.budget_s,
+              "reach_map": not args.no_reach_map, "load_before": os.getloadavg()[0],
               "cases": [c.name for c in cases], "robots": {}}
     for name in dict.fromkeys(args.robot):
         print(f"== {name}", flush=True)
         t0 = time.perf_counter()
-        runs = library_runs(cases, args.seeds, args.budget_s, name)
+        runs = library_runs(cases, args.seeds, args.budget_s, name, not args.no_reach_map)
         robot = summarize(runs)
         robot["library_s"] = time.perf_counter() - t0
         if not args.no_node:
@@ -218,8 +232,15 @@ def main() -> int:
             "feasible_ms_p50<=300": (robot["feasible_ms_p50"] or 1e9) <= 300,
             "infeasible_correct_code_rate==1": robot["infeasible_correct_code_rate"] == 1.0,
             "infeasible_geometric_ms_max<=50": (robot["infeasible_geometric_ms_max"] or 0) <= 50,
+            "samples_per_goal_p50<=20": (robot["samples_per_goal_p50"] or 1e9) <= 20,
+            "infeasible_ms_p95<=100": (robot["infeasible_ms_p95"] or 1e9) <= 100,
         }
         result["robots"][name] = robot
+    keys = ("feasible_success_rate", "feasible_ms_p50", "feasible_ms_p95", "infeasible_ms_p95",
+            "infeasible_ms_p95_bound", "samples_per_goal_p50", "samples_per_goal_p95")
+    result["summary"] = {n: {k: (round(r[k], 2) if isinstance(r[k], float) else r[k]) for k in keys}
+                         for n, r in result["robots"].items()}
+    result["load_after"] = os.getloadavg()[0]
     print(json.dumps(result))
     return 0
 

@@ -9,6 +9,9 @@
 * ``redundant_tracker.py`` -- a 7-joint arm's control step (the self-motion kept continuous);
 * ``ik_types.py`` -- the outcome types.
 
+``Chain6`` (a limb's placements, axes and limits) is exported for the planner's reach map,
+which is trained on the chain's forward kinematics (``planning/reach_map.py``).
+
 Each compiled (numba) solver sits beside its numpy reference and is tested against it.
 
 The rest of the package imports from here only (``test_layering.py`` holds it to that): the
@@ -19,6 +22,7 @@ redundant arm's tracker.
 
 No ROS here.
 """
+from humanoid_reach_ros.kinematics.general_ik import Chain6, rotations as chain_rotations
 from humanoid_reach_ros.kinematics.hand_derived import LEG_WORK_SIZE, LimbIK, LimbStructureError, leg_ik_pose
 from humanoid_reach_ros.kinematics.hand_derived_compiled import CompiledArmIK
 from humanoid_reach_ros.kinematics.ik_types import IKReason, IKResult
@@ -26,5 +30,6 @@ from humanoid_reach_ros.kinematics.protocol import LimbSolver
 from humanoid_reach_ros.kinematics.redundant_tracker import RedundantArmTracker
 from humanoid_reach_ros.kinematics.registry import SOLVERS, LimbIKSet, limb_solver, warm_up
 
-__all__ = ["CompiledArmIK", "IKReason", "IKResult", "LEG_WORK_SIZE", "LimbIK", "LimbIKSet", "LimbSolver",
-           "LimbStructureError", "RedundantArmTracker", "SOLVERS", "leg_ik_pose", "limb_solver", "warm_up"]
+__all__ = ["Chain6", "chain_rotations", "CompiledArmIK", "IKReason", "IKResult", "LEG_WORK_SIZE", "LimbIK",
+           "LimbIKSet", "LimbSolver", "LimbStructureError", "RedundantArmTracker", "SOLVERS", "leg_ik_pose",
+           "limb_solver", "warm_up"]

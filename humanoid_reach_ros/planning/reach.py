@@ -50,6 +50,7 @@ import pinocchio as pin
 from humanoid_reach_ros.geometry.distance import RobotCollision
 from humanoid_reach_ros.planning.goal_sampler import Goals, sample_goals
 from humanoid_reach_ros.planning.trunk_region import TrunkRegion, TrunkSampler
+from humanoid_reach_ros.planning.reach_map import InverseReach, ReachMap
 from humanoid_reach_ros.planning.path import (
     PLANNER_NAMES, PlanningSpace, PlanStatus, ShortcutOptions, plan as run_planner, shortcut_path,
 )
@@ -149,10 +150,17 @@ class PlannerParams:
     include_waypoint_times: bool = True
     start_limit_tolerance_rad: float = 1e-3
     unobserved_check_budget_s: float = 1.0
+    # the robot's reachability map (planning/reach_map.py; robot.yaml reach_map): the proof of
+    # TARGET_OUT_OF_REACH and the goal sampler's trunk cells; roll x yaw cell size [rad] and
+    # trunk draws per hand pose the capability map chooses among
+    use_reach_map: bool = True
+    reach_map_step_rad: float = 0.05
+    reach_map_candidates: int = 16
 
     def __post_init__(self) -> None:
         for name in ("resolution_m", "time_budget_s", "joint_velocity_rad_s", "output_period_s", "edge_resolution",
-                     "rrt_step", "arm_weight", "trunk_z_weight", "trunk_rpy_weight", "trunk_space_cut_iterations"):
+                     "rrt_step", "arm_weight", "trunk_z_weight", "trunk_rpy_weight", "trunk_space_cut_iterations",
+                     "reach_map_step_rad", "reach_map_candidates"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"PlannerParams.{name} must be finite and > 0, got {v}")
@@ -320,6 +328,12 @@ class ReachPlanner:
         self.projector = Projector(self.robot, LimbIKSet(self.robot, compiled=compiled_kinematics))
         self.trunk_region = TrunkRegion(self.projector, params.trunk_z_m, params.trunk_pitch_rad,
                                         params.trunk_roll_rad, params.trunk_yaw_rad)
+        #: the reach map's inverse (None: the robot names no map, or ``use_reach_map`` is off); a
+        #: map the description names but that is missing or corrupt is a ValueError (the node exits 2)
+        self.reach: InverseReach | None = None
+        if params.use_reach_map and self.robot.spec.reach_map:
+            self.reach = InverseReach(ReachMap.load(self.robot.spec.reach_map, self.robot), self.trunk_region,
+                                      params.reach_map_step_rad)
         self.early_exit_checks = bool(early_exit_checks)
         self._tree_build_s = 0.0
         self._pre_segment_why = ""
@@ -441,10 +455,19 @@ class ReachPlanner:
 
     # ------------------------------------------------------------ planning space
     def trunk_sampling(self, region: WorkspaceGoalRegion, arm: str = "auto",
-                       q_start: np.ndarray | None = None) -> TrunkSampler:
-        """The trunk heights x pitches searched for ``region`` (``TrunkRegion.for_target``),
-        nearest the trunk of ``q_start`` (a full configuration) first."""
-        trunk = self.trunk_region.for_target(region, arm)
+                       q_start: np.ndarray | None = None, cells: np.ndarray | None = None) -> TrunkSampler:
+        """The trunk cells searched for ``region``, nearest the trunk of ``q_start`` (a full
+        configuration) first: the reach map's inverse at the target (``cells`` (M, 4) from
+        ``InverseReach.for_target``, computed here when None) where the robot has a map, else
+        the heights x pitches of ``TrunkRegion.for_target``."""
+        if self.reach is not None:
+            if cells is None:
+                _, cells, _ = self.reach.for_target(region, _arm_names(arm))
+            trunk = (self.trunk_region.from_cells(cells, self.reach.droll, self.reach.dyaw, self.reach.capability,
+                                                  self.params.reach_map_candidates) if len(cells)
+                     else self.trunk_region.for_target(region, arm))
+        else:
+            trunk = self.trunk_region.for_target(region, arm)
         if q_start is None:
             return trunk
         pitch = float(matrix_rpy(quat_xyzw_matrix(np.asarray(q_start[3:7], float)))[1])
@@ -888,8 +911,11 @@ class ReachPlanner:
         p = self.params
         region, arm_req, planner, n_goals, budget, seed = self._request_values(request)
         joints = self._validate_joints(start_joints)
+        reach_cells = None
         if region is not None:
             out_of_reach = self.trunk_region.out_of_reach(region, arm_req)
+            if not out_of_reach and self.reach is not None:
+                out_of_reach, reach_cells, _ = self.reach.for_target(region, _arm_names(arm_req))
             if out_of_reach:
                 raise _failure(PlanError.TARGET_OUT_OF_REACH,
                                f"target out of reach ({out_of_reach}): move the target closer or walk the robot nearer")
@@ -935,7 +961,7 @@ class ReachPlanner:
 
         # ---- goal postures (Algorithm 1)
         tg = time.perf_counter()
-        trunk = self.trunk_sampling(region, arm_req, q_start)
+        trunk = self.trunk_sampling(region, arm_req, q_start, reach_cells)
         goals = sample_goals(region, n_goals, self.robot, collision, rng, arm=arm_req, trunk=trunk,
                              time_budget_s=max(0.0, p.goal_time_fraction * budget - (tg - t0)),
                              batch_size=p.goal_batch_size, projector=self.projector)
@@ -1322,6 +1348,11 @@ class _Traj:
     @property
     def duration(self) -> float:
         return self.spline.duration
+
+
+def _arm_names(arm: str) -> tuple[str, ...]:
+    """The arms a request allows: both for ``auto`` (right first, Algorithm 1's order)."""
+    return ("right", "left") if arm in (None, "", "auto") else (arm,)
 
 
 def _merge_goals(a: Goals, b: Goals) -> Goals:

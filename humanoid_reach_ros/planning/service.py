@@ -192,8 +192,9 @@ class PlanningService:
         free-space plan, then :meth:`warm_up_measured`."""
         t0 = time.perf_counter()
         warm = self.planner.warm_up() and self.warm_up_measured()
+        reach = self.planner.reach.describe() if self.planner.reach is not None else "no reach map"
         self.log("info", f"planning kernels warmed up in {1e3 * (time.perf_counter() - t0):.0f} ms; goal "
-                         f"search: {self.planner.trunk_region.describe()}")
+                         f"search: {self.planner.trunk_region.describe()}; {reach}")
         if not warm:
             self.log("warning", "the warm-up plan (free space) did not succeed: the first request may pay "
                                 "for compiling the path checker")

@@ -94,6 +94,14 @@ class TrunkSampler:
     candidates: int = 8
     order: np.ndarray | None = None  # cells nearest the start first (see :meth:`near`)
     first_fraction: float = 0.25
+    #: 4-D cells (the reach map's inverse, planning/reach_map.py): roll and yaw per cell (cell
+    #: sizes ``droll``, ``dyaw``) instead of uniform over ``roll`` / ``yaw``, and the map's
+    #: capability filter choosing :meth:`sample_for`'s draw (``CapabilityFilter.pick``)
+    roll_cells: np.ndarray | None = None
+    yaw_cells: np.ndarray | None = None
+    droll: float = 0.0
+    dyaw: float = 0.0
+    capability: object | None = None
 
     def near(self, z: float, pitch: float, z_weight: float = 2.0, pitch_weight: float = 1.0) -> "TrunkSampler":
         """The same cells, drawn nearest the trunk pose (``z``, ``pitch``) first: after ``b``
@@ -120,8 +128,13 @@ class TrunkSampler:
         jitter = rng.uniform(-0.5, 0.5, size=(n, 2))
         z = self.z_cells[k] + jitter[:, 0] * self.dz
         pitch = self.pitch_cells[k] + jitter[:, 1] * self.dpitch
-        roll = rng.uniform(self.roll[0], self.roll[1], size=n)
-        yaw = rng.uniform(self.yaw[0], self.yaw[1], size=n)
+        if self.roll_cells is None:
+            roll = rng.uniform(self.roll[0], self.roll[1], size=n)
+            yaw = rng.uniform(self.yaw[0], self.yaw[1], size=n)
+        else:
+            ry = rng.uniform(-0.5, 0.5, size=(n, 2))
+            roll = self.roll_cells[k] + ry[:, 0] * self.droll
+            yaw = self.yaw_cells[k] + ry[:, 1] * self.dyaw
         return z, np.stack([roll, pitch, yaw], axis=1)
 
     def sample_for(self, rng: np.random.Generator, p_e: np.ndarray, R_e: np.ndarray,
@@ -131,6 +144,9 @@ class TrunkSampler:
         wrist centre (the first draw when none does; Algorithm 1 then rejects it)."""
         n, k = len(p_e), self.candidates
         z, rpy = self.sample(rng, n * k, batch)
+        if self.capability is not None and k > 1:
+            pick = self.capability.pick(z, rpy, p_e, R_e, _arms(arm), k)
+            return z[pick], rpy[pick]
         if self.arms is None or k <= 1:
             return z[:n], rpy[:n]
         arms = [self.arms[a] for a in _arms(arm)]
@@ -155,7 +171,8 @@ class TrunkSampler:
 
     def describe(self) -> str:
         (z0, z1), (p0, p1) = self.z_range, self.pitch_range
-        return f"trunk z {z0:.2f}-{z1:.2f} m, pitch {p0:.2f}-{p1:.2f} rad ({len(self.z_cells)} cells)"
+        what = "cells" if self.roll_cells is None else "cells of the reach map's inverse"
+        return f"trunk z {z0:.2f}-{z1:.2f} m, pitch {p0:.2f}-{p1:.2f} rad ({len(self.z_cells)} {what})"
 
 
 class TrunkRegion:
@@ -231,6 +248,14 @@ class TrunkRegion:
     def _sampler(self, cells: np.ndarray, narrowed: bool) -> TrunkSampler:
         return TrunkSampler(self.z_grid[cells], self.pitch_grid[cells], self.dz, self.dpitch, self.roll, self.yaw,
                             narrowed, self.arms, self.v, self.cog_xy, self.candidates)
+
+    def from_cells(self, cells: np.ndarray, droll: float, dyaw: float, capability, candidates: int) -> TrunkSampler:
+        """A sampler over 4-D cells (M, 4) = (z, roll, pitch, yaw) centres of sizes ``dz`` x
+        ``droll`` x ``dpitch`` x ``dyaw`` (the reach map's inverse at a target), its draws
+        chosen by ``capability`` (``CapabilityFilter``), ``candidates`` per hand pose."""
+        return TrunkSampler(cells[:, 0].copy(), cells[:, 2].copy(), self.dz, self.dpitch, self.roll, self.yaw, True,
+                            self.arms, self.v, self.cog_xy, int(candidates), roll_cells=cells[:, 1].copy(),
+                            yaw_cells=cells[:, 3].copy(), droll=float(droll), dyaw=float(dyaw), capability=capability)
 
     def describe(self) -> str:
         s = self.all_cells()

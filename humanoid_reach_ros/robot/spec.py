@@ -44,8 +44,9 @@ PACKAGE_SCHEME = "package://"
 #: kept as the default so that descriptions written before the key read as before)
 DEFAULT_DUAL_ARM_WORKSPACE = "robots/hrp2/dual_arm_workspace.yaml"   # config/-relative: HRP-2's
 _KEYS = {"robot_name", "urdf", "collision_model", "base_link", "limbs", "chest", "head", "gripper_joints",
-         "sole_rectangle_m", "torso_regression", "dual_arm_workspace", "half_sitting", "frames", "demo_scene"}
-_REQUIRED = _KEYS - {"gripper_joints", "torso_regression", "dual_arm_workspace", "frames", "demo_scene"}
+         "sole_rectangle_m", "torso_regression", "dual_arm_workspace", "half_sitting", "frames", "demo_scene",
+         "reach_map"}
+_REQUIRED = _KEYS - {"gripper_joints", "torso_regression", "dual_arm_workspace", "frames", "demo_scene", "reach_map"}
 DEFAULT_DEMO_SCENE = "scenes/plant.yaml"   # config/-relative: the plant, made for HRP-2's and Talos's size
 #: roles of the ``chest`` entry: required, then optional
 _CHEST_ROLES, _CHEST_OPTIONAL = ("yaw", "pitch"), ("roll",)
@@ -109,6 +110,9 @@ class RobotSpec:
     #: robot.yaml), else the plant (``DEFAULT_DEMO_SCENE``); a robot too small for the plant's
     #: valve names a scene made for its size
     demo_scene: str = ""
+    #: the planner's reachability map (planning/reach_map.py), absolute: the description's
+    #: ``reach_map`` (a .npz beside robot.yaml, trained by tools/train_reach_map.py), else None
+    reach_map: str | None = None
 
     @property
     def hand_frames(self) -> dict[str, str]:
@@ -354,6 +358,11 @@ def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]
         raise ValueError(f"{where}: torso_regression must be a model path (beside robot.yaml, no extension)")
     if reg is not None:
         reg = str((path.parent / reg).resolve())
+    rmap = doc.get("reach_map")
+    if rmap is not None and not (isinstance(rmap, str) and rmap):
+        raise ValueError(f"{where}: reach_map must be a .npz file name beside robot.yaml")
+    if rmap is not None:
+        rmap = str((path.parent / rmap).resolve())
     workspace = _dual_arm_workspace(doc, path.parent, where)
     frames = _frames(doc, where)
     urdf = doc["urdf"]
@@ -371,7 +380,7 @@ def load_robot_spec(robot: str | Path = DEFAULT_ROBOT) -> tuple[RobotSpec, dict]
         head_yaw=head.get("yaw"), head_pitch=head.get("pitch"), camera_frame=head["camera_frame"],
         gripper_joints=tuple(grippers), sole_rectangle=tuple(float(x) for x in rect),
         half_sitting_deg={str(k): float(v) for k, v in hs.items()}, torso_regression=reg,
-        dual_arm_workspace=workspace, demo_scene=_demo_scene(doc, path.parent, where))
+        dual_arm_workspace=workspace, demo_scene=_demo_scene(doc, path.parent, where), reach_map=rmap)
     return spec, doc
 
 

@@ -1,0 +1,592 @@
+"""Reachability maps of the arms, and their inverse over the balanced trunk manifold
+(capability map, Zacharias et al. 2007; inverse reachability, Vahrenkamp et al. 2013).
+
+Trained offline per robot (``tools/train_reach_map.py``) into ``config/robots/<name>/``
+(robot.yaml ``reach_map``), read at start-up by the planner. Per arm, in the arm's root link
+(the chest: fixed in the trunk, Algorithm 1's fixed chest joints), two grids:
+
+* **The outer bound** (``clearance``, the proof of ``TARGET_OUT_OF_REACH``). For every
+  voxel centre ``c`` a *lower bound* of the distance from ``c`` to any tip position the arm can
+  take within its joint limits. How it stays a lower bound (conservative, never a false "no"):
+  the chain is split after joint ``s``: the origin ``o`` of joint ``s + 1`` depends on joints
+  ``1..s`` only, and the tip is within ``d_tail = sum |t_k| (k > s + 1) + |t_e|`` of ``o``
+  whatever the joints after it do (triangle inequality over the placements). Joints ``1..s``
+  are enumerated on a grid of cell centres (``n_j`` values, spacing ``delta_j``): any joint
+  vector within the limits is within ``delta_j / 2`` of a grid point in each joint, and turning
+  joint ``j`` by ``delta`` moves ``o`` by at most ``delta`` times its lever
+  ``L_j = sum |t_k| (j < k <= s + 1)`` (``o``'s distance from joint ``j``'s origin, on its
+  axis), so every reachable ``o`` is within ``eps = sum_j delta_j L_j / 2`` of a grid point's.
+  The grid points are marked in a fine occupancy grid (cell ``f``); the distance from ``c`` to
+  the nearest marked cell's centre minus ``f sqrt(3) / 2``, minus ``eps + d_tail``, is the
+  stored bound (floored to ``CLEARANCE_UNIT_M``). A query point ``x`` in voxel ``c`` loses
+  ``h sqrt(3) / 2`` more (``h`` the voxel); outside the grid, its distance to the box holding
+  the whole outer set. Simplification, named: position only (the hand's orientation and
+  collisions are not in the bound), so a target the bound keeps may still have no goal.
+* **The capability map** (``cap_bits``, the sampler's inverse). Uniform random joint vectors
+  within the limits through forward kinematics: per voxel (``cap_voxel_m``), which hand
+  orientations were reached, as bits over ``ORIENTATION_BINS`` (the hand z axis in one of 54
+  cube-map cells x its x axis in one of 4 quarter turns about it). An inner approximation (a
+  voxel or orientation no sample hit reads as unreached): used only to choose trunk draws,
+  never to refuse.
+
+The inverse (:class:`InverseReach`): the balanced trunk manifold the planner searches
+(:class:`~humanoid_reach_ros.planning.trunk_region.TrunkRegion`'s leg-feasible height x pitch
+cells, x roll and yaw cells over their ranges) is gridded into 4-D cells; per target, each
+cell's centre puts the target at a point of each arm's root frame. A cell is ruled out for an
+arm when the outer bound there exceeds what the trunk can move the target within the cell
+(height ``dz / 2``; an orientation within ``theta = (droll + dpitch + dyaw) / 2`` of the
+centre's turns ``a = T - p_t`` by at most ``theta |a|`` and moves ``p_t`` (``R_t v``) by at
+most ``theta |v|``) plus the region's half diagonal; cells whose bound only that slack spoils
+are split in 16 and tried again (``REFINE_LEVELS`` times). No cell left for any allowed arm:
+``TARGET_OUT_OF_REACH``, with the smallest gap (the margin) in the message. The cells left
+are the goal sampler's trunk cells, and each hand pose's trunk draw is the first of
+``candidates`` whose arm's capability bit holds that hand pose (the first draw when none does:
+Algorithm 1 decides every sample as before).
+
+No ROS here.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numba as nb
+import numpy as np
+
+from humanoid_reach_ros.codes import ARMS
+from humanoid_reach_ros.planning.projector import rpy_into
+from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion
+
+MAP_VERSION = 1
+CLEARANCE_UNIT_M = 0.005        # the stored bound's unit (uint8, floored: 0 .. 1.275 m)
+ORIENTATION_BINS = 54 * 4       # z axis: 6 cube faces x 3 x 3; x axis: 4 quarter turns about z
+REFINE_LEVELS = 2               # cells whose bound the slack spoils are split in 16, this many times
+_SQRT3_2 = math.sqrt(3.0) / 2.0
+
+
+# ------------------------------------------------------------------ orientation bins
+@nb.njit(cache=True)
+def orientation_bin(R) -> int:
+    """Bin of a rotation (3, 3) among ``ORIENTATION_BINS``: the z axis's cube-map cell (the
+    face of its largest component, its other two components over that one in thirds) x the
+    quarter turn of the x axis about z, measured from ``cross(w, z)`` with ``w`` the face's
+    next coordinate axis (never parallel to z within its face)."""
+    zx, zy, zz = R[0, 2], R[1, 2], R[2, 2]
+    ax = 0
+    m = abs(zx)
+    if abs(zy) > m:
+        ax, m = 1, abs(zy)
+    if abs(zz) > m:
+        ax, m = 2, abs(zz)
+    z = (zx, zy, zz)
+    neg = 1 if z[ax] < 0.0 else 0
+    u = z[(ax + 1) % 3] / m
+    v = z[(ax + 2) % 3] / m
+    iu = min(2, max(0, int((u + 1.0) * 1.5)))
+    iv = min(2, max(0, int((v + 1.0) * 1.5)))
+    zbin = (2 * ax + neg) * 9 + iu * 3 + iv
+    # e1 = cross(w, z) / |.|, w the unit axis (ax + 1) % 3; e2 = cross(z, e1)
+    w0, w1, w2 = 0.0, 0.0, 0.0
+    if ax == 0:
+        w1 = 1.0
+    elif ax == 1:
+        w2 = 1.0
+    else:
+        w0 = 1.0
+    e1x, e1y, e1z = w1 * zz - w2 * zy, w2 * zx - w0 * zz, w0 * zy - w1 * zx
+    n = math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+    e1x, e1y, e1z = e1x / n, e1y / n, e1z / n
+    e2x, e2y, e2z = zy * e1z - zz * e1y, zz * e1x - zx * e1z, zx * e1y - zy * e1x
+    xx, xy, xz = R[0, 0], R[1, 0], R[2, 0]
+    ang = math.atan2(xx * e2x + xy * e2y + xz * e2z, xx * e1x + xy * e1y + xz * e1z)
+    rbin = int((ang + math.pi) / (0.5 * math.pi)) % 4
+    return zbin * 4 + rbin
+
+
+@nb.njit(cache=True)
+def _orientation_bins(R, out) -> None:
+    for i in range(R.shape[0]):
+        out[i] = orientation_bin(R[i])
+
+
+def orientation_bins(R: np.ndarray) -> np.ndarray:
+    """(N,) bins of rotations (N, 3, 3) (:func:`orientation_bin`)."""
+    R = np.ascontiguousarray(np.asarray(R, float).reshape(-1, 3, 3))
+    out = np.empty(len(R), np.int64)
+    _orientation_bins(R, out)
+    return out
+
+
+# ------------------------------------------------------------------ one arm's map
+@dataclass(frozen=True, eq=False)
+class ArmMap:
+    """One arm's two grids (module doc), in its root link. ``clearance`` (nx, ny, nz) uint8 in
+    ``CLEARANCE_UNIT_M``: lower bound of the distance from each voxel centre (``origin + (i +
+    0.5) voxel_m``) to the outer set of tip positions; ``box_lo`` / ``box_hi``: a box holding
+    that outer set; ``cap_bits`` (mx, my, mz, ORIENTATION_BINS / 8) uint8 over the grid
+    ``cap_origin``, ``cap_voxel_m``."""
+
+    joints: tuple[str, ...]
+    origin: np.ndarray
+    voxel_m: float
+    clearance: np.ndarray
+    box_lo: np.ndarray
+    box_hi: np.ndarray
+    cap_origin: np.ndarray
+    cap_voxel_m: float
+    cap_bits: np.ndarray
+    meta: dict = field(default_factory=dict)
+
+    def lower_bound(self, x: np.ndarray) -> np.ndarray:
+        """(N,) lower bound [m] of the distance from points ``x`` (N, 3) (root frame) to any
+        tip position of the arm (<= 0: maybe reachable)."""
+        x = np.asarray(x, float).reshape(-1, 3)
+        idx = np.floor((x - self.origin) / self.voxel_m).astype(np.int64)
+        shape = np.array(self.clearance.shape)
+        inside = np.all((idx >= 0) & (idx < shape), axis=1)
+        out = np.maximum(0.0, np.max(np.maximum(self.box_lo - x, x - self.box_hi), axis=1))
+        i = idx[inside]
+        out[inside] = self.clearance[i[:, 0], i[:, 1], i[:, 2]] * CLEARANCE_UNIT_M - self.voxel_m * _SQRT3_2
+        return out
+
+    def capable(self, p: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """(N,) whether a training sample reached the voxel of ``p`` (N, 3) with ``R``'s
+        orientation bin (root frame): the inner map (module doc)."""
+        p = np.asarray(p, float).reshape(-1, 3)
+        idx = np.floor((p - self.cap_origin) / self.cap_voxel_m).astype(np.int64)
+        inside = np.all((idx >= 0) & (idx < np.array(self.cap_bits.shape[:3])), axis=1)
+        out = np.zeros(len(p), bool)
+        b = orientation_bins(R)[inside]
+        i = idx[inside]
+        out[inside] = (self.cap_bits[i[:, 0], i[:, 1], i[:, 2], b >> 3] >> (b & 7)) & 1 == 1
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class ReachMap:
+    """Both arms' maps of one robot (``arms``: arm name -> :class:`ArmMap`), loaded from or
+    saved to one ``.npz`` (:meth:`load`, :meth:`save`)."""
+
+    robot: str
+    arms: dict
+    meta: dict = field(default_factory=dict)
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path).with_suffix(".npz")
+        arrays = {}
+        for arm, m in self.arms.items():
+            for name in ("origin", "clearance", "box_lo", "box_hi", "cap_origin", "cap_bits"):
+                arrays[f"{arm}.{name}"] = getattr(m, name)
+            arrays[f"{arm}.meta"] = np.array(json.dumps({**m.meta, "joints": list(m.joints), "voxel_m": m.voxel_m,
+                                                         "cap_voxel_m": m.cap_voxel_m}))
+        arrays["meta"] = np.array(json.dumps({**self.meta, "robot": self.robot, "version": MAP_VERSION,
+                                              "arms": list(self.arms)}))
+        np.savez_compressed(path, **arrays)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path, robot=None) -> "ReachMap":
+        """The map at ``path`` (``.npz`` added when missing). ValueError naming the file and the
+        remedy (``tools/train_reach_map.py``) when it is missing, unreadable, of another
+        version or robot, or its arms' joints are not ``robot``'s (a ``RobotModel``)."""
+        path = Path(path)
+        if path.suffix != ".npz":
+            path = path.with_name(path.name + ".npz")
+        fix = f"regenerate it: python tools/train_reach_map.py --robot {getattr(robot, 'name', '<name>')}"
+        if not path.is_file():
+            raise ValueError(f"reach map {path} does not exist: {fix}")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                data = {k: z[k] for k in z.files}
+            meta = json.loads(str(data["meta"]))
+            arms = {}
+            for arm in meta["arms"]:
+                am = json.loads(str(data[f"{arm}.meta"]))
+                m = ArmMap(tuple(am["joints"]), data[f"{arm}.origin"].astype(float), float(am["voxel_m"]),
+                           data[f"{arm}.clearance"], data[f"{arm}.box_lo"].astype(float),
+                           data[f"{arm}.box_hi"].astype(float), data[f"{arm}.cap_origin"].astype(float),
+                           float(am["cap_voxel_m"]), data[f"{arm}.cap_bits"], am)
+                _check_arm_map(m)
+                arms[arm] = m
+        except ValueError as e:
+            if str(e).startswith("reach map"):
+                raise ValueError(f"{e} ({path}): {fix}") from None
+            raise ValueError(f"reach map {path} is not a readable map ({e}): {fix}") from None
+        except (OSError, KeyError, TypeError, json.JSONDecodeError, EOFError) as e:
+            raise ValueError(f"reach map {path} is not a readable map ({type(e).__name__}: {e}): {fix}") from None
+        if meta.get("version") != MAP_VERSION:
+            raise ValueError(f"reach map {path} has version {meta.get('version')}, this code reads {MAP_VERSION}: "
+                             f"{fix}")
+        if set(arms) != set(ARMS):
+            raise ValueError(f"reach map {path} holds arms {sorted(arms)}, expected {list(ARMS)}: {fix}")
+        if robot is not None:
+            for arm, m in arms.items():
+                want = tuple(robot.limbs[f"{arm}_arm"].joints)
+                if m.joints != want:
+                    raise ValueError(f"reach map {path} was trained for {arm} arm joints {list(m.joints)}, robot "
+                                     f"{robot.name!r} has {list(want)}: {fix}")
+        return cls(str(meta.get("robot", "")), arms, meta)
+
+
+def _check_arm_map(m: ArmMap) -> None:
+    if m.clearance.ndim != 3 or m.clearance.dtype != np.uint8 or min(m.clearance.shape) < 1:
+        raise ValueError(f"reach map: clearance must be a non-empty 3-D uint8 grid, got {m.clearance.shape} "
+                         f"{m.clearance.dtype}")
+    if m.cap_bits.ndim != 4 or m.cap_bits.dtype != np.uint8 or m.cap_bits.shape[3] * 8 != ORIENTATION_BINS:
+        raise ValueError(f"reach map: cap_bits must be (mx, my, mz, {ORIENTATION_BINS // 8}) uint8, got "
+                         f"{m.cap_bits.shape} {m.cap_bits.dtype}")
+    for name in ("origin", "box_lo", "box_hi", "cap_origin"):
+        a = getattr(m, name)
+        if a.shape != (3,) or not np.all(np.isfinite(a)):
+            raise ValueError(f"reach map: {name} must be 3 finite numbers, got {a}")
+    if not (m.voxel_m > 0 and m.cap_voxel_m > 0):
+        raise ValueError(f"reach map: voxel sizes must be > 0, got {m.voxel_m}, {m.cap_voxel_m}")
+
+
+# ------------------------------------------------------------------ training
+def _chain_points(chain, s: int, Q: np.ndarray) -> np.ndarray:
+    """Origins of joint ``s + 1`` (0-based index ``s``) in the root for joints ``Q`` (N, s)."""
+    from humanoid_reach_ros.kinematics import chain_rotations
+
+    n = len(Q)
+    p, R = np.zeros((n, 3)), np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    for k in range(s):
+        p = p + R @ chain.t[k]
+        R = R @ chain.R[k] @ chain_rotations(chain.axes[k], Q[:, k])
+    return p + R @ chain.t[s]
+
+
+def outer_grid(chain, s: int, max_points: float) -> tuple[list[np.ndarray], float, float]:
+    """Joint values of the proof's grid over joints ``1..s`` (cell centres; at most
+    ``max_points`` combinations), its ``eps`` and the tail ``d_tail`` (module doc)."""
+    norms = np.linalg.norm(chain.t, axis=1)
+    n = len(chain.axes)
+    tail = float(norms[s + 1:].sum() + np.linalg.norm(chain.te)) if s + 1 <= n else float(np.linalg.norm(chain.te))
+    span = chain.upper[:s] - chain.lower[:s]
+    lever = np.array([norms[j + 1:s + 1].sum() for j in range(s)])
+    w = np.maximum(span * lever, 1e-9)
+    lo, hi = 1e-6, 10.0          # c: each joint's eps share is c / 2; bisect so prod(n_j) <= max_points
+
+    def counts(c):
+        return np.maximum(1, np.ceil(w / c)).astype(np.int64)
+
+    for _ in range(60):
+        mid = math.sqrt(lo * hi)
+        if float(np.prod(counts(mid).astype(float))) > max_points:
+            lo = mid
+        else:
+            hi = mid
+    nj = counts(hi)
+    eps = float(np.sum(span / nj * lever) / 2)
+    return [chain.lower[j] + (np.arange(nj[j]) + 0.5) * span[j] / nj[j] for j in range(s)], eps, tail
+
+
+def train_arm_map(chain, joints, rng: np.random.Generator, *, split: int | None = None, max_points: float = 2e7,
+                  fine_m: float = 0.01, voxel_m: float = 0.025, cap_voxel_m: float = 0.05,
+                  cap_samples: int = 2_000_000, cap_box: tuple[np.ndarray, np.ndarray] | None = None,
+                  chunk: int = 500_000, log=print) -> ArmMap:
+    """One arm's :class:`ArmMap` from its chain (``kinematics.Chain6``: placements, axes,
+    tip, limits; module doc for the method). ``split``: joints gridded (None: the one of
+    3..n-1 with the least ``eps + d_tail``); ``cap_box``: the capability grid's box (both arms
+    share one); ``cap_samples`` random joint vectors for it."""
+    from scipy.spatial import cKDTree
+
+    n = len(chain.axes)
+    if split is None:
+        best = None
+        for s in range(3, n):
+            g, eps, tail = outer_grid(chain, s, max_points)
+            if best is None or eps + tail < best[1] + best[2] - 1e-9:
+                best = (s, eps, tail, g)
+        split, eps, tail, grid = best
+    else:
+        grid, eps, tail = outer_grid(chain, split, max_points)
+    r = eps + tail + 1e-3
+    reach = float(np.linalg.norm(chain.t, axis=1).sum())
+    f_lo = -reach - fine_m
+    nf = int(math.ceil(2 * (reach + fine_m) / fine_m))
+    occ = np.zeros((nf, nf, nf), bool)
+    sizes = [len(g) for g in grid]
+    total = int(np.prod(sizes))
+    for a in range(0, total, chunk):
+        idx = np.unravel_index(np.arange(a, min(total, a + chunk)), sizes)
+        Q = np.stack([grid[j][idx[j]] for j in range(split)], axis=1)
+        o = _chain_points(chain, split, Q)
+        k = np.floor((o - f_lo) / fine_m).astype(np.int64)
+        occ[k[:, 0], k[:, 1], k[:, 2]] = True
+    cells = np.argwhere(occ)
+    centres = f_lo + (cells + 0.5) * fine_m
+    box_lo, box_hi = centres.min(axis=0) - fine_m * _SQRT3_2 - r, centres.max(axis=0) + fine_m * _SQRT3_2 + r
+    origin = box_lo - 2 * voxel_m
+    shape = np.ceil((box_hi + 2 * voxel_m - origin) / voxel_m).astype(np.int64)
+    vc = origin + (np.stack(np.meshgrid(*[np.arange(s_) for s_ in shape], indexing="ij"), -1).reshape(-1, 3)
+                   + 0.5) * voxel_m
+    d, _ = cKDTree(centres).query(vc, workers=1)
+    low = np.maximum(0.0, d - fine_m * _SQRT3_2 - r)
+    clearance = np.minimum(255, np.floor(low / CLEARANCE_UNIT_M)).astype(np.uint8).reshape(tuple(shape))
+    log(f"  outer bound: joints 1..{split} on a {'x'.join(map(str, sizes))} grid ({total:,} points), "
+        f"eps {eps:.3f} m, tail {tail:.3f} m, {len(cells):,} fine cells; {np.count_nonzero(clearance == 0):,} of "
+        f"{clearance.size:,} voxels maybe reachable")
+    meta = {"split": int(split), "eps_m": eps, "tail_m": tail, "grid": sizes, "fine_m": fine_m}
+    if cap_box is None:
+        cap_box = (box_lo, box_hi)
+    bits = capability_bits(chain, rng, cap_box, cap_voxel_m, cap_samples, chunk)
+    log(f"  capability: {cap_samples:,} samples, {np.count_nonzero(bits.any(axis=3)):,} voxels reached")
+    return ArmMap(tuple(joints), origin, float(voxel_m), clearance, box_lo, box_hi, np.asarray(cap_box[0], float),
+                  float(cap_voxel_m), bits, {**meta, "cap_samples": int(cap_samples)})
+
+
+def capability_bits(chain, rng: np.random.Generator, box, voxel_m: float, samples: int,
+                    chunk: int = 500_000) -> np.ndarray:
+    """The capability map (module doc): ``samples`` uniform random joint vectors within the
+    limits through the chain's forward kinematics, a bit per (voxel of the grid from
+    ``box[0]`` to ``box[1]``, orientation bin) reached."""
+    origin = np.asarray(box[0], float)
+    shape = np.ceil((np.asarray(box[1], float) - origin) / voxel_m).astype(np.int64)
+    bits = np.zeros(tuple(shape) + (ORIENTATION_BINS // 8,), np.uint8)
+    n = len(chain.axes)
+    for a in range(0, samples, chunk):
+        m = min(chunk, samples - a)
+        q = rng.uniform(chain.lower, chain.upper, size=(m, n))
+        p, R = chain.fk(q)
+        k = np.floor((p - origin) / voxel_m).astype(np.int64)
+        ok = np.all((k >= 0) & (k < shape), axis=1)
+        b = orientation_bins(R[ok])
+        k = k[ok]
+        np.bitwise_or.at(bits, (k[:, 0], k[:, 1], k[:, 2], b >> 3), (1 << (b & 7)).astype(np.uint8))
+    return bits
+
+
+# ------------------------------------------------------------------ the inverse over the trunk manifold
+@nb.njit(cache=True, nogil=False, fastmath=False)
+def _first_capable(z, rpy, p_e, R_e, v, cog_xy, chest_p, chest_R, arms, cap_origin, cap_voxel, bits, k, pick):
+    """For hand pose ``i`` (of n) the first candidate ``j * n + i`` (j < k) whose trunk
+    ``(z, rpy)`` (Algorithm 1's lines 2-4) puts the pose, in an allowed arm's root frame, in a
+    voxel and orientation bin its capability map holds; ``i`` if none."""
+    n = p_e.shape[0]
+    R = np.empty((3, 3))
+    Rc = np.empty((3, 3))
+    Rl = np.empty((3, 3))
+    shape = bits.shape
+    for i in range(n):
+        pick[i] = i
+        for j in range(k):
+            c_ = j * n + i
+            rpy_into(R, rpy[c_, 0], rpy[c_, 1], rpy[c_, 2])
+            # trunk origin
+            px = R[0, 0] * v[0] + R[0, 1] * v[1] + R[0, 2] * v[2] + cog_xy[0]
+            py = R[1, 0] * v[0] + R[1, 1] * v[1] + R[1, 2] * v[2] + cog_xy[1]
+            pz = z[c_]
+            # chest rotation Rc = R chest_R, chest origin = p_t + R chest_p
+            for r in range(3):
+                for c in range(3):
+                    Rc[r, c] = R[r, 0] * chest_R[0, c] + R[r, 1] * chest_R[1, c] + R[r, 2] * chest_R[2, c]
+            cx = px + R[0, 0] * chest_p[0] + R[0, 1] * chest_p[1] + R[0, 2] * chest_p[2]
+            cy = py + R[1, 0] * chest_p[0] + R[1, 1] * chest_p[1] + R[1, 2] * chest_p[2]
+            cz = pz + R[2, 0] * chest_p[0] + R[2, 1] * chest_p[1] + R[2, 2] * chest_p[2]
+            dx, dy, dz = p_e[i, 0] - cx, p_e[i, 1] - cy, p_e[i, 2] - cz
+            found = False
+            for a in arms:
+                ix = int(math.floor((Rc[0, 0] * dx + Rc[1, 0] * dy + Rc[2, 0] * dz - cap_origin[0]) / cap_voxel))
+                iy = int(math.floor((Rc[0, 1] * dx + Rc[1, 1] * dy + Rc[2, 1] * dz - cap_origin[1]) / cap_voxel))
+                iz = int(math.floor((Rc[0, 2] * dx + Rc[1, 2] * dy + Rc[2, 2] * dz - cap_origin[2]) / cap_voxel))
+                if ix < 0 or iy < 0 or iz < 0 or ix >= shape[1] or iy >= shape[2] or iz >= shape[3]:
+                    continue
+                for r in range(3):     # hand rotation in the chest: Rc^T R_e
+                    for c in range(3):
+                        Rl[r, c] = Rc[0, r] * R_e[i, 0, c] + Rc[1, r] * R_e[i, 1, c] + Rc[2, r] * R_e[i, 2, c]
+                b = orientation_bin(Rl)
+                if (bits[a, ix, iy, iz, b >> 3] >> (b & 7)) & 1:
+                    found = True
+                    break
+            if found:
+                pick[i] = c_
+                break
+
+
+@nb.njit(cache=True, nogil=False, fastmath=False)
+def _cell_gaps(cells, half, T, v, cog_xy, chest_p, chest_R, extent, clearance, origin, voxel, box_lo, box_hi,
+               centre, gap):
+    """:meth:`InverseReach._gaps`, compiled: per cell (z, roll, pitch, yaw) the trunk pose of
+    Algorithm 1's lines 2-4, the target ``T`` in the arm's root frame, the outer bound there
+    (:meth:`ArmMap.lower_bound`) minus ``extent`` (``centre``), and minus the cell's slack
+    (``gap``): ``dz + theta |v| + theta (|a| + dz + theta |v|)``, ``theta`` the half sizes'
+    roll + pitch + yaw, ``a = T - p_t``."""
+    R = np.empty((3, 3))
+    nx, ny, nz = clearance.shape
+    theta = half[1] + half[2] + half[3]
+    dz = half[0]
+    vn = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    for i in range(cells.shape[0]):
+        rpy_into(R, cells[i, 1], cells[i, 2], cells[i, 3])
+        a0 = T[0] - (R[0, 0] * v[0] + R[0, 1] * v[1] + R[0, 2] * v[2] + cog_xy[0])
+        a1 = T[1] - (R[1, 0] * v[0] + R[1, 1] * v[1] + R[1, 2] * v[2] + cog_xy[1])
+        a2 = T[2] - cells[i, 0]
+        # R^T a - chest_p, then chest_R^T of it
+        b0 = R[0, 0] * a0 + R[1, 0] * a1 + R[2, 0] * a2 - chest_p[0]
+        b1 = R[0, 1] * a0 + R[1, 1] * a1 + R[2, 1] * a2 - chest_p[1]
+        b2 = R[0, 2] * a0 + R[1, 2] * a1 + R[2, 2] * a2 - chest_p[2]
+        x0 = chest_R[0, 0] * b0 + chest_R[1, 0] * b1 + chest_R[2, 0] * b2
+        x1 = chest_R[0, 1] * b0 + chest_R[1, 1] * b1 + chest_R[2, 1] * b2
+        x2 = chest_R[0, 2] * b0 + chest_R[1, 2] * b1 + chest_R[2, 2] * b2
+        ix = int(math.floor((x0 - origin[0]) / voxel))
+        iy = int(math.floor((x1 - origin[1]) / voxel))
+        iz = int(math.floor((x2 - origin[2]) / voxel))
+        if 0 <= ix < nx and 0 <= iy < ny and 0 <= iz < nz:
+            lb = clearance[ix, iy, iz] * CLEARANCE_UNIT_M - voxel * _SQRT3_2
+        else:
+            lb = max(0.0, box_lo[0] - x0, x0 - box_hi[0], box_lo[1] - x1, x1 - box_hi[1], box_lo[2] - x2,
+                     x2 - box_hi[2])
+        na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        centre[i] = lb - extent
+        gap[i] = lb - extent - (dz + theta * vn + theta * (na + dz + theta * vn))
+
+
+@dataclass(frozen=True, eq=False)
+class CapabilityFilter:
+    """What :meth:`TrunkSampler.sample_for` needs to prefer trunk draws the map says reach
+    each hand pose: the trunk -> chest transform, Algorithm 1's ``v`` and ``COG_approx``, and
+    the arms' capability bits on one grid (arm order of ``codes.ARMS``)."""
+
+    v: np.ndarray
+    cog_xy: np.ndarray
+    chest_p: np.ndarray
+    chest_R: np.ndarray
+    cap_origin: np.ndarray
+    cap_voxel_m: float
+    bits: np.ndarray       # (2, mx, my, mz, ORIENTATION_BINS / 8)
+
+    def pick(self, z, rpy, p_e, R_e, arm_names, k) -> np.ndarray:
+        n = len(p_e)
+        pick = np.empty(n, np.int64)
+        arms = np.array([ARMS.index(a) for a in arm_names], np.int64)
+        _first_capable(z, rpy, np.ascontiguousarray(p_e, dtype=float), np.ascontiguousarray(R_e, dtype=float),
+                       self.v, self.cog_xy, self.chest_p, self.chest_R, arms, self.cap_origin, self.cap_voxel_m,
+                       self.bits, k, pick)
+        return pick
+
+
+class InverseReach:
+    """The map's inverse over a :class:`~humanoid_reach_ros.planning.trunk_region.TrunkRegion`
+    (module doc): :meth:`for_target` proves a region out of reach or gives the trunk cells a
+    goal may have. ``step_rad``: the roll and yaw cells' size (the region's height x pitch
+    cells are its own)."""
+
+    def __init__(self, reach_map: ReachMap, region, step_rad: float = 0.05) -> None:
+        self.map = reach_map
+        self.region = region
+        pj = region.projector
+        self.v = np.array(pj.v, float)
+        self.cog_xy = np.array(pj.cog_approx_xy, float)
+        self.chest_p = np.array(pj.chest_p_in_trunk, float)
+        self.chest_R = np.array(pj.chest_R_in_trunk, float)
+        rolls, self.droll = _cells(region.roll, step_rad)
+        yaws, self.dyaw = _cells(region.yaw, step_rad)
+        zs, ps = region.z_grid[region.feasible], region.pitch_grid[region.feasible]
+        Z, R_, Y = (g.ravel() for g in np.meshgrid(np.arange(len(zs)), np.arange(len(rolls)), np.arange(len(yaws)),
+                                                    indexing="ij"))
+        #: (N, 4) cell centres (z, roll, pitch, yaw) and half sizes
+        self.cells = np.stack([zs[Z], rolls[R_], ps[Z], yaws[Y]], axis=1)
+        self.half = np.array([region.dz / 2, self.droll / 2, region.dpitch / 2, self.dyaw / 2])
+        arms = [reach_map.arms[a] for a in ARMS]
+        if any(not np.allclose(a.cap_origin, arms[0].cap_origin) or a.cap_bits.shape != arms[0].cap_bits.shape
+               or a.cap_voxel_m != arms[0].cap_voxel_m for a in arms):
+            raise ValueError("reach map: the arms' capability grids differ (train both arms on one grid)")
+        self.capability = CapabilityFilter(self.v, self.cog_xy, self.chest_p, self.chest_R, arms[0].cap_origin,
+                                           arms[0].cap_voxel_m, np.ascontiguousarray(np.stack([a.cap_bits
+                                                                                               for a in arms])))
+
+    def _gaps(self, arm: str, T: np.ndarray, cells: np.ndarray, half: np.ndarray,
+              extent: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(centre, gap)`` (N,) each: the bound at each cell's centre pose (<= 0: the centre
+        itself may reach a point within ``extent`` of ``T``), and a lower bound of how far
+        ``arm``'s hand stays from such a point at any trunk pose of the cell (centre ``cells``,
+        half sizes ``half``; <= 0: not ruled out)."""
+        m = self.map.arms[arm]
+        n = len(cells)
+        centre, gap = np.empty(n), np.empty(n)
+        _cell_gaps(np.ascontiguousarray(cells, dtype=float), np.asarray(half, float), np.asarray(T, float), self.v,
+                   self.cog_xy, self.chest_p, self.chest_R, float(extent), m.clearance, m.origin, m.voxel_m,
+                   m.box_lo, m.box_hi, centre, gap)
+        return centre, gap
+
+    def _refine(self, arm: str, T: np.ndarray, extent: float, todo: np.ndarray) -> tuple[np.ndarray, float]:
+        """The cells ``todo`` (indices) that their slack alone keeps (centre ruled out), split in
+        16 and tried again ``REFINE_LEVELS`` times: (indices still kept, smallest gap of the
+        sub-cells ruled out)."""
+        cells, half, owner = self.cells[todo], self.half, todo
+        kept, best = [], math.inf
+        offs = np.array(np.meshgrid(*[[-0.5, 0.5]] * 4, indexing="ij")).reshape(4, -1).T   # 16 sub-cells
+        for level in range(REFINE_LEVELS):
+            if not len(cells):
+                break
+            half = half / 2
+            sub = (cells[:, None, :] + offs[None] * 2 * half).reshape(-1, 4)
+            own = np.repeat(owner, len(offs))
+            c, g = self._gaps(arm, T, sub, half, extent)
+            alive = g <= 0
+            if (~alive).any():
+                best = min(best, float(g[~alive].min()))
+            done = alive & ((c <= 0) | (level == REFINE_LEVELS - 1))   # kept for good
+            kept.append(own[done])
+            more = alive & ~done
+            cells, owner = sub[more], own[more]
+        return np.unique(np.concatenate(kept)) if kept else np.zeros(0, np.int64), best
+
+    def for_target(self, region: WorkspaceGoalRegion, arm_names) -> tuple[str | None, np.ndarray, dict]:
+        """``(message, cells, per_arm)``: a message naming the margin when no cell is left for
+        any of ``arm_names`` (the proof), else None; the cells (M, 4) left for any of them (the
+        sampler's: cells only their slack keeps are kept too, unless a proof needs them split);
+        per arm the cells left and the smallest gap [m] of those ruled out."""
+        lo, hi = np.asarray(region.lower[:3], float), np.asarray(region.upper[:3], float)
+        T = region_centre(region)
+        extent = float(np.linalg.norm(hi - lo) / 2)
+        first = {a: self._gaps(a, T, self.cells, self.half, extent) for a in arm_names}
+        per = {}
+        keep = np.zeros(len(self.cells), bool)
+        for a, (_, g) in first.items():
+            k = g <= 0
+            per[a] = (int(k.sum()), float(g[~k].min()) if (~k).any() else math.inf)
+            keep |= k
+        if any(bool((c <= 0).any()) for c, _ in first.values()):   # a centre pose may reach: no proof
+            return None, self.cells[keep], per
+        keep[:] = False     # every centre is ruled out: split the cells their slack keeps
+        for a, (_, g) in first.items():
+            idx, best = self._refine(a, T, extent, np.flatnonzero(g <= 0))
+            keep[idx] = True
+            per[a] = (len(idx), min(per[a][1], best))
+        if keep.any():
+            return None, self.cells[keep], per
+        gap = min(g for _, g in per.values())
+        eps = max(self.map.arms[a].meta.get("eps_m", 0.0) for a in arm_names)
+        both = " and ".join(arm_names)
+        msg = (f"the reach map proves the {both} hand{'s' if len(arm_names) > 1 else ''} at least {gap:.3f} m short "
+               f"at every balanced trunk posture searched ({len(self.cells)} cells: trunk z "
+               f"{self.region.z_span[0]:.2f}..{self.region.trunk_z_max:.2f} m, roll {self.region.roll[0]:.2f}.."
+               f"{self.region.roll[1]:.2f}, pitch {self.region.pitch_span[0]:.2f}..{self.region.pitch_span[1]:.2f}, "
+               f"yaw {self.region.yaw[0]:.2f}..{self.region.yaw[1]:.2f} rad; the bound errs long by its joint grid "
+               f"{eps:.3f} m, its voxels and each cell's trunk motion)")
+        return msg, self.cells[:0], per
+
+    def describe(self) -> str:
+        m = self.map.arms[ARMS[0]]
+        return (f"reach map ({len(self.cells)} trunk cells of {self.droll:.3f} x {self.dyaw:.3f} rad roll x yaw; "
+                f"bound eps {m.meta.get('eps_m', 0):.3f} m + voxel {m.voxel_m:.3f} m)")
+
+
+def _cells(r: tuple[float, float], step: float) -> tuple[np.ndarray, float]:
+    n = max(1, int(math.ceil((r[1] - r[0]) / step - 1e-9)))
+    d = (r[1] - r[0]) / n
+    return r[0] + (np.arange(n) + 0.5) * d, d
+
+
+def region_centre(region: WorkspaceGoalRegion) -> np.ndarray:
+    """World centre of the region's position box."""
+    lo, hi = np.asarray(region.lower[:3], float), np.asarray(region.upper[:3], float)
+    return np.asarray(region.target_p, float) + np.asarray(region.target_R, float) @ ((lo + hi) / 2)
+
+
+__all__ = ["ArmMap", "ReachMap", "InverseReach", "CapabilityFilter", "train_arm_map", "orientation_bin",
+           "orientation_bins", "capability_bits", "ORIENTATION_BINS", "MAP_VERSION"]
