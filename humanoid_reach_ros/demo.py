@@ -54,6 +54,9 @@ HEAD_SCAN_DEG = tuple(zip(_SCAN[::2], _SCAN[1::2]))
 SIM_JOINT_STATES_TIMEOUT_S = 2.0   # planner/executor staleness of /joint_states in the demo [s]
 SIM_JOINT_STATES_ABORT_S = 5.0     # executor: abort a motion when /joint_states stop this long [s]
 
+# the nodes are in the graph before their servers are: the executor warms its solver and its scan's gazes
+# first (a few seconds quiet; under a load of 30 on two cores the demo's 30 s ran out waiting for /look)
+SERVER_WAIT_S = 120.0
 DEMO_RUNS_KEPT = 10    # --keep: runs kept per robot under --out (older ones removed)
 # home on the physics plant: the servos hold each joint a little off its target under gravity (HRP-2 standing
 # at half-sitting: 0.010 rad at most, docs/physics.md), so the measured joints end within this of half-sitting
@@ -140,7 +143,7 @@ class DemoClient:
         if gaze_points is not None:
             from humanoid_reach_ros.io.msgs import points_list
             goal.gaze_points = points_list(gaze_points)
-        self.spin_until(lambda: self.look_client.server_is_ready(), 30.0, "/look")
+        self.spin_until(lambda: self.look_client.server_is_ready(), SERVER_WAIT_S, "/look")
         held = set()
 
         def feedback(m) -> None:
@@ -236,7 +239,7 @@ def plan(op: DemoClient, args: argparse.Namespace, home: bool = False, relocate:
     req = msgs.plan_reach_request(region, "world", arm=arm_code(args.arm), planner=args.planner,
                                   use_marker_target=args.target is None and not home, time_budget_s=args.budget,
                                   seed=args.seed, home=home)
-    op.spin_until(lambda: op.plan_client.service_is_ready(), 30.0, "/plan_reach")
+    op.spin_until(lambda: op.plan_client.service_is_ready(), SERVER_WAIT_S, "/plan_reach")
     wait_s, looks, max_looks = 0.0, 0, args.max_looks
     while True:
         t0 = time.monotonic()
@@ -294,7 +297,7 @@ class ProgressBar:
 
 def execute(op: DemoClient, trajectory, arm: int):
     goal = op.ExecuteReach.Goal(mode=op.ExecuteReach.Goal.MODE_TRAJECTORY, trajectory=trajectory, arm=arm)
-    op.spin_until(lambda: op.action_client.server_is_ready(), 30.0, "/execute_reach")
+    op.spin_until(lambda: op.action_client.server_is_ready(), SERVER_WAIT_S, "/execute_reach")
     bar = ProgressBar(sys.stdout)
     t0 = time.monotonic()
     op.samples.clear()
