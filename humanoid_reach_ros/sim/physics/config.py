@@ -33,7 +33,7 @@ from humanoid_reach_ros.yaml_checks import number, positive, top_level
 PHYSICS_FILE = "physics.yaml"
 JOINT_GROUPS = ("legs", "ankles", "torso", "neck", "arms", "grippers", "other")
 _TOP = {"timestep_s", "friction", "impratio", "sole_thickness_m", "torus_segments", "armature_kgm2", "gains",
-        "joint_gains", "fall"}
+        "joint_gains", "fall", "hand_sphere_radius_m"}
 _GAIN_KEYS = {"kp", "dampratio", "kv"}
 _FALL_KEYS = {"base_drop_m", "tilt_deg", "capture_point_out_m"}
 
@@ -70,6 +70,7 @@ class PhysicsConfig:
     sole_thickness_m: float
     torus_segments: int
     armature_kgm2: float
+    hand_sphere_radius_m: float      # the hands' tool point spheres (0: none)
     gains: dict[str, Gain]           # group -> gain
     joint_gains: dict[str, Gain]     # joint -> gain (overrides its group)
     fall: FallThresholds
@@ -102,6 +103,13 @@ def _gain(d: Any, where: str) -> Gain:
     if kv is not None and number(kv, f"{where}.kv") < 0.0:
         raise ValueError(f"{where}.kv: must be >= 0, got {kv}")
     return Gain(kp, None if damp is None else float(damp), None if kv is None else float(kv))
+
+
+def _non_negative(v: Any, where: str) -> float:
+    x = number(v, where)
+    if x < 0.0:
+        raise ValueError(f"{where}: must be >= 0, got {x}")
+    return x
 
 
 def physics_config_from_dict(doc: Any, path: Path) -> PhysicsConfig:
@@ -138,6 +146,7 @@ def physics_config_from_dict(doc: Any, path: Path) -> PhysicsConfig:
         impratio=positive(doc.get("impratio", 1.0), f"{where}: impratio"),
         sole_thickness_m=positive(doc.get("sole_thickness_m", 0.01), f"{where}: sole_thickness_m"),
         torus_segments=segments, armature_kgm2=armature,
+        hand_sphere_radius_m=_non_negative(doc.get("hand_sphere_radius_m", 0.0), f"{where}: hand_sphere_radius_m"),
         gains={str(k): _gain(v, f"{where}: gains.{k}") for k, v in gains_raw.items()},
         joint_gains={str(k): _gain(v, f"{where}: joint_gains.{k}") for k, v in joint_raw.items()},
         fall=fall)

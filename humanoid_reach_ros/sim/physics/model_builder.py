@@ -22,6 +22,8 @@ renders). Nothing here knows a robot by name.
   (no self-collision: the planner keeps them apart), and the feet touch the floor through the
   sole boxes only (the foot capsules round the plate's edges off; on the floor they would make
   the sole rock); foot capsules do touch obstacles.
+* **Hand tool points**: a sphere of ``hand_sphere_radius_m`` about each hand frame (the arm limb's
+  tip), where the hand touches what it reaches (the capsules of collision.yaml end short of it).
 * **Servos**: one position actuator per joint, ``kp`` and damping per joint group from
   ``physics.yaml``, its force limited to the URDF's effort, its target to the joint's range.
 * **World**: the scene's planes, boxes, cylinders and spheres as static geoms; a torus as a
@@ -296,6 +298,15 @@ def build_physics_model(robot: RobotModel, cfg: PhysicsConfig, scene: Scene) -> 
         else:
             body_named(body_name).add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[shape.radius, 0, 0],
                                            fromto=[*p0, *p1], **kw)
+    # the hands' tool points: a sphere about each hand frame (collision.yaml's hand capsules end short of
+    # it, so a hand whose frame rests on a surface would not touch it: no touch force to measure)
+    if cfg.hand_sphere_radius_m > 0.0:
+        for side, frame in robot.hand_frames.items():
+            body_name, T = _body_of_frame(robot, frame)
+            body_named(body_name).add_geom(
+                name=f"{side}_hand_point", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[cfg.hand_sphere_radius_m, 0, 0],
+                pos=T[:3, 3], contype=ROBOT, conaffinity=FLOOR | OBSTACLE, friction=friction, condim=3,
+                rgba=[0.8, 0.6, 0.5, 1.0])
     # the sole boxes: the sole rectangle about each sole frame, bottom face on the sole plane
     x0, x1, y0, y1 = robot.spec.sole_rectangle
     half = np.array([0.5 * (x1 - x0), 0.5 * (y1 - y0), 0.5 * cfg.sole_thickness_m])
