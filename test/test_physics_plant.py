@@ -118,7 +118,8 @@ def test_model_is_built_from_the_robot_files(models) -> None:
     links = yaml.safe_load(model.collision_path.read_text())["links"]
     n_shapes = sum(len(shapes) for shapes in links.values())
     assert len(pm.world_geoms) == len(scene.primitives) + n_torus * (pm.config.torus_segments - 1)
-    assert mj.ngeom == len(pm.world_geoms) + n_shapes + 2
+    assert mj.ngeom == len(pm.world_geoms) + n_shapes + 2 + 2    # + the sole boxes + the hands' tool points
+    assert pm.config.hand_sphere_radius_m > 0.0
     # the sole boxes lie flat on the floor at the start: the soles' frames on z = 0
     plant = PhysicsPlant(pm)
     for sole in plant.metrics().support_polygon:
@@ -220,15 +221,16 @@ def test_invalid_inertia_is_named(inertia: str, message: str) -> None:
 
 
 def test_hand_pressing_on_an_obstacle_is_a_measured_force(models) -> None:
-    """A ball 1 cm into the right hand's capsule: the hand's contact force on it is measured, the left's is zero,
-    and the feet carry what the ball does not."""
+    """A ball 1 cm into the right hand's tool point (the sphere about its frame): the hand's contact force on it is
+    measured, the left's is zero, and the feet carry what the ball does not."""
     from humanoid_reach_ros.sim.scene import scene_from_dict
 
     model = robot_model(models, "hrp2")
     hand = model.frame_pose(model.half_sitting(), model.hand_frames["right"]).translation
+    below = 0.06 + load_physics_config(model.spec.path.parent).hand_sphere_radius_m - 0.01
     doc = {"name": "ball", "primitives": [
         {"name": "floor", "type": "plane", "normal": [0.0, 0.0, 1.0], "offset": 0.0, "floor": True},
-        {"name": "ball", "type": "sphere", "center": [float(hand[0]), float(hand[1]), float(hand[2]) - 0.02],
+        {"name": "ball", "type": "sphere", "center": [float(hand[0]), float(hand[1]), float(hand[2]) - below],
          "radius": 0.06}]}
     pm = build_physics_model(model, load_physics_config(model.spec.path.parent), scene_from_dict(doc))
     plant = PhysicsPlant(pm)
