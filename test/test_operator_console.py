@@ -81,6 +81,24 @@ def test_every_robot_is_drawn_from_its_collision_capsules(name: str) -> None:
         view.ghost(NS(joint_names=["no_such_joint"], points=traj.points), q0, 10)
 
 
+def test_the_camera_image_goes_out_scaled_with_the_marker_outlined() -> None:
+    import cv2
+
+    from humanoid_reach_ros.operator.console.server import marker_detector
+    from humanoid_reach_ros.operator.console.views import image_frame
+    gray = np.full((480, 640), 200, np.uint8)
+    gray[140:340, 220:420] = cv2.aruco.generateImageMarker(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50),
+                                                           7, 200)
+    h, jpeg = unpack(image_frame(gray, marker_detector("DICT_4X4_50"), 60, 320))
+    assert (h["w"], h["h"]) == (320, 240) and jpeg[:2] == b"\xff\xd8"        # a JPEG, half size
+    (outline,) = h["markers"]
+    assert np.allclose(sorted(map(tuple, outline)), [(110, 70), (110, 170), (210, 70), (210, 170)], atol=2.0), outline
+    h, _ = unpack(image_frame(np.full((480, 640), 90, np.uint8), marker_detector("DICT_4X4_50"), 60, 1000))
+    assert h["markers"] == [] and h["w"] == 640                               # none in view; never scaled up
+    with pytest.raises(ValueError, match="unknown ArUco dictionary"):
+        marker_detector("DICT_NOPE")
+
+
 # ---------------------------------------------------------------- controls
 class Pages:
     """What the control sends, per page (None: to all)."""
@@ -231,7 +249,7 @@ def test_the_server_answers_bad_input_and_keeps_serving(tmp_path: Path) -> None:
     model = RobotModel()
     view = RobotView(model, load_collision_model(None, model))
     feed = ConsoleFeed(VoxelLayer("occupied", 0.02), VoxelLayer("unobserved", 0.02))
-    feed.set_joints(lambda: model.half_sitting_joints)
+    feed.joints = lambda: model.half_sitting_joints
     feed.set_layer("occupied", np.array([[0.71, 0.03, 0.9]]))
     pages = Pages()
     control = ConsoleControl(FakeClient(), lambda a: a, feed.current_joints, feed.map_distance,

@@ -1,7 +1,7 @@
 """``operator_console``: the operator's console in a browser, on ``http://<host>:<port>/``.
 
-An adapter: topics in (``/joint_states`` and ``/head_camera/image_raw`` taken serialized and
-converted only when a frame is due, ``/voxel_map``, ``/voxel_map/unobserved``, ``/target_pose``,
+An adapter: topics in (``/joint_states`` and ``/head_camera/image_raw`` taken on demand when a
+frame is due, ``LatestOnDemand``: no wake-up per message; ``/voxel_map``, ``/voxel_map/unobserved``, ``/target_pose``,
 ``/diagnostics``), the actions out through ``reach_operator``'s own client (:class:`Operator`:
 ``/plan_reach``, ``/execute_reach``, ``/look``). The console itself (server, controls, frames) is
 ``operator/console``; docs/operator.md, "The browser console".
@@ -14,17 +14,17 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.qos import qos_profile_sensor_data as sensor
-from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image, JointState, PointCloud2
 
 from humanoid_reach_ros.io import msgs
-from humanoid_reach_ros.io.endpoints import LATCHED
+from humanoid_reach_ros.io.endpoints import LATCHED, LatestOnDemand
 from humanoid_reach_ros.nodes.common import declare_parameters, run_node
 from humanoid_reach_ros.nodes.reach_operator import Operator, plan_request
 from humanoid_reach_ros.operator.console.control import ConsoleControl
 from humanoid_reach_ros.operator.console.server import (
-    ConsoleConfig, ConsoleFeed, ConsoleServer, image_with_markers, marker_detector)
+    ConsoleConfig, ConsoleFeed, ConsoleServer, marker_detector)
 from humanoid_reach_ros.operator.console.views import RobotView, VoxelLayer
 from humanoid_reach_ros.params import ParamSpec
 from humanoid_reach_ros.robot.model import RobotModel
@@ -97,9 +97,13 @@ class OperatorConsole(Node):
             lambda traj, start: robot.ghost(traj, start, p["ghost_frames"]),
             lambda m, to: self.server.emit(m, to), lambda f: self.server.emit_frame(f),
             p["target_map_distance_m"], log, p["scan_dwell_s"], p["plan_budget_s"])
-        self.server = ConsoleServer(config, self.feed, robot, control, log)
-        self.create_subscription(JointState, "joint_states", self._on_joints, sensor, raw=True)
-        self.create_subscription(Image, "head_camera/image_raw", self._on_image, sensor, raw=True)
+        self.server = ConsoleServer(config, self.feed, robot, control, log, detector=self.detector)
+        latest = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self.joint_states = LatestOnDemand(self, JointState, "joint_states", latest)
+        self.images = LatestOnDemand(self, Image, "head_camera/image_raw", latest)
+        self._joints: tuple[Any, Any] = (None, None)    # (message, its joints): converted once
+        self._image_msg: Any = None
+        self.feed.joints, self.feed.image = self._latest_joints, self._latest_image
         for topic, layer in (("voxel_map", "occupied"), ("voxel_map/unobserved", "unobserved")):
             self.create_subscription(PointCloud2, topic, lambda m, a=layer: self._on_layer(a, m), LATCHED)
         self.create_subscription(PoseStamped, "target_pose", self._on_target, sensor)
@@ -107,22 +111,25 @@ class OperatorConsole(Node):
         url = self.server.start()
         log(f"operator console ready: open {url} (robot {model.name}; docs/operator.md: the browser console)")
 
-    def _on_joints(self, raw: bytes) -> None:
-        def joints():
-            j, why = msgs.model_joints(deserialize_message(raw, JointState), self.model)
+    def _latest_joints(self):
+        msg = self.joint_states.latest()
+        if msg is not None and msg is not self._joints[0]:
+            j, why = msgs.model_joints(msg, self.model)
             if j is None:
                 self.get_logger().warning(f"/joint_states refused: {why}", throttle_duration_sec=10.0)
-            return j
-        self.feed.set_joints(joints)
+            self._joints = (msg, j)
+        return self._joints[1]
 
-    def _on_image(self, raw: bytes) -> None:
-        def image():
-            try:
-                return image_with_markers(msgs.gray_from_image(deserialize_message(raw, Image)), self.detector)
-            except ValueError as exc:
-                self.get_logger().warning(f"camera image refused: {exc}", throttle_duration_sec=10.0)
-                return None
-        self.feed.set_image(image)
+    def _latest_image(self):
+        msg = self.images.latest()
+        if msg is None or msg is self._image_msg:
+            return None
+        self._image_msg = msg
+        try:
+            return msgs.gray_from_image(msg)
+        except ValueError as exc:
+            self.get_logger().warning(f"camera image refused: {exc}", throttle_duration_sec=10.0)
+            return None
 
     def _on_layer(self, layer: str, msg: PointCloud2) -> None:
         try:
@@ -148,6 +155,8 @@ class OperatorConsole(Node):
             self.server.stop()
         self.client.interrupted = True
         self.client.close()
+        self.joint_states.destroy()
+        self.images.destroy()
         super().destroy_node()
 
 

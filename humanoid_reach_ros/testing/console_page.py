@@ -39,17 +39,23 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def start_graph(out: Path, env: dict[str, str], port: int, console_params: dict[str, Any] | None = None,
+def start_graph(out: Path, env: dict[str, str], port: int | None, console_params: dict[str, Any] | None = None,
                 nodes: tuple[str, ...] = GRAPH_NODES) -> Graph:
-    """The graph's nodes and the console on ``port`` (stop it with ``graph.stop()``)."""
+    """The graph's nodes and (``port`` not None) the console on ``port``; stop it with ``graph.stop()``."""
     graph = Graph(out, env)
     for name in nodes:
         params: dict[str, Any] = {}
         if name in ("reach_planner", "reach_executor"):
             params["joint_states_timeout_s"] = SIM_JOINT_STATES_TIMEOUT_S
         graph.start(name, params)
-    graph.start("operator_console", {"port": port, **(console_params or {})})
+    if port is not None:
+        start_console(graph, port, console_params)
     return graph
+
+
+def start_console(graph: Graph, port: int, params: dict[str, Any] | None = None) -> Any:
+    """``operator_console`` on ``port`` in ``graph`` (its NodeProcess)."""
+    return graph.start("operator_console", {"port": port, **(params or {})})
 
 
 class Browser:
@@ -86,3 +92,39 @@ def canvas_variance(page: Any, selector: str = "#scene") -> float:
     png = page.locator(selector).screenshot()
     img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_GRAYSCALE)
     return float(np.var(img.astype(float)))
+
+
+class ConsolePage:
+    """One page of the console, driven as an operator does: buttons and clicks, each action
+    awaited until its result (``window.hr``: what the page shows, static/console.js)."""
+
+    def __init__(self, page: Any) -> None:
+        self.page = page
+
+    def hr(self, expr: str) -> Any:
+        return self.page.evaluate(f"window.hr.{expr}")
+
+    def wait(self, condition: Any, timeout_s: float, what: str) -> Any:
+        from humanoid_reach_ros.graph import wait_for
+        return wait_for(condition, timeout_s, what, on_timeout=lambda: self.page.inner_text("#log"),
+                        step=lambda: self.page.wait_for_timeout(100))
+
+    def take(self) -> None:
+        self.page.click("#take")
+        self.wait(lambda: self.hr("holder === window.hr.page"), 30.0, "the controls taken")
+
+    def act(self, button: str, timeout_s: float) -> tuple[dict, float]:
+        """Click ``button`` (once it is enabled) and await its result: (result, seconds)."""
+        import time
+        self.wait(lambda: not self.page.is_disabled(f"#{button}"), 30.0, f"{button} enabled")
+        n = len(self.hr("results"))
+        t0 = time.monotonic()
+        self.page.click(f"#{button}")
+        self.wait(lambda: len(self.hr("results")) > n, timeout_s, f"the result of {button}")
+        return self.hr("results")[n], time.monotonic() - t0
+
+    def click_at(self, point: tuple[float, float, float]) -> list[float] | None:
+        """Click the 3D view where ``point`` [m, world] is drawn; the target picked (or None)."""
+        at = self.hr(f"project({point[0]}, {point[1]}, {point[2]})")
+        self.page.mouse.click(at["x"], at["y"])
+        return self.hr("picked")

@@ -85,6 +85,12 @@ class _Reporting:
         return self._client.look(yaw_rad, pitch_rad, dwell_s, fb, gaze_points)
 
 
+def _failed(outcome: str | None) -> str:
+    """How an action that did not succeed ended: ``failed`` (its server said so), else the outcome
+    (``canceled``, ``rejected``, ``unavailable``, ``timeout``)."""
+    return "failed" if outcome in (None, "done") else outcome
+
+
 def _finite(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
@@ -305,7 +311,7 @@ class ConsoleControl:
         e = session.summary["execution"] or {}
         ok = code == EXIT["success"]
         text = (f"{op}: done in {e.get('duration_s', 0.0):.2f} s, {e.get('overruns', 0)} overruns" if ok else
-                f"{op} {e.get('outcome', 'failed')}: " + (code_text(e["error_code"], e.get("message", ""))
+                f"{op} {_failed(e.get('outcome'))}: " + (code_text(e["error_code"], e.get("message", ""))
                                                          if "error_code" in e else "no result"))
         error = None if ok else {"name": e.get("error_name", e.get("outcome", "FAILED")),
                                  "code": e.get("error_code"), "message": e.get("message", e.get("outcome", ""))}
@@ -324,7 +330,7 @@ class ConsoleControl:
         looked = looked or execution_summary("canceled", None)
         ok = code == EXIT["success"]
         text = f"{op}: {looked.get('message', looked['outcome'])}" if ok else \
-            f"{op} {looked['outcome']}: " + (code_text(looked["error_code"], looked.get("message", ""))
+            f"{op} {_failed(looked['outcome'])}: " + (code_text(looked["error_code"], looked.get("message", ""))
                                             if "error_code" in looked else "no result")
         error = None if ok else {"name": looked.get("error_name", looked["outcome"]),
                                  "code": looked.get("error_code"), "message": looked.get("message", "")}

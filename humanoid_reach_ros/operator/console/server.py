@@ -1,12 +1,13 @@
 """The console's web server (aiohttp): the page, three.js, and one WebSocket per page.
 
-:class:`ConsoleFeed` holds the robot's latest inputs as the node hands them in (each a thunk:
-a message is converted only when a frame is due, so ``/joint_states`` at 200 Hz costs a
-stored reference, not a conversion). :class:`ConsoleServer` runs the event loop in a thread of
-its own; every ``update_period_s`` it sends each page what changed, throttled: the robot when a
-capsule moved (``RobotView``), the voxel layers as changes at most every ``map_period_s``,
-the camera image at most every ``image_period_s`` and only a new one, the status when it
-changed (and every ``STATUS_EVERY_S``). A page's requests go to ``control.ConsoleControl``.
+:class:`ConsoleFeed` reads the robot's latest inputs when a frame is due (``/joint_states`` at
+200 Hz and the images at 10 Hz are taken on demand, never delivered one by one).
+:class:`ConsoleServer` runs the event loop in a thread of its own; every ``update_period_s`` it
+sends each page what changed, throttled: the robot when a capsule moved (``RobotView``), the
+voxel layers as changes at most every ``map_period_s``, the camera image at most every
+``image_period_s`` and only a new one, the status when it changed (and every ``STATUS_EVERY_S``).
+Each page has one queue, sent in order; a page that lags gets no images until it caught up. A
+page's requests go to ``control.ConsoleControl``.
 
 ROS-free; ``nodes/operator_console.py`` is the adapter.
 """
@@ -32,7 +33,7 @@ STATIC_DIR = Path(__file__).resolve().parent / "static"
 PACKAGE_ROOT = Path(__file__).resolve().parents[3]          # the checkout (node_modules/ beside package.json)
 STATUS_EVERY_S = 5.0           # the status goes out at least this often (a page sees the console is alive)
 MAX_REQUEST_BYTES = 4096       # a page's request larger than this is refused unread
-MAX_PENDING_BYTES = 4 << 20    # a page that has not taken this much yet gets no image until it has
+SLOW_PAGE_QUEUE = 20           # a page with more messages than this waiting gets no image until it took them
 
 
 @dataclass(frozen=True)
@@ -58,25 +59,19 @@ def three_js_dir(configured: str) -> Path:
 
 
 class ConsoleFeed:
-    """The latest inputs (thunks, called when a frame is due) and the status the node reports."""
+    """The robot's inputs as the console reads them: ``joints()`` the latest joints (or None) and
+    ``image()`` the latest camera image (grey (H, W)) when a new one came since the last call (else
+    None), both taken on demand when a frame is due (the node's ``LatestOnDemand``: no wake-up per
+    message); the voxel layers and the status handed in by the node's callbacks."""
 
     def __init__(self, occupied: VoxelLayer, unobserved: VoxelLayer) -> None:
         self.lock = threading.Lock()
-        self.joints: Callable[[], np.ndarray | None] | None = None
-        self.image: Callable[[], tuple[np.ndarray, list[np.ndarray]] | None] | None = None
-        self.image_seq = 0
+        self.joints: Callable[[], np.ndarray | None] = lambda: None
+        self.image: Callable[[], np.ndarray | None] = lambda: None
         self.layers = {"occupied": occupied, "unobserved": unobserved}
         self.pending: dict[str, np.ndarray] = {}
         self.occupied_points = np.zeros((0, 3))
         self.status: dict[str, Any] = {}
-        self._joints_cache: tuple[Any, np.ndarray | None] = (None, None)
-
-    def set_joints(self, thunk: Callable[[], np.ndarray | None]) -> None:
-        self.joints = thunk
-
-    def set_image(self, thunk: Callable[[], Any]) -> None:
-        with self.lock:
-            self.image, self.image_seq = thunk, self.image_seq + 1
 
     def set_layer(self, name: str, points: np.ndarray) -> None:
         with self.lock:
@@ -89,15 +84,7 @@ class ConsoleFeed:
             self.status.update(values)
 
     def current_joints(self) -> np.ndarray | None:
-        """The joints of the latest ``/joint_states`` (converted once per message)."""
-        thunk = self.joints
-        if thunk is None:
-            return None
-        cached_thunk, joints = self._joints_cache
-        if cached_thunk is not thunk:
-            joints = thunk()
-            self._joints_cache = (thunk, joints)
-        return joints
+        return self.joints()
 
     def map_distance(self, point: list[float]) -> float:
         """Distance [m] of ``point`` to the nearest occupied voxel centre (inf: no map)."""
@@ -112,10 +99,12 @@ class ConsoleServer:
     """The page, three.js and the WebSocket, in an event loop on a thread of its own."""
 
     def __init__(self, config: ConsoleConfig, feed: ConsoleFeed, robot: RobotView, control: ConsoleControl,
-                 log: Callable[[str], None] = print, three_dir: Path | None = None) -> None:
+                 log: Callable[[str], None] = print, three_dir: Path | None = None, detector: Any = None) -> None:
         self.config, self.feed, self.robot, self.control, self.log = config, feed, robot, control, log
+        self.detector = detector     # an OpenCV ArUco detector (marker_detector) or None: no outlines
         self.three_dir = three_dir or three_js_dir(config.three_js_dir)
         self.pages: dict[int, Any] = {}
+        self.queues: dict[int, asyncio.Queue] = {}   # per page, in order: one sender task each
         self.ids = itertools.count(1)
         self.loop: asyncio.AbstractEventLoop | None = None
         self.thread: threading.Thread | None = None
@@ -126,7 +115,6 @@ class ConsoleServer:
         self._status_t = 0.0
         self._map_t = -math.inf
         self._image_t = -math.inf
-        self._image_seq = 0
         self._image_hash = b""
         self._stop: asyncio.Event | None = None
         self._last_failure = ""
@@ -215,59 +203,68 @@ class ConsoleServer:
         ws = web.WebSocketResponse(max_msg_size=MAX_REQUEST_BYTES, heartbeat=20.0)
         await ws.prepare(request)
         page = next(self.ids)
-        self.pages[page] = ws
+        queue: asyncio.Queue = asyncio.Queue()
+        self.pages[page], self.queues[page] = ws, queue
+        sender = asyncio.ensure_future(self._sender(ws, queue))
         self.log(f"page {page} connected from {request.remote} ({len(self.pages)} open)")
         try:
-            await self._welcome(ws, page)
+            self._welcome(page)
             async for msg in ws:
                 if msg.type == WSMsgType.TEXT:
                     try:
                         req = json.loads(msg.data)
                     except ValueError as exc:
-                        await ws.send_str(json.dumps({"t": "error", "op": None, "text": f"not JSON: {exc}"}))
+                        self._send_text(json.dumps({"t": "error", "op": None, "text": f"not JSON: {exc}"}), page)
                         continue
                     await asyncio.get_running_loop().run_in_executor(None, self.control.handle, page, req)
                     self._last_status = ""   # the controls may have changed: status at the next tick
                 elif msg.type == WSMsgType.BINARY:
-                    await ws.send_str(json.dumps({"t": "error", "op": None, "text": "requests are JSON text"}))
+                    self._send_text(json.dumps({"t": "error", "op": None, "text": "requests are JSON text"}), page)
                 elif msg.type == WSMsgType.ERROR:
                     break
         finally:
             self.pages.pop(page, None)
+            self.queues.pop(page, None)
+            sender.cancel()
             self.control.left(page)
             self._last_status = ""
             self.log(f"page {page} closed ({len(self.pages)} open)")
         return ws
 
-    async def _welcome(self, ws: Any, page: int) -> None:
-        await ws.send_str(json.dumps({"t": "hello", "page": page, "robot": self.robot.model_info()}))
+    async def _sender(self, ws: Any, queue: asyncio.Queue) -> None:
+        """A page's messages in the order they were made."""
+        while True:
+            item = await queue.get()
+            if ws.closed:
+                continue
+            try:
+                await (ws.send_str(item) if isinstance(item, str) else ws.send_bytes(item))
+            except (ConnectionError, RuntimeError):   # the page went away meanwhile
+                pass
+
+    def _welcome(self, page: int) -> None:
+        self._send_text(json.dumps({"t": "hello", "page": page, "robot": self.robot.model_info()}), page)
         for layer in self.feed.layers.values():
-            await self._send_to(ws, layer.snapshot())
+            self._send_bytes(layer.snapshot(), page)
         joints = self.feed.current_joints()
         if joints is not None:
-            await self._send_to(ws, self.robot.frame(joints, force=True))
+            self._send_bytes(self.robot.frame(joints, force=True), page)
         self._image_hash = b""    # the next image goes out even if unchanged
         self._last_status = ""
 
-    async def _send_to(self, ws: Any, frame: bytes) -> None:
-        if not ws.closed:
-            self.sent_bytes += len(frame)
-            await ws.send_bytes(frame)
-
     def _send_text(self, text: str, to: Any) -> None:
-        for page, ws in list(self.pages.items()):
-            if (to is None or page == to) and not ws.closed:
+        for page, queue in list(self.queues.items()):
+            if to is None or page == to:
                 self.sent_bytes += len(text)
-                asyncio.ensure_future(ws.send_str(text))
+                queue.put_nowait(text)
 
     def _send_bytes(self, frame: bytes, to: Any = None, skip_slow: bool = False) -> None:
-        for page, ws in list(self.pages.items()):
-            if (to is None or page == to) and not ws.closed:
-                transport = getattr(getattr(ws, "_writer", None), "transport", None)
-                if skip_slow and transport is not None and transport.get_write_buffer_size() > MAX_PENDING_BYTES:
+        for page, queue in list(self.queues.items()):
+            if to is None or page == to:
+                if skip_slow and queue.qsize() > SLOW_PAGE_QUEUE:   # a page that lags gets no more images
                     continue
                 self.sent_bytes += len(frame)
-                asyncio.ensure_future(ws.send_bytes(frame))
+                queue.put_nowait(frame)
 
     async def _ticks(self) -> None:
         period = self.config.update_period_s
@@ -297,15 +294,14 @@ class ConsoleServer:
                 if (frame := layer.delta()) is not None:
                     self._send_bytes(frame)
                     self._map_t = now
-        if now - self._image_t >= self.config.image_period_s and self.feed.image_seq != self._image_seq:
-            self._image_seq, self._image_t = self.feed.image_seq, now
-            got = self.feed.image() if self.feed.image is not None else None
-            if got is not None:
-                img, corners = got
-                digest = hashlib.blake2b(img.tobytes(), digest_size=16).digest()
+        if now - self._image_t >= self.config.image_period_s:
+            self._image_t = now
+            gray = self.feed.image()
+            if gray is not None:
+                digest = hashlib.blake2b(gray.tobytes(), digest_size=16).digest()
                 if digest != self._image_hash:    # a still robot in a still scene: the same image, not sent again
                     self._image_hash = digest
-                    self._send_bytes(image_frame(img, corners, self.config.image_quality,
+                    self._send_bytes(image_frame(gray, self.detector, self.config.image_quality,
                                                  self.config.image_max_width), skip_slow=True)
         status = {**self.feed.status, **self.control.state(),
                   "voxels": {k: len(v) for k, v in self.feed.layers.items()}}
@@ -313,13 +309,6 @@ class ConsoleServer:
         if text != self._last_status or now - self._status_t >= STATUS_EVERY_S:
             self._last_status, self._status_t = text, now
             self._send_text(text, None)
-
-
-def image_with_markers(gray: np.ndarray, detector: Any) -> tuple[np.ndarray, list[np.ndarray]]:
-    """(image, marker corners) of a grey image (H, W) with ``detector``'s ``detectMarkers`` (an
-    OpenCV ArUco detector: the marker localizer's dictionary)."""
-    corners, ids, _ = detector.detectMarkers(gray)
-    return gray, [np.asarray(c, dtype=float).reshape(4, 2) for c in (corners if ids is not None else ())]
 
 
 def marker_detector(dictionary: str) -> Any:
@@ -331,5 +320,5 @@ def marker_detector(dictionary: str) -> Any:
                                    cv2.aruco.DetectorParameters())
 
 
-__all__ = ["ConsoleConfig", "ConsoleFeed", "ConsoleServer", "image_with_markers", "marker_detector", "pack",
+__all__ = ["ConsoleConfig", "ConsoleFeed", "ConsoleServer", "marker_detector", "pack",
            "three_js_dir"]

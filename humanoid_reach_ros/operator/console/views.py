@@ -18,7 +18,7 @@ import json
 import math
 import struct
 import zlib
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -111,6 +111,7 @@ class RobotView:
         self.sweep = BodySweep(model, collision_model, 0.0)
         self.move_threshold_m = float(move_threshold_m)
         self.sent: np.ndarray | None = None   # capsule ends (2 S, 3) of the last frame sent
+        self._joints: np.ndarray | None = None  # the joints last looked at (unchanged: no forward kinematics)
 
     def model_info(self) -> dict[str, Any]:
         """The shapes' radii (as written, without padding) and names, and the robot's name."""
@@ -125,7 +126,11 @@ class RobotView:
     def frame(self, joints: np.ndarray, force: bool = False) -> bytes | None:
         """The robot frame at ``joints``; None when no capsule end moved ``move_threshold_m`` since
         the last frame (unless ``force``)."""
-        e = self.ends(joints)
+        j = np.asarray(joints, dtype=float)
+        if not force and self._joints is not None and np.array_equal(j, self._joints):
+            return None
+        self._joints = j.copy()
+        e = self.ends(j)
         if not force and self.sent is not None and float(np.max(np.abs(e - self.sent))) < self.move_threshold_m:
             return None
         self.sent = e
@@ -159,19 +164,23 @@ class RobotView:
         return pack(header, data.tobytes()), {"duration_s": float(t[-1]), "frames": len(frames)}
 
 
-def image_frame(bgr: np.ndarray, corners: Sequence[np.ndarray], quality: int, max_width: int) -> bytes:
-    """A JPEG of an image (H, W) grey or (H, W, 3) BGR, scaled down to ``max_width``, with the marker
-    outlines ``corners`` (each (4, 2) px of the full image) in the header, scaled the same."""
+def image_frame(image: np.ndarray, detector: Any, quality: int, max_width: int) -> bytes:
+    """A JPEG of a camera image ((H, W) grey or (H, W, 3) BGR) scaled down to ``max_width``, and
+    the outlines of the markers ``detector`` finds in it (an OpenCV ArUco detector's
+    ``detectMarkers``, on the scaled image: its corners (4, 2) px; None: no outlines)."""
     import cv2
 
-    h, w = bgr.shape[:2]
+    h, w = image.shape[:2]
     scale = min(1.0, max_width / float(w))
     if scale < 1.0:
-        bgr = cv2.resize(bgr, (int(round(w * scale)), int(round(h * scale))), interpolation=cv2.INTER_AREA)
-    ok, jpeg = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+        image = cv2.resize(image, (int(round(w * scale)), int(round(h * scale))), interpolation=cv2.INTER_AREA)
+    outlines: list = []
+    if detector is not None:
+        corners, ids, _ = detector.detectMarkers(image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))
+        if ids is not None:
+            outlines = [np.round(np.asarray(c, dtype=float).reshape(4, 2), 1).tolist() for c in corners]
+    ok, jpeg = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
     if not ok:
         raise ValueError("JPEG encoding failed")
-    outlines = [[[round(float(u) * scale, 1), round(float(v) * scale, 1)] for u, v in np.asarray(c).reshape(4, 2)]
-                for c in corners]
-    return pack({"t": "image", "w": int(bgr.shape[1]), "h": int(bgr.shape[0]), "markers": outlines},
+    return pack({"t": "image", "w": int(image.shape[1]), "h": int(image.shape[0]), "markers": outlines},
                 jpeg.tobytes())

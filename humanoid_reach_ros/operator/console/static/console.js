@@ -102,7 +102,7 @@ function rebuildLayer(name) {
     const g = new THREE.BufferGeometry();
     g.setAttribute("position", new THREE.BufferAttribute(pos, 3));
     layer.mesh = new THREE.Points(g, new THREE.PointsMaterial({ color: 0xe8913a, size: res * 0.6,
-      transparent: true, opacity: 0.35, depthWrite: false }));
+      transparent: true, opacity: 0.22, depthWrite: false }));
   }
   scene.add(layer.mesh);
   dirty = true;
@@ -159,8 +159,9 @@ function animateGhost(now) {
 }
 
 // ---------------------------------------------------------------- markers in the scene
-function dot(color, r) {
-  const m = new THREE.Mesh(new THREE.SphereGeometry(r, 16, 12), new THREE.MeshBasicMaterial({ color }));
+function dot(color, r) {   // drawn over everything: a target inside the voxels stays visible
+  const m = new THREE.Mesh(new THREE.SphereGeometry(r, 16, 12), new THREE.MeshBasicMaterial({ color, depthTest: false }));
+  m.renderOrder = 10;
   m.visible = false;
   scene.add(m);
   return m;
