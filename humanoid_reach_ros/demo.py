@@ -402,7 +402,11 @@ def write_demo_frames(out: Path, robot_name: str, scene: str, states: list[tuple
         print(f"[demo] no frames: {problem}")
         return []
     states = [(label, st) for label, st in states if st is not None]
-    pm = build_for_robot(RobotModel(robot_name), scene)
+    try:
+        pm = build_for_robot(RobotModel(robot_name), scene)
+    except ValueError as exc:       # a robot without physics.yaml: nothing to render with
+        print(f"[demo] no frames: {exc}")
+        return []
     target = load_scene(scene).target
     images = render_states(pm, [st for _, st in states],
                            default_view(pm, target.pose[:3, 3] if target is not None else None))
