@@ -37,7 +37,8 @@ from nodetools import REPO_ROOT, NodeProcess, RosProbe, allocate_domain, graph_e
 #: graph files last, one worker idle meanwhile)
 HEAVY_FIRST = ("test_session.py", "test_operator_marker.py", "test_hosts.py", "test_bag_replay.py",
                "test_fault_tolerance.py", "test_voxel_mapper_node.py", "test_reach_operator.py", "test_demo.py",
-               "test_perception_graph.py", "test_joint_driver_node.py", "test_reach_executor_node.py",
+               "test_perception_graph.py", "test_operator_console.py", "test_joint_driver_node.py",
+               "test_reach_executor_node.py",
                "test_marker_localizer_node.py", "test_dual_arm_node.py", "test_executor.py", "test_mcap_bag.py",
                "test_graph_up.py", "test_scene_suite.py")
 
