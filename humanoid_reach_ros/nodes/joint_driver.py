@@ -166,6 +166,7 @@ class JointDriver(Node):
 
         self.description_pub.publish(String(data=self.model.description_xml))
         self.plant_metrics_pub = None
+        self._fall_logged = False
         if self.physics is not None:
             from humanoid_reach_interfaces.msg import PlantMetrics
 
@@ -273,8 +274,11 @@ class JointDriver(Node):
         self._base_pose_out.publish(msgs.pose_stamped(base, self.world_frame_id, stamp))
 
     def _publish_plant_metrics(self) -> None:
-        self.plant_metrics_pub.publish(msgs.plant_metrics(self.physics.snapshot(), self.world_frame_id,
-                                                          self.get_clock().now().to_msg()))
+        snap = self.physics.snapshot()
+        if snap.fall_reason and not self._fall_logged:      # once: when, and why
+            self._fall_logged = True
+            self.get_logger().error(f"the robot fell at {snap.sim_time_s:.2f} s of simulated time: {snap.fall_reason}")
+        self.plant_metrics_pub.publish(msgs.plant_metrics(snap, self.world_frame_id, self.get_clock().now().to_msg()))
 
     def _publish_diagnostics(self) -> None:
         now = time.monotonic()
