@@ -27,6 +27,7 @@ from nodetools import wait_for
 from test_operator_core import FakeClient, plan_response
 
 JOINTS = np.zeros(3)
+SHORT_SCAN_DEG = [0.0, 35.0, 0.0, 45.0]   # yaw pitch pairs: two head poses down at the valve
 
 
 # ---------------------------------------------------------------- frames
@@ -333,8 +334,15 @@ def test_the_console_in_a_browser_plans_executes_and_goes_home(ros_env, ros_prob
 
     t0 = time.monotonic()
     port = free_port()
-    # five clouds a pose (as test_session); a budget for a loaded machine
-    graph = start_graph(tmp_path, dict(ros_env), port, {"scan_dwell_s": 0.5, "plan_budget_s": 10.0})
+    # the short form: a scan of two head poses down at the valve, five clouds each (bench/console.py scans
+    # all 20 and the gazes around the body); a planning budget for a loaded machine
+    graph = start_graph(tmp_path, dict(ros_env), port, {"scan_dwell_s": 0.5, "plan_budget_s": 10.0},
+                        node_params={"reach_executor": {"scan_poses_deg": SHORT_SCAN_DEG,
+                                                        "scan_surroundings_looks": 0}})
+    phases: dict[str, float] = {}
+
+    def phase(name: str) -> None:
+        phases[name] = round(time.monotonic() - t0 - sum(phases.values()), 1)
     browser = None
     try:
         procs = {p.name: p for p in graph.procs}
@@ -343,6 +351,7 @@ def test_the_console_in_a_browser_plans_executes_and_goes_home(ros_env, ros_prob
             procs[name].wait_for_log(line, 180.0)
         states = ros_probe.collect(JointState, "/joint_states")
         model = RobotModel()
+        phase("graph up")
 
         def joints() -> np.ndarray:
             ros_probe.spin_until(lambda: states.last is not None, 30.0, "/joint_states")
@@ -362,6 +371,7 @@ def test_the_console_in_a_browser_plans_executes_and_goes_home(ros_env, ros_prob
                  "the page to show the map, the robot and the camera",
                  on_timeout=lambda: f"{counts()} {browser.console}")
         wait_for(lambda: canvas_variance(page) > 100.0, 20.0, "a drawn 3D view (pixel variance)")
+        phase("pages drawn")
 
         # one operator at a time: the first page takes the controls, the second stays view-only
         page.click("#take")
@@ -384,8 +394,9 @@ def test_the_console_in_a_browser_plans_executes_and_goes_home(ros_env, ros_prob
         wait_for(lambda: any(r["op"] == "scan" for r in page.evaluate("hr.results")), 120.0, "the scan's result",
                  on_timeout=lambda: page.inner_text("#log"))
         scan = page.evaluate("hr.results")[-1]
-        assert scan["ok"] and scan["look"]["poses_done"] >= 5, scan
+        assert scan["ok"] and scan["look"]["poses_done"] == len(SHORT_SCAN_DEG) // 2, scan
         assert counts()["markerImages"] > 0, counts()      # the marker outlined in the images it was in
+        phase("scan")
 
         # click near the valve: the target is a map point there
         at = page.evaluate(f"hr.project({VALVE[0]}, {VALVE[1]}, {VALVE[2]})")
@@ -405,6 +416,7 @@ def test_the_console_in_a_browser_plans_executes_and_goes_home(ros_env, ros_prob
         assert counts()["ghostFrames"] >= 2 and "goals" in page.inner_text("#stats")
         assert float(np.max(np.abs(joints() - before))) < 1e-3, "planning moved the robot"
         assert viewer.evaluate("hr.counts.ghostFrames") >= 2       # the viewer sees the preview too
+        phase("plan")
 
         # Execute that preview: the hand ends at the clicked target (from /joint_states)
         wait_for(lambda: not page.is_disabled("#execute"), 20.0, "Execute enabled")
@@ -421,6 +433,7 @@ def test_the_console_in_a_browser_plans_executes_and_goes_home(ros_env, ros_prob
                                         - np.asarray(picked)))
         ros_probe.spin_until(lambda: hand_error() < 0.03, 20.0, "the hand at the target",
                              on_timeout=lambda: f"{hand_error():.3f} m away")
+        phase("execute")
 
         # Home
         wait_for(lambda: not page.is_disabled("#home"), 20.0, "Home enabled")
@@ -432,7 +445,8 @@ def test_the_console_in_a_browser_plans_executes_and_goes_home(ros_env, ros_prob
         ros_probe.spin_until(lambda: float(np.max(np.abs(joints() - model.half_sitting_joints))) < 0.02, 30.0,
                              "the joints at half-sitting")
         assert not [c for c in browser.console if c.startswith("pageerror")], browser.console
-        print(f"\nconsole test: {time.monotonic() - t0:.1f} s wall")
+        phase("home")
+        print(f"\nconsole test: {time.monotonic() - t0:.1f} s wall; phases [s]: {phases}")
     finally:
         if browser is not None:
             browser.close()

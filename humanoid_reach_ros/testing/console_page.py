@@ -40,14 +40,15 @@ def free_port() -> int:
 
 
 def start_graph(out: Path, env: dict[str, str], port: int | None, console_params: dict[str, Any] | None = None,
-                nodes: tuple[str, ...] = GRAPH_NODES) -> Graph:
-    """The graph's nodes and (``port`` not None) the console on ``port``; stop it with ``graph.stop()``."""
+                nodes: tuple[str, ...] = GRAPH_NODES, node_params: dict[str, dict[str, Any]] | None = None) -> Graph:
+    """The graph's nodes (``node_params``: parameters of some on top of their YAML files) and
+    (``port`` not None) the console on ``port``; stop it with ``graph.stop()``."""
     graph = Graph(out, env)
     for name in nodes:
         params: dict[str, Any] = {}
         if name in ("reach_planner", "reach_executor"):
             params["joint_states_timeout_s"] = SIM_JOINT_STATES_TIMEOUT_S
-        graph.start(name, params)
+        graph.start(name, {**params, **(node_params or {}).get(name, {})})
     if port is not None:
         start_console(graph, port, console_params)
     return graph
