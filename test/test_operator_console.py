@@ -334,11 +334,11 @@ def test_the_console_in_a_browser_plans_executes_and_goes_home(ros_env, ros_prob
 
     t0 = time.monotonic()
     port = free_port()
-    # the short form: a scan of two head poses down at the valve, five clouds each (bench/console.py scans
-    # all 20 and the gazes around the body); a planning budget for a loaded machine
+    # the short form: a scan of two head poses down at the valve (five clouds each), then the scan's gazes
+    # around the body (without them the plan needs three automatic looks there); bench/console.py scans all
+    # ten poses. A planning budget for a loaded machine
     graph = start_graph(tmp_path, dict(ros_env), port, {"scan_dwell_s": 0.5, "plan_budget_s": 10.0},
-                        node_params={"reach_executor": {"scan_poses_deg": SHORT_SCAN_DEG,
-                                                        "scan_surroundings_looks": 0}})
+                        node_params={"reach_executor": {"scan_poses_deg": SHORT_SCAN_DEG}})
     phases: dict[str, float] = {}
 
     def phase(name: str) -> None:
@@ -394,7 +394,7 @@ def test_the_console_in_a_browser_plans_executes_and_goes_home(ros_env, ros_prob
         wait_for(lambda: any(r["op"] == "scan" for r in page.evaluate("hr.results")), 120.0, "the scan's result",
                  on_timeout=lambda: page.inner_text("#log"))
         scan = page.evaluate("hr.results")[-1]
-        assert scan["ok"] and scan["look"]["poses_done"] == len(SHORT_SCAN_DEG) // 2, scan
+        assert scan["ok"] and scan["look"]["poses_done"] >= len(SHORT_SCAN_DEG) // 2, scan
         assert counts()["markerImages"] > 0, counts()      # the marker outlined in the images it was in
         phase("scan")
 
