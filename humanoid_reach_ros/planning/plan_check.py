@@ -36,6 +36,7 @@ import time
 import numba as nb
 import numpy as np
 
+from humanoid_reach_ros.geometry.batch_collision import LANES, batch_checker, check_lanes, lane_workspace
 from humanoid_reach_ros.geometry.distance import RobotCollision, _fk_shapes_kernel, _seg_seg_dist, quaternion_rotation
 from humanoid_reach_ros.geometry.sphere_tree import tree_any_intersection
 from humanoid_reach_ros.planning.projector import LEGS, Projector, _project_plan_kernel
@@ -269,19 +270,86 @@ def _plan_edges_kernel(A, B, m, with_ends, proj, fk, R, order, pi, pj, margin, n
     return E
 
 
+@nb.njit(**_JIT)
+def _plan_edges_lanes_kernel(A, B, m, with_ends, proj, fk, R, order, pi, pj, margin, nodes, children, depth, do_env,
+                             all_hit, fld, counts):
+    """:func:`_plan_edges_kernel`'s answer with the collision tests in SIMD lanes: each
+    edge's points in bisect order are projected one by one (a point that does not
+    project ends the edge), their full configurations gathered LANES at a time and
+    checked by :func:`~humanoid_reach_ros.geometry.batch_collision.check_lanes` (the
+    scalar checker's verdicts); the edge ends at the first block holding a collision."""
+    (v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, leg_cols, feet_p, feet_R, leg_ref, R0, t0, Re, te, l1, l2, leg_lo,
+     leg_hi) = proj
+    E = A.shape[0]
+    d = A.shape[1]
+    nq = q_ref.shape[0]
+    Q = np.empty((1, nq))
+    ok = np.empty(1, np.bool_)
+    tp = np.empty((1, 3))
+    tR = np.empty((1, 3, 3))
+    fails = np.zeros(3, np.int64)
+    WS = lane_workspace(nq, fk[0].shape[0], fk[5].shape[0], fk[8].shape[0], depth)
+    blk = np.empty((nq, LANES))
+    hits = np.zeros(LANES, np.bool_)
+    lane_counts = np.zeros(2, np.int64)
+    mmax = 1
+    for e in range(E):
+        mmax = max(mmax, m[e])
+    buf = np.empty(mmax + 2, np.int64)
+    queue = np.empty((2 * mmax + 4, 2), np.int64)
+    row = np.empty((1, d))
+    for e in range(E):
+        me = m[e]
+        if with_ends:
+            cnt = _bisect_fill(0, me, buf, queue)
+        else:
+            cnt = _bisect_fill(1, me - 1, buf, queue)
+        n = 0
+        for t in range(cnt):
+            s = buf[t] / me
+            for c in range(d):
+                row[0, c] = A[e, c] + s * (B[e, c] - A[e, c])
+            _project_plan_kernel(row, v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, leg_cols, feet_p, feet_R, leg_ref,
+                                 R0, t0, Re, te, l1, l2, leg_lo, leg_hi, Q, ok, tp, tR, fails)
+            counts[0] += 1
+            if not ok[0]:
+                return e
+            counts[1] += 1
+            if all_hit:
+                return e
+            for k in range(nq):
+                blk[k, n] = Q[0, k]
+            n += 1
+            if n == LANES or t == cnt - 1:
+                for ln in range(n, LANES):          # pad the block with its last configuration
+                    for k in range(nq):
+                        blk[k, ln] = blk[k, n - 1]
+                check_lanes(blk, n, fk, R, order, pi, pj, margin, nodes, children, depth, do_env, fld, WS, hits,
+                            lane_counts)
+                for ln in range(n):
+                    if hits[ln]:
+                        return e
+                n = 0
+    return E
+
+
 class PlanChecker:
     """``is_valid_batch`` / ``first_invalid`` of q_plan rows for one arm (see module doc).
 
-    Same verdicts as ``project_plan_config(Q, arm).ok & collision.check_batch(...)``;
+    Same verdicts as ``project_plan_config(Q, arm).ok & collision.check_batch(...)``
+    (``lanes``: :meth:`first_invalid_edge` through the SIMD-lane kernel, see there);
     counted in ``collision.counters`` (configurations checked, time in
     ``check_time_s``: projection, FK and tests are interleaved here, so it holds all three)."""
 
-    def __init__(self, projector: Projector, collision: RobotCollision, arm: str) -> None:
+    def __init__(self, projector: Projector, collision: RobotCollision, arm: str, lanes: bool = True) -> None:
         if not projector.compiled:
             raise ValueError("PlanChecker needs a projector on the compiled leg IK")
         self.projector = projector
         self.collision = collision
         self.arm = arm
+        #: edges checked in SIMD lanes (full forward kinematics of LANES projected points at a
+        #: time, geometry/batch_collision.py); False: the scalar fused kernel, point by point
+        self.lanes = bool(lanes)
         robot = projector.robot
         m = robot.model
         cm = collision.cm
@@ -364,17 +432,25 @@ class PlanChecker:
         """First invalid edge of ``A[e] -> B[e]`` cut into ``m[e]`` steps (E if all are
         valid): the points of :func:`~humanoid_reach_ros.planning.space.check_edges`,
         generated in the kernel, edge after edge, each edge in bisect order, stopping at
-        the first invalid point. ``last_examined``: the points examined."""
+        the first invalid point (with ``lanes``: at the first block of LANES points holding
+        it). ``last_examined``: the points examined."""
         A = np.ascontiguousarray(A, dtype=np.float64)
         B = np.ascontiguousarray(B, dtype=np.float64)
         m = np.ascontiguousarray(m, dtype=np.int64)
         col = self.collision
         tree = col.tree
         counts = np.zeros(2, np.int64)
-        t0 = time.perf_counter()
-        e = _plan_edges_kernel(A, B, m, bool(include_endpoints), self._proj, self._fk, col.radii, col.env_order,
-                               *self._pairs, col.self_margin_m, tree.nodes, tree.children, tree.depth,
-                               bool(tree.n_spheres > 0), self.all_hit, counts)
+        if self.lanes:
+            fld = batch_checker(col).field_args()      # before the clock: built once per map
+            t0 = time.perf_counter()
+            e = _plan_edges_lanes_kernel(A, B, m, bool(include_endpoints), self._proj, col._fk_args, col.radii,
+                                         col.env_order, *self._pairs, col.self_margin_m, tree.nodes, tree.children,
+                                         tree.depth, bool(tree.n_spheres > 0), self.all_hit, fld, counts)
+        else:
+            t0 = time.perf_counter()
+            e = _plan_edges_kernel(A, B, m, bool(include_endpoints), self._proj, self._fk, col.radii, col.env_order,
+                                   *self._pairs, col.self_margin_m, tree.nodes, tree.children, tree.depth,
+                                   bool(tree.n_spheres > 0), self.all_hit, counts)
         self._count(t0, counts)
         return int(e)
 

@@ -1,0 +1,465 @@
+"""Collision checks of many configurations at once, in SIMD lanes (the verdicts of
+:class:`~humanoid_reach_ros.geometry.distance.RobotCollision`, faster).
+
+:class:`BatchCollision` wraps a :class:`RobotCollision` and answers its ``check_batch`` and
+``first_collision`` with the same verdicts, configuration for configuration. Configurations
+go through in blocks of ``LANES`` (8: one AVX-512 register of doubles), laid out as
+structures of arrays -- every pose and capsule end is an array ``[..., lane]`` -- so that
+the forward kinematics ``oMi[j] = oMi[parent] * M_j * R_axis(q_j)`` of eight
+configurations is one branch-free loop over the lanes, which LLVM turns into vector
+instructions (the idea of VAMP, Thomason et al. 2024; this code is our own):
+
+* **trigonometry in the lanes**: ``sin q_j``, ``cos q_j`` by a Taylor polynomial of degree
+  17/18 after the reduction ``q = n pi/2 + r``, ``|r| <= pi/4`` (error below 1e-15, no
+  libm call, so the loop vectorises). The capsule ends then differ from the scalar kernel's
+  by rounding only (below 1e-12 m over a 30-joint chain);
+* **every test with a band**: a test whose value lies within ``EPS_M`` (1e-7 m, five orders
+  above that difference) of its threshold is *undecided*, and the configuration is checked
+  again by today's scalar kernels (libm, same arithmetic): every other verdict is the one
+  the scalar checker gives, since its value is on the same side of the threshold;
+* **self pairs**: bounding spheres (centre of the segment, half its length + radius) of
+  both shapes, compared in the lanes; the exact segment-segment distance (Ericson 5.1.9,
+  the scalar checker's function) only where they come within the margin + ``EPS_M``;
+* **environment, broad phase**: a distance field ``F`` on a grid of ``field_cell_m``
+  cells around the sphere centres: ``F(x) <= min_i |x - c_i| - r_i`` for every ``x`` in
+  the cell (the exact Euclidean distance transform of the cells holding a centre, minus a
+  cell diagonal for where ``x`` and ``c_i`` lie in their cells, minus the largest radius);
+  outside the grid, the distance to the box of the centres minus the largest radius. A
+  capsule ``(p0, p1, r)`` with ``F(m) - |p1 - p0| / 2 - r > EPS_M`` at its midpoint ``m``
+  touches no sphere, and needs no tree query;
+* **environment, narrow phase**: the other capsules go down the sphere tree as the scalar
+  checker does (same node test ``|c - seg|^2 < (r_node + r)^2``), with the band on every node.
+
+A configuration is valid when no self pair and no capsule collides: the same definition,
+radii, pairs, margin and tree as the wrapped checker, whose counters it updates. This
+module never imports rclpy.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numba as nb
+import numpy as np
+
+from humanoid_reach_ros.geometry.distance import (_JIT, RobotCollision, _check_kernel, _fk_shapes_kernel,
+                                                   _seg_seg_dist, quaternion_rotation)
+from humanoid_reach_ros.geometry.sphere_tree import _inv_len2, _seg_dist2
+
+#: configurations per block (the SIMD lanes)
+LANES = 8
+#: undecided band [m] of every test (see the module doc)
+EPS_M = 1e-7
+#: joint angles beyond this [rad] are reduced less accurately: such batches take the scalar path
+MAX_ANGLE_RAD = 1.0e3
+_HALF_PI = 0.5 * math.pi
+_TWO_OVER_PI = 2.0 / math.pi
+# Taylor coefficients of sin (odd powers 3..17) and cos (even powers 2..18): (-1)^k / n!
+_S = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(1, 9))
+_C = tuple((-1.0) ** k / math.factorial(2 * k) for k in range(1, 10))
+S1, S2, S3, S4, S5, S6, S7, S8 = _S
+C1, C2, C3, C4, C5, C6, C7, C8, C9 = _C
+
+#: verdicts of the lane tests
+CLEAR, HIT, UNDECIDED = 0, 1, 2
+
+
+# =================================================================== lane kernels
+@nb.njit(**_JIT)
+def _sincos_lanes(QT, jq, SN, CS):
+    """``SN[j, ln], CS[j, ln]`` = sin, cos of joint ``j``'s angle in lane ``ln`` of ``QT`` (nq, LANES)."""
+    nl = SN.shape[1]
+    for j in range(jq.shape[0]):
+        col = jq[j]
+        for ln in range(nl):
+            x = QT[col, ln]
+            n = np.floor(x * _TWO_OVER_PI + 0.5)
+            r = x - n * _HALF_PI
+            z = r * r
+            s = r + r * z * (S1 + z * (S2 + z * (S3 + z * (S4 + z * (S5 + z * (S6 + z * (S7 + z * S8)))))))
+            c = 1.0 + z * (C1 + z * (C2 + z * (C3 + z * (C4 + z * (C5 + z * (C6 + z * (C7 + z * (C8 + z * C9))))))))
+            k = n - 4.0 * np.floor(0.25 * n)          # quadrant 0..3, in floats: selects, no branches
+            odd = (k == 1.0) | (k == 3.0)
+            sv = c if odd else s
+            cv = s if odd else c
+            sv = -sv if k >= 2.0 else sv
+            cv = -cv if (k == 1.0) | (k == 2.0) else cv
+            SN[j, ln] = sv
+            CS[j, ln] = cv
+
+
+@nb.njit(**_JIT)
+def _fk_lanes(QT, jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l, W):
+    """Capsule ends ``P0, P1 [s, a, ln]`` of the configurations ``QT[:, ln]`` (nq, LANES)
+    (the arithmetic of :func:`~humanoid_reach_ros.geometry.distance._fk_shapes_kernel`, the
+    lane index last)."""
+    oR, ot, A, LR, Lt, P0, P1, SN, CS, B = W
+    nl = A.shape[2]       # LANES, read at run time: a loop (not unrolled early) for the loop vectoriser
+    for ln in range(nl):
+        quaternion_rotation(QT[3, ln], QT[4, ln], QT[5, ln], QT[6, ln], B)
+        for a in range(3):
+            for b in range(3):
+                oR[0, a, b, ln] = B[a, b]
+            ot[0, a, ln] = QT[a, ln]
+    _sincos_lanes(QT, jq, SN, CS)
+    for j in range(jparent.shape[0]):
+        p = jparent[j] + 1
+        for a in range(3):
+            for b in range(3):
+                r0 = jR[j, 0, b]
+                r1 = jR[j, 1, b]
+                r2 = jR[j, 2, b]
+                for ln in range(nl):
+                    A[a, b, ln] = oR[p, a, 0, ln] * r0 + oR[p, a, 1, ln] * r1 + oR[p, a, 2, ln] * r2
+            t0 = jt[j, 0]
+            t1 = jt[j, 1]
+            t2 = jt[j, 2]
+            for ln in range(nl):
+                ot[j + 1, a, ln] = ot[p, a, ln] + oR[p, a, 0, ln] * t0 + oR[p, a, 1, ln] * t1 + oR[p, a, 2, ln] * t2
+        ax = jaxis[j]
+        for a in range(3):
+            if ax == 0:
+                for ln in range(nl):
+                    cs = CS[j, ln]
+                    sn = SN[j, ln]
+                    oR[j + 1, a, 0, ln] = A[a, 0, ln]
+                    oR[j + 1, a, 1, ln] = A[a, 1, ln] * cs + A[a, 2, ln] * sn
+                    oR[j + 1, a, 2, ln] = -A[a, 1, ln] * sn + A[a, 2, ln] * cs
+            elif ax == 1:
+                for ln in range(nl):
+                    cs = CS[j, ln]
+                    sn = SN[j, ln]
+                    oR[j + 1, a, 0, ln] = A[a, 0, ln] * cs - A[a, 2, ln] * sn
+                    oR[j + 1, a, 1, ln] = A[a, 1, ln]
+                    oR[j + 1, a, 2, ln] = A[a, 0, ln] * sn + A[a, 2, ln] * cs
+            else:
+                for ln in range(nl):
+                    cs = CS[j, ln]
+                    sn = SN[j, ln]
+                    oR[j + 1, a, 0, ln] = A[a, 0, ln] * cs + A[a, 1, ln] * sn
+                    oR[j + 1, a, 1, ln] = -A[a, 0, ln] * sn + A[a, 1, ln] * cs
+                    oR[j + 1, a, 2, ln] = A[a, 2, ln]
+    for k in range(lj.shape[0]):
+        p = lj[k] + 1
+        for a in range(3):
+            for b in range(3):
+                r0 = lR[k, 0, b]
+                r1 = lR[k, 1, b]
+                r2 = lR[k, 2, b]
+                for ln in range(nl):
+                    LR[k, a, b, ln] = oR[p, a, 0, ln] * r0 + oR[p, a, 1, ln] * r1 + oR[p, a, 2, ln] * r2
+            t0 = lt[k, 0]
+            t1 = lt[k, 1]
+            t2 = lt[k, 2]
+            for ln in range(nl):
+                Lt[k, a, ln] = ot[p, a, ln] + oR[p, a, 0, ln] * t0 + oR[p, a, 1, ln] * t1 + oR[p, a, 2, ln] * t2
+    for s in range(sl.shape[0]):
+        k = sl[s]
+        u0 = p0l[s, 0]
+        u1 = p0l[s, 1]
+        u2 = p0l[s, 2]
+        v0 = p1l[s, 0]
+        v1 = p1l[s, 1]
+        v2 = p1l[s, 2]
+        for a in range(3):
+            for ln in range(nl):
+                P0[s, a, ln] = Lt[k, a, ln] + LR[k, a, 0, ln] * u0 + LR[k, a, 1, ln] * u1 + LR[k, a, 2, ln] * u2
+                P1[s, a, ln] = Lt[k, a, ln] + LR[k, a, 0, ln] * v0 + LR[k, a, 1, ln] * v1 + LR[k, a, 2, ln] * v2
+
+
+@nb.njit(**_JIT)
+def _bounds_lanes(P0, P1, R, MC, BR):
+    """Bounding sphere (centre ``MC[s, a, ln]``, radius ``BR[s, ln]``) of every capsule."""
+    nl = BR.shape[1]
+    for s in range(P0.shape[0]):
+        rs = R[s]
+        for ln in range(nl):
+            dx = P1[s, 0, ln] - P0[s, 0, ln]
+            dy = P1[s, 1, ln] - P0[s, 1, ln]
+            dz = P1[s, 2, ln] - P0[s, 2, ln]
+            MC[s, 0, ln] = P0[s, 0, ln] + 0.5 * dx
+            MC[s, 1, ln] = P0[s, 1, ln] + 0.5 * dy
+            MC[s, 2, ln] = P0[s, 2, ln] + 0.5 * dz
+            BR[s, ln] = 0.5 * math.sqrt(dx * dx + dy * dy + dz * dz) + rs
+
+
+@nb.njit(**_JIT)
+def _self_lanes(P0, P1, MC, BR, pi, pj, R, margin, state, near, T0, T1):
+    """Self pairs of the lanes still open (``state[ln] == CLEAR``): ``state[ln]`` becomes HIT
+    (some pair certainly closer than ``margin``) or UNDECIDED (a pair within ``EPS_M`` of
+    it, none certainly closer)."""
+    for k in range(pi.shape[0]):
+        i = pi[k]
+        j = pj[k]
+        for ln in range(LANES):
+            dx = MC[i, 0, ln] - MC[j, 0, ln]
+            dy = MC[i, 1, ln] - MC[j, 1, ln]
+            dz = MC[i, 2, ln] - MC[j, 2, ln]
+            lim = BR[i, ln] + BR[j, ln] + margin + EPS_M
+            near[ln] = lim > 0.0 and dx * dx + dy * dy + dz * dz < lim * lim or lim <= 0.0
+        for ln in range(LANES):
+            if not near[ln] or state[ln] == HIT:
+                continue
+            for a in range(3):
+                T0[0, a] = P0[i, a, ln]
+                T1[0, a] = P1[i, a, ln]
+                T0[1, a] = P0[j, a, ln]
+                T1[1, a] = P1[j, a, ln]
+            d = _seg_seg_dist(T0, T1, 0, 1) - R[i] - R[j]
+            if d < margin - EPS_M:
+                state[ln] = HIT
+            elif d < margin + EPS_M:
+                state[ln] = UNDECIDED
+
+
+@nb.njit(**_JIT)
+def _tree_lane(nodes, children, ax, ay, az, bx, by, bz, r, stack):
+    """The scalar checker's tree descent for one capsule, with the band: HIT when a leaf is
+    reached through node tests all certainly passed, UNDECIDED at the first node test within
+    ``EPS_M``, else CLEAR."""
+    dx = bx - ax
+    dy = by - ay
+    dz = bz - az
+    inv = _inv_len2(dx, dy, dz)
+    stack[0] = 0
+    top = 1
+    while top > 0:
+        top -= 1
+        i = stack[top]
+        rr = nodes[i, 3] + r
+        d2 = _seg_dist2(nodes, i, ax, ay, az, dx, dy, dz, inv)
+        hi = rr + EPS_M
+        if d2 >= hi * hi:
+            continue
+        lo = rr - EPS_M
+        if lo <= 0.0 or d2 >= lo * lo:
+            return UNDECIDED
+        lc = children[i, 0]
+        if lc < 0:
+            return HIT
+        stack[top] = children[i, 1]
+        stack[top + 1] = lc
+        top += 2
+    return CLEAR
+
+
+@nb.njit(**_JIT)
+def _field_lb(field, origin, cell, box_lo, box_hi, r_max, x, y, z):
+    """Lower bound of ``min_i |p - c_i| - r_i`` at ``p = (x, y, z)`` (see the module doc)."""
+    nx, ny, nz = field.shape
+    fx = (x - origin[0]) / cell
+    fy = (y - origin[1]) / cell
+    fz = (z - origin[2]) / cell
+    if fx >= 0.0 and fy >= 0.0 and fz >= 0.0 and fx < nx and fy < ny and fz < nz:
+        return field[int(fx), int(fy), int(fz)]
+    ex = max(box_lo[0] - x, 0.0, x - box_hi[0])
+    ey = max(box_lo[1] - y, 0.0, y - box_hi[1])
+    ez = max(box_lo[2] - z, 0.0, z - box_hi[2])
+    return math.sqrt(ex * ex + ey * ey + ez * ez) - r_max
+
+
+@nb.njit(**_JIT)
+def _env_lanes(P0, P1, MC, BR, order, R, nodes, children, fld, origin, cell, box_lo, box_hi, r_max, state, stack):
+    """Environment test of the lanes still open: field first, then the tree."""
+    for ln in range(LANES):
+        if state[ln] != CLEAR:
+            continue
+        for q in range(order.shape[0]):
+            s = order[q]
+            lb = _field_lb(fld, origin, cell, box_lo, box_hi, r_max, MC[s, 0, ln], MC[s, 1, ln], MC[s, 2, ln])
+            if lb - BR[s, ln] > EPS_M:
+                continue
+            v = _tree_lane(nodes, children, P0[s, 0, ln], P0[s, 1, ln], P0[s, 2, ln], P1[s, 0, ln], P1[s, 1, ln],
+                           P1[s, 2, ln], R[s], stack)
+            if v != CLEAR:
+                state[ln] = v
+                if v == HIT:
+                    break
+
+
+@nb.njit(**_JIT)
+def _scalar_one(blk, ln, fk, R, order, pi, pj, margin, nodes, children, depth, do_env, WS):
+    """The scalar checker on lane ``ln`` of ``blk`` (an undecided lane): True when in collision."""
+    jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l = fk
+    row, S0, S1_, oe, os_ = WS[8], WS[9], WS[10], WS[11], WS[12]
+    for k in range(row.shape[1]):
+        row[0, k] = blk[k, ln]
+    _fk_shapes_kernel(row, jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l, S0, S1_)
+    _check_kernel(S0, S1_, R, order, pi, pj, R, margin, nodes, children, depth, do_env, True, True, oe, os_)
+    return oe[0] or os_[0]
+
+
+@nb.njit(**_JIT)
+def lane_workspace(nq, J, L, S, depth):
+    """Scratch of :func:`check_lanes` (one per kernel call)."""
+    return ((np.empty((J + 1, 3, 3, LANES)), np.empty((J + 1, 3, LANES)), np.empty((3, 3, LANES)),
+             np.empty((L, 3, 3, LANES)), np.empty((L, 3, LANES)), np.empty((S, 3, LANES)), np.empty((S, 3, LANES)),
+             np.empty((J, LANES)), np.empty((J, LANES)), np.empty((3, 3))),
+            np.empty((S, 3, LANES)), np.empty((S, LANES)), np.empty(LANES, np.int64), np.empty(LANES, np.bool_),
+            np.empty((2, 3)), np.empty((2, 3)), np.empty(depth + 2, np.int64),
+            np.empty((1, nq)), np.empty((1, S, 3)), np.empty((1, S, 3)), np.zeros(1, np.bool_), np.zeros(1, np.bool_))
+
+
+@nb.njit(**_JIT)
+def check_lanes(blk, n, fk, R, order, pi, pj, margin, nodes, children, depth, do_env, fld, WS, hits, counts):
+    """``hits[ln]`` (ln < n): configuration ``blk[:, ln]`` ((nq, LANES), every lane filled) collides,
+    the scalar checker's verdict. ``fld``: the distance field's arguments; ``WS``:
+    :func:`lane_workspace`; ``counts[1]`` += the undecided lanes redone by the scalar kernels."""
+    jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l = fk
+    field, origin, cell, box_lo, box_hi, r_max = fld
+    W, MC, BR, state, near, T0, T1, stack = WS[0], WS[1], WS[2], WS[3], WS[4], WS[5], WS[6], WS[7]
+    P0 = W[5]
+    P1 = W[6]
+    _fk_lanes(blk, jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l, W)
+    _bounds_lanes(P0, P1, R, MC, BR)
+    for ln in range(LANES):
+        state[ln] = CLEAR
+    _self_lanes(P0, P1, MC, BR, pi, pj, R, margin, state, near, T0, T1)
+    if do_env:
+        _env_lanes(P0, P1, MC, BR, order, R, nodes, children, field, origin, cell, box_lo, box_hi, r_max, state,
+                   stack)
+    for ln in range(n):
+        hit = state[ln] == HIT
+        if state[ln] == UNDECIDED:
+            counts[1] += 1
+            hit = _scalar_one(blk, ln, fk, R, order, pi, pj, margin, nodes, children, depth, do_env, WS)
+        hits[ln] = hit
+
+
+@nb.njit(**_JIT)
+def _batch_kernel(Q, stop_first, fk, R, order, pi, pj, margin, nodes, children, depth, do_env, fld, out, counts):
+    """``out[c]``: configuration ``c`` of ``Q`` (C, nq) collides. Blocks of LANES rows (the
+    last block padded with copies of its last row). With ``stop_first`` returns after the
+    block holding the first collision (its index; C if none). ``counts``: (configurations
+    computed, undecided lanes redone by the scalar kernels)."""
+    C = Q.shape[0]
+    nq = Q.shape[1]
+    WS = lane_workspace(nq, fk[0].shape[0], fk[5].shape[0], fk[8].shape[0], depth)
+    blk = np.empty((nq, LANES))
+    hits = np.zeros(LANES, np.bool_)
+    for c0 in range(0, C, LANES):
+        n = min(LANES, C - c0)
+        for ln in range(LANES):
+            src = c0 + min(ln, n - 1)
+            for k in range(nq):
+                blk[k, ln] = Q[src, k]
+        check_lanes(blk, n, fk, R, order, pi, pj, margin, nodes, children, depth, do_env, fld, WS, hits, counts)
+        first = C
+        for ln in range(n):
+            out[c0 + ln] = hits[ln]
+            if hits[ln] and first == C:
+                first = c0 + ln
+        counts[0] += n
+        if stop_first and first < C:
+            return first
+    return C
+
+
+# =================================================================== distance field
+def distance_field(centers: np.ndarray, radii: np.ndarray, cell_m: float, pad_m: float):
+    """``(field, origin, box_lo, box_hi, r_max)``: the lower bound ``F`` of the module doc on
+    a grid of ``cell_m`` cells covering the centres' box grown by ``pad_m``."""
+    from scipy.ndimage import distance_transform_edt
+
+    centers = np.asarray(centers, float)
+    r_max = float(np.max(radii))
+    box_lo, box_hi = centers.min(0), centers.max(0)
+    origin = box_lo - pad_m
+    shape = np.floor((box_hi + pad_m - origin) / cell_m).astype(int) + 1
+    occ = np.ones(tuple(shape), bool)
+    idx = np.clip(np.floor((centers - origin) / cell_m).astype(int), 0, shape - 1)
+    occ[idx[:, 0], idx[:, 1], idx[:, 2]] = False
+    edt = distance_transform_edt(occ, sampling=cell_m)
+    # x and c_i anywhere in their cells: each at most half a diagonal from its cell's centre
+    field = np.ascontiguousarray(edt - math.sqrt(3.0) * cell_m - r_max - 1e-9)
+    return field, origin, box_lo, box_hi, r_max
+
+
+# =================================================================== Python API
+class BatchCollision:
+    """The verdicts of ``collision`` (:class:`RobotCollision`) over batches, in SIMD lanes.
+
+    ``field_cell_m``: cell of the environment's distance field (built on first use, once per
+    tree); ``field_pad_m``: how far around the sphere centres the grid reaches (beyond, the
+    bound is the distance to the centres' box)."""
+
+    def __init__(self, collision: RobotCollision, field_cell_m: float = 0.04, field_pad_m: float = 0.3) -> None:
+        if not (field_cell_m > 0 and field_pad_m >= 0 and math.isfinite(field_cell_m) and math.isfinite(field_pad_m)):
+            raise ValueError(f"BatchCollision: need field_cell_m > 0 and field_pad_m >= 0, got {field_cell_m}, "
+                             f"{field_pad_m}")
+        self.collision = collision
+        self.field_cell_m = float(field_cell_m)
+        self.field_pad_m = float(field_pad_m)
+        self._field = None
+        self.field_build_s = 0.0
+        #: lanes that the band sent back to the scalar kernels (since construction)
+        self.undecided = 0
+
+    def field_args(self) -> tuple:
+        """The distance field's kernel arguments (built on first use)."""
+        if self._field is None:
+            tree = self.collision.tree
+            t0 = time.perf_counter()
+            if tree.n_spheres:
+                sph = tree.nodes[tree.children[:, 0] < 0]     # a leaf's node sphere is its input sphere
+                f, origin, lo, hi, r_max = distance_field(sph[:, :3], sph[:, 3], self.field_cell_m, self.field_pad_m)
+            else:
+                f, origin, lo, hi, r_max = np.zeros((1, 1, 1)), np.zeros(3), np.zeros(3), np.zeros(3), 0.0
+            self._field = (f, np.ascontiguousarray(origin, float), self.field_cell_m, np.ascontiguousarray(lo, float),
+                           np.ascontiguousarray(hi, float), float(r_max))
+            self.field_build_s = time.perf_counter() - t0
+        return self._field
+
+    def _configs(self, Q) -> np.ndarray:
+        Q = self.collision._as_batch(Q)
+        if not np.all(np.isfinite(Q)):
+            raise ValueError("BatchCollision: configurations must be finite (NaN or inf found)")
+        return Q
+
+    def _run(self, Q: np.ndarray, stop_first: bool) -> tuple[int, np.ndarray, int]:
+        col = self.collision
+        out = np.zeros(len(Q), np.bool_)
+        tree = col.tree
+        counts = np.zeros(2, np.int64)
+        t0 = time.perf_counter()
+        if len(Q) and np.abs(Q[:, 7:]).max(initial=0.0) > MAX_ANGLE_RAD:
+            # the lane trigonometry's range: the scalar checker, as is
+            if stop_first:
+                k = col.first_collision(Q)
+                out[k:k + 1] = True
+                return k, out, min(k + 1, len(Q))
+            return (0, ~col.check_batch(Q), len(Q))
+        do_env = bool(tree.n_spheres > 0)
+        fld = self.field_args()
+        k = _batch_kernel(Q, bool(stop_first), col._fk_args, col.radii, col.env_order, col._pi, col._pj,
+                          col.self_margin_m, tree.nodes, tree.children, tree.depth, do_env, fld, out, counts)
+        self.undecided += int(counts[1])
+        c = col.counters
+        c.check_time_s += time.perf_counter() - t0
+        c.checks += int(counts[0])
+        c.calls += 1
+        return int(k), out, int(counts[0])
+
+    def check_batch(self, Q) -> np.ndarray:
+        """(C,) bool: collision-free, per configuration (``RobotCollision.check_batch``'s verdicts)."""
+        Q = self._configs(Q)
+        return ~self._run(Q, False)[1]
+
+    def first_collision(self, Q) -> int:
+        """Index of the first configuration of ``Q`` (C, nq) in collision, or C
+        (``RobotCollision.first_collision``'s answer); blocks after its block are not computed."""
+        Q = self._configs(Q)
+        return self._run(Q, True)[0]
+
+
+def batch_checker(collision: RobotCollision) -> BatchCollision:
+    """The :class:`BatchCollision` of ``collision``, built once and kept on it (its tree never
+    changes: a new map is a new :class:`RobotCollision`)."""
+    bc = getattr(collision, "_batch", None)
+    if bc is None:
+        bc = BatchCollision(collision)
+        collision._batch = bc
+    return bc
+
+
+__all__ = ["BatchCollision", "batch_checker", "check_lanes", "distance_field", "lane_workspace", "LANES", "EPS_M"]
