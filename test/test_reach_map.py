@@ -13,10 +13,10 @@ from humanoid_reach_ros.codes import ARMS
 from humanoid_reach_ros.kinematics import Chain6, LimbIKSet
 from humanoid_reach_ros.planning.projector import Projector
 from humanoid_reach_ros.planning.reach_map import (
-    ORIENTATION_BINS, InverseReach, ReachMap, orientation_bins,
+    ORIENTATION_BINS, InverseReach, ReachMap, decode_rpy, encode_rpy, orientation_bins,
 )
 from humanoid_reach_ros.planning.trunk_region import TrunkRegion
-from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion, rpy_matrix
+from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion, rpy_matrix, valve_region
 from humanoid_reach_ros.robot.model import RobotModel
 
 ROBOTS = ("hrp2", "g1", "talos")
@@ -92,29 +92,26 @@ def test_never_a_false_no_for_random_balanced_goals(setup):
             _check(inv, arm, trunk[i], robot.frame_pose(res.q[i], tip).translation)
 
 
-def test_the_capability_filter_prefers_draws_the_map_holds(setup):
-    """``CapabilityFilter.pick`` takes, per hand pose, the first candidate whose hand pose the
-    map holds (the numpy ``ArmMap.capable`` of the same pose), else the pose's first draw."""
-    _, projector, _, inv = setup
-    rng = np.random.default_rng(3)
-    n, k = 50, 4
-    trunk = _random_trunk(inv, rng, n * k, edge=False)
-    p_e = rng.uniform([0.1, -0.6, 0.5], [0.7, 0.6, 1.3], size=(n, 3))
-    R_e = rpy_matrix(rng.uniform(-math.pi, math.pi, size=(n, 3)))
-    pick = inv.capability.pick(trunk[:, 0].copy(), np.ascontiguousarray(trunk[:, 1:]), p_e, R_e, ARMS, k)
-    p_t, R_t = projector.trunk_pose(trunk[:, 0], trunk[:, 1:])
-    c_p, c_R = projector.chest_pose(p_t, R_t)
-    idx = np.arange(n * k) % n
-    x = np.einsum("nji,nj->ni", c_R, p_e[idx] - c_p)
-    Rl = np.einsum("nji,njk->nik", c_R, R_e[idx])
-    cap = np.zeros(n * k, bool)
-    for arm in ARMS:
-        cap |= inv.map.arms[arm].capable(x, Rl)
-    for i in range(n):
-        cands = [j * n + i for j in range(k)]
-        held = [c for c in cands if cap[c]]
-        assert pick[i] == (held[0] if held else i)
-    assert 0 < cap.sum() < n * k
+def test_the_map_proposes_goal_samples_in_the_region_that_the_ik_solves_more_often(setup):
+    """``TrunkSampler.sample_poses`` (the capability map's proposals): every sample lies in the
+    region and in a trunk cell of the inverse, and Algorithm 1 solves far more of them than
+    of the plain draw (a hand pose from the region, a trunk from the same cells)."""
+    robot, projector, region, inv = setup
+    rng = np.random.default_rng(5)
+    target = valve_region((0.45, -0.25, 0.75))
+    msg, cells, _ = inv.for_target(target, ("right",))
+    assert msg is None and len(cells)
+    trunk = region.from_cells(cells, inv.droll, inv.dyaw, inv.proposals, 16)
+    n = 600
+    p_e, R_e, z, rpy = trunk.sample_poses(rng, target, n, "right")
+    assert np.all(target.contains(p_e, R_e, tol=1e-6))
+    assert np.all(np.any(np.all(np.abs(cells[None, :, :] - np.column_stack([z, rpy])[:, None, :])
+                                <= inv.half + 1e-9, axis=2), axis=1))
+    proposed = projector.project_config(p_e, R_e, z, rpy, arm="right").ok.mean()
+    p0, R0 = target.sample(rng, n)
+    z0, rpy0 = trunk.sample(rng, n)
+    plain = projector.project_config(p0, R0, z0, rpy0, arm="right").ok.mean()
+    assert proposed >= 0.15 and proposed >= 3 * plain, (proposed, plain)
 
 
 def test_orientation_bins_cover_and_separate():
@@ -126,6 +123,10 @@ def test_orientation_bins_cover_and_separate():
     flip = R @ np.diag([-1.0, -1.0, 1.0])
     b2 = orientation_bins(flip)
     assert np.all(b // 4 == b2 // 4) and np.all(b != b2)
+    # the stored orientations: within half a step of 2 pi / 256
+    rpy = rng.uniform(-math.pi, math.pi, size=(1000, 3))
+    d = np.angle(np.exp(1j * (decode_rpy(encode_rpy(rpy)) - rpy)))
+    assert np.abs(d).max() <= math.pi / 256 + 1e-12
 
 
 def test_a_bad_map_file_is_a_clear_error(tmp_path):

@@ -3,7 +3,8 @@
 TARGET_OUT_OF_REACH, and the capability map the goal sampler draws trunk postures from)
 into the file its robot.yaml names (``reach_map``, beside robot.yaml). Usage:
 
-    python tools/train_reach_map.py [--robot NAME] [--seed S] [--grid-points N] [--samples N] [--out PATH]
+    python tools/train_reach_map.py [--robot NAME] [--seed S] [--grid-points N] [--samples N] [--per-voxel K]
+                                    [--out PATH]
 
 Deterministic for a seed. HRP-2: about 20-40 s on this machine (docs/benchmarks.md).
 """
@@ -18,12 +19,13 @@ import numpy as np
 
 from humanoid_reach_ros.codes import ARMS
 from humanoid_reach_ros.kinematics import Chain6
-from humanoid_reach_ros.planning.reach_map import ReachMap, capability_bits, train_arm_map
+from humanoid_reach_ros.planning.reach_map import ReachMap, capability_poses, train_arm_map
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 
 
-def train(robot: RobotModel, seed: int, grid_points: float, samples: int, log=print) -> ReachMap:
+def train(robot: RobotModel, seed: int, grid_points: float, samples: int, per_voxel: int = 24,
+          log=print) -> ReachMap:
     """Both arms' maps; the capability grids share one box (the union of the arms' outer boxes)."""
     chains = {arm: Chain6.from_model(robot, robot.limbs[f"{arm}_arm"].root, robot.limbs[f"{arm}_arm"].joints,
                                      robot.limbs[f"{arm}_arm"].tip) for arm in ARMS}
@@ -37,11 +39,13 @@ def train(robot: RobotModel, seed: int, grid_points: float, samples: int, log=pr
     arms = {}
     for arm in ARMS:
         m = first[arm]
-        bits = capability_bits(chains[arm], rng, box, m.cap_voxel_m, samples)
-        log(f"{arm} arm capability: {samples:,} samples, {int(np.count_nonzero(bits.any(axis=3))):,} voxels reached")
-        arms[arm] = replace(m, cap_origin=np.asarray(box[0], float), cap_bits=bits,
-                            meta={**m.meta, "cap_samples": int(samples)})
-    return ReachMap(robot.name, arms, {"seed": seed, "grid_points": grid_points, "samples": samples})
+        shape, start, rpy = capability_poses(chains[arm], rng, box, m.cap_voxel_m, samples, per_voxel)
+        log(f"{arm} arm capability: {samples:,} samples, {int(np.count_nonzero(np.diff(start))):,} voxels "
+            f"reached, {len(rpy):,} orientations kept")
+        arms[arm] = replace(m, cap_origin=np.asarray(box[0], float), cap_shape=shape, pose_start=start, pose_rpy=rpy,
+                            meta={**m.meta, "cap_samples": int(samples), "per_voxel": int(per_voxel)})
+    return ReachMap(robot.name, arms, {"seed": seed, "grid_points": grid_points, "samples": samples,
+                                       "per_voxel": per_voxel})
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -52,6 +56,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="joint-grid points of the outer bound per arm (more: a tighter bound; default 2e7)")
     ap.add_argument("--samples", type=int, default=4_000_000,
                     help="random joint vectors of the capability map per arm (default 4e6)")
+    ap.add_argument("--per-voxel", type=int, default=24, help="orientations kept per capability voxel (default 24)")
     ap.add_argument("--out", default=None, help="output .npz (default: the robot description's reach_map)")
     a = ap.parse_args(argv)
     try:
@@ -64,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.grid_points < 1000 or a.samples < 1000:
         ap.error("--grid-points and --samples must be >= 1000")
     t = time.perf_counter()
-    rmap = train(robot, a.seed, a.grid_points, a.samples)
+    rmap = train(robot, a.seed, a.grid_points, a.samples, a.per_voxel)
     rmap.meta["train_seconds"] = round(time.perf_counter() - t, 1)
     path = rmap.save(out)
     print(f"wrote {path} in {rmap.meta['train_seconds']} s")

@@ -97,8 +97,11 @@ PLANNER_PARAMETERS: dict[str, ParamSpec] = {
                                "unreadable is a configuration error (exit 2)"),
     "reach_map_step_rad": ParamSpec(_D.reach_map_step_rad, "roll and yaw cell size of the reach map's trunk cells "
                                     "[rad]", (0.005, 1.0)),
-    "reach_map_candidates": ParamSpec(_D.reach_map_candidates, "trunk draws per hand pose the reach map's "
-                                      "capability map chooses among", (1, 256)),
+    "reach_map_candidates": ParamSpec(_D.reach_map_candidates, "proposals of the reach map's capability map "
+                                      "(a trunk draw and a stored hand orientation) tried per goal sample", (1, 256)),
+    "reach_map_min_orientations": ParamSpec(_D.reach_map_min_orientations, "trunk cells from which the reach "
+                                            "map holds fewer hand orientations at the target (its border) are "
+                                            "sampled last", (1, 256)),
 }
 
 NODE_PARAMETERS: dict[str, ParamSpec] = {

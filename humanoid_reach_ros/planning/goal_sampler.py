@@ -29,6 +29,9 @@ if TYPE_CHECKING:
     from humanoid_reach_ros.planning.trunk_region import TrunkSampler
 
 
+DRY_SAMPLES = 512   # a TrunkSampler's cells widen after this many samples without a goal
+
+
 @dataclass(frozen=True)
 class TrunkSampling:
     """Uniform ranges of the trunk (waist) height and orientation in ``q_goal``.
@@ -139,7 +142,8 @@ def sample_goals(region: WorkspaceGoalRegion, n_goals: int, robot: RobotModel, c
     ``projector`` may be shared between calls (it is built otherwise). ``trunk``: a
     :class:`TrunkSampling` box (the paper's independent uniform draw; the default) or a
     :class:`~humanoid_reach_ros.planning.trunk_region.TrunkSampler` (the planner's: ranges
-    from the robot and the target, draws conditioned on the hand pose).
+    from the robot and the target, draws conditioned on the hand pose; with the reach map's
+    ``proposals``, whole samples the map proposes: ``TrunkSampler.sample_poses``).
     """
     if n_goals < 0 or batch_size < 1:
         raise ValueError(f"need n_goals >= 0 and batch_size >= 1, got {n_goals}, {batch_size}")
@@ -150,17 +154,21 @@ def sample_goals(region: WorkspaceGoalRegion, n_goals: int, robot: RobotModel, c
     qs, arms, ps, Rs = [], [], [], []
     c0 = collision.counters
     chk0, ct0, cf0 = c0.checks, c0.check_time_s, c0.fk_time_s
-    n_dry = 0   # batches that gave no goal: a TrunkSampler widens its cells with each
+    dry = 0     # samples of batches that gave no goal: a TrunkSampler widens its cells with each
+    #             DRY_SAMPLES of them (one default batch), whatever the batch size
     while len(qs) < n_goals:
         if time.perf_counter() - t_start > time_budget_s or (max_samples is not None
                                                             and stats.n_samples >= max_samples):
             stats.timed_out = True
             break
-        p_e, R_e = region.sample(rng, batch_size)
-        if hasattr(trunk, "sample_for"):   # TrunkSampler: trunk draws conditioned on the hand poses
-            z_t, rpy_t = trunk.sample_for(rng, p_e, R_e, arm, batch=n_dry)
+        if getattr(trunk, "proposals", None) is not None:   # the reach map proposes whole samples
+            p_e, R_e, z_t, rpy_t = trunk.sample_poses(rng, region, batch_size, arm, batch=dry // DRY_SAMPLES)
         else:
-            z_t, rpy_t = trunk.sample(rng, batch_size)
+            p_e, R_e = region.sample(rng, batch_size)
+            if hasattr(trunk, "sample_for"):   # TrunkSampler: trunk draws conditioned on the hand poses
+                z_t, rpy_t = trunk.sample_for(rng, p_e, R_e, arm, batch=dry // DRY_SAMPLES)
+            else:
+                z_t, rpy_t = trunk.sample(rng, batch_size)
         res = projector.project_config(p_e, R_e, z_t, rpy_t, arm=arm)
         idx = np.flatnonzero(res.ok)
         free = collision.check_batch(res.q[idx]) if idx.size else np.zeros(0, bool)
@@ -172,7 +180,7 @@ def sample_goals(region: WorkspaceGoalRegion, n_goals: int, robot: RobotModel, c
             res = projector.project_config(p_e[:end], R_e[:end], z_t[:end], rpy_t[:end], arm=arm)
         for k, v in res.failures.items():
             stats.ik_failures[k] += v
-        n_dry += int(len(take) == 0)
+        dry += batch_size if len(take) == 0 else 0
         in_prefix = idx < end
         stats.n_samples += end
         stats.collision_checks += int(np.count_nonzero(in_prefix))

@@ -223,6 +223,7 @@ class Projector:
         legs = [self.ik[leg] for leg in LEGS]
         self.compiled = bool(getattr(self.ik, "compiled", False)) and all(hasattr(lk, "_kc") for lk in legs)
         self._kernel_legs: tuple = ()
+        self._leg_seeds = None   # set_leg_seeds
         if self.compiled:
             kc = [np.ascontiguousarray(np.stack([lk._kc[i] for lk in legs])) for i in range(8)]
             self._kernel_legs = (
@@ -270,13 +271,43 @@ class Projector:
         Q[:, 3:7] = quat_xyzw_from_rpy(rpy_t)
         return Q
 
+    def set_leg_seeds(self, z: np.ndarray, pitch: np.ndarray, Q: np.ndarray) -> None:
+        """Starts of a numerical leg's IK (a local solver: its start decides its cost, 265 us a
+        G1 leg from ``q_default``): the configurations ``Q`` (nz, np, nq) solved at the trunk
+        heights ``z`` (nz,) x pitches ``pitch`` (np,) of a regular grid (``TrunkRegion``'s; rows
+        that failed hold NaN); each solve starts from the nearest grid point's legs (or the
+        default where that one failed). Closed-form legs ignore it (their reference would pick
+        the branch)."""
+        z, pitch = np.asarray(z, float), np.asarray(pitch, float)
+        dz = float(z[1] - z[0]) if len(z) > 1 else 1.0
+        dp = float(pitch[1] - pitch[0]) if len(pitch) > 1 else 1.0
+        table = {}
+        for leg in LEGS:
+            if getattr(self.ik[leg], "kind", "") != "numerical":
+                continue
+            t = np.array(Q[..., self.cols[leg]], float)
+            bad = ~np.all(np.isfinite(t), axis=-1)
+            t[bad] = self.ik[leg].q_default
+            table[leg] = t
+        self._leg_seeds = (float(z[0]), dz, float(pitch[0]), dp, table) if table else None
+
+    def _leg_ref(self, leg: str, p_t: np.ndarray, R_t: np.ndarray) -> np.ndarray | None:
+        seeds = self._leg_seeds
+        if seeds is None or leg not in seeds[4]:
+            return None
+        z0, dz, p0, dp, table = seeds
+        pitch = -np.arcsin(np.clip(R_t[:, 2, 0], -1.0, 1.0))        # R = Rz Ry Rx: R[2, 0] = -sin(pitch)
+        iz = np.clip(np.rint((p_t[:, 2] - z0) / dz).astype(np.int64), 0, table[leg].shape[0] - 1)
+        ip = np.clip(np.rint((pitch - p0) / dp).astype(np.int64), 0, table[leg].shape[1] - 1)
+        return table[leg][iz, ip]
+
     def _legs(self, Q, p_t, R_t, idx, failures) -> np.ndarray:
         """Lines 10-15 on rows ``idx``; returns the rows where both legs succeeded."""
         for leg in LEGS:
             if idx.size == 0:
                 break
             fp, fR = self.feet[leg]
-            res = self.ik.solve(leg, p_t[idx], R_t[idx], fp, fR)
+            res = self.ik.solve(leg, p_t[idx], R_t[idx], fp, fR, self._leg_ref(leg, p_t[idx], R_t[idx]))
             failures[leg] += int(np.count_nonzero(~res.ok))
             good = idx[res.ok]
             Q[good[:, None], self.cols[leg][None]] = res.q[res.ok]

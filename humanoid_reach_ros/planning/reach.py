@@ -152,15 +152,18 @@ class PlannerParams:
     unobserved_check_budget_s: float = 1.0
     # the robot's reachability map (planning/reach_map.py; robot.yaml reach_map): the proof of
     # TARGET_OUT_OF_REACH and the goal sampler's trunk cells; roll x yaw cell size [rad] and
-    # trunk draws per hand pose the capability map chooses among
+    # the capability map's proposals tried per goal sample
     use_reach_map: bool = True
     reach_map_step_rad: float = 0.05
     reach_map_candidates: int = 16
+    reach_map_min_orientations: int = 4     # cells where the map holds fewer at the target come last
+    reach_map_batch_size: int = 64          # goal samples per batch with the map (goal_batch_size without)
 
     def __post_init__(self) -> None:
         for name in ("resolution_m", "time_budget_s", "joint_velocity_rad_s", "output_period_s", "edge_resolution",
                      "rrt_step", "arm_weight", "trunk_z_weight", "trunk_rpy_weight", "trunk_space_cut_iterations",
-                     "reach_map_step_rad", "reach_map_candidates"):
+                     "reach_map_step_rad", "reach_map_candidates", "reach_map_min_orientations",
+                     "reach_map_batch_size"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"PlannerParams.{name} must be finite and > 0, got {v}")
@@ -460,18 +463,25 @@ class ReachPlanner:
         configuration) first: the reach map's inverse at the target (``cells`` (M, 4) from
         ``InverseReach.for_target``, computed here when None) where the robot has a map, else
         the heights x pitches of ``TrunkRegion.for_target``."""
+        deep = None
         if self.reach is not None:
             if cells is None:
                 _, cells, _ = self.reach.for_target(region, _arm_names(arm))
-            trunk = (self.trunk_region.from_cells(cells, self.reach.droll, self.reach.dyaw, self.reach.capability,
-                                                  self.params.reach_map_candidates) if len(cells)
-                     else self.trunk_region.for_target(region, arm))
+            if len(cells):
+                trunk = self.trunk_region.from_cells(cells, self.reach.droll, self.reach.dyaw, self.reach.proposals,
+                                                     self.params.reach_map_candidates)
+                # cells from which the target is deep inside the capability map first (a voxel at the
+                # reachable set's border holds few orientations and is reachable only in part)
+                deep = self.reach.held(region, cells, _arm_names(arm)) >= self.params.reach_map_min_orientations
+            else:
+                trunk = self.trunk_region.for_target(region, arm)
         else:
             trunk = self.trunk_region.for_target(region, arm)
         if q_start is None:
-            return trunk
+            return trunk if deep is None else trunk.near(0.0, 0.0, 0.0, 0.0, first=deep)
         pitch = float(matrix_rpy(quat_xyzw_matrix(np.asarray(q_start[3:7], float)))[1])
-        return trunk.near(float(q_start[2]), pitch, self.params.trunk_z_weight, self.params.trunk_rpy_weight)
+        return trunk.near(float(q_start[2]), pitch, self.params.trunk_z_weight, self.params.trunk_rpy_weight,
+                          first=deep)
 
     def planning_space(self, arm: str, include: np.ndarray | None = None,
                        trunk: TrunkSampler | None = None, cut: bool = True) -> PlanningSpace:
@@ -962,14 +972,16 @@ class ReachPlanner:
         # ---- goal postures (Algorithm 1)
         tg = time.perf_counter()
         trunk = self.trunk_sampling(region, arm_req, q_start, reach_cells)
+        # the map's samples mostly solve: small batches (a batch is projected and checked whole)
+        batch = p.goal_batch_size if trunk.proposals is None else p.reach_map_batch_size
         goals = sample_goals(region, n_goals, self.robot, collision, rng, arm=arm_req, trunk=trunk,
                              time_budget_s=max(0.0, p.goal_time_fraction * budget - (tg - t0)),
-                             batch_size=p.goal_batch_size, projector=self.projector)
+                             batch_size=batch, projector=self.projector)
         if len(goals) == 0 and time.perf_counter() < deadline:
             # the goal share of the budget ran out before a first goal: keep looking for one
             more = sample_goals(region, 1, self.robot, collision, rng, arm=arm_req, trunk=trunk,
                                 time_budget_s=max(0.0, deadline - time.perf_counter()),
-                                batch_size=p.goal_batch_size, projector=self.projector)
+                                batch_size=batch, projector=self.projector)
             goals = _merge_goals(goals, more)
         gs = goals.stats
         stats.update(goal_sampling_time_s=time.perf_counter() - tg, goals_requested=n_goals, goals_found=len(goals),

@@ -22,12 +22,13 @@ Trained offline per robot (``tools/train_reach_map.py``) into ``config/robots/<n
   ``h sqrt(3) / 2`` more (``h`` the voxel); outside the grid, its distance to the box holding
   the whole outer set. Simplification, named: position only (the hand's orientation and
   collisions are not in the bound), so a target the bound keeps may still have no goal.
-* **The capability map** (``cap_bits``, the sampler's inverse). Uniform random joint vectors
-  within the limits through forward kinematics: per voxel (``cap_voxel_m``), which hand
-  orientations were reached, as bits over ``ORIENTATION_BINS`` (the hand z axis in one of 54
-  cube-map cells x its x axis in one of 4 quarter turns about it). An inner approximation (a
-  voxel or orientation no sample hit reads as unreached): used only to choose trunk draws,
-  never to refuse.
+* **The capability map** (``pose_start`` / ``pose_rpy``, the sampler's inverse). Uniform
+  random joint vectors within the limits through forward kinematics: per voxel
+  (``cap_voxel_m``), hand orientations the arm reached there, one per orientation bin reached
+  (``ORIENTATION_BINS``: the hand z axis in one of 54 cube-map cells x its x axis in one of 4
+  quarter turns about it), at most ``per_voxel`` of them, stored as roll, pitch, yaw in 256
+  steps. An inner approximation (a voxel or orientation no sample hit reads as unreached):
+  used only to propose goal samples, never to refuse.
 
 The inverse (:class:`InverseReach`): the balanced trunk manifold the planner searches
 (:class:`~humanoid_reach_ros.planning.trunk_region.TrunkRegion`'s leg-feasible height x pitch
@@ -39,9 +40,13 @@ centre's turns ``a = T - p_t`` by at most ``theta |a|`` and moves ``p_t`` (``R_t
 most ``theta |v|``) plus the region's half diagonal; cells whose bound only that slack spoils
 are split in 16 and tried again (``REFINE_LEVELS`` times). No cell left for any allowed arm:
 ``TARGET_OUT_OF_REACH``, with the smallest gap (the margin) in the message. The cells left
-are the goal sampler's trunk cells, and each hand pose's trunk draw is the first of
-``candidates`` whose arm's capability bit holds that hand pose (the first draw when none does:
-Algorithm 1 decides every sample as before).
+are the goal sampler's trunk cells. A goal sample (:meth:`PoseProposals.propose`) is a trunk
+draw from them and a hand position from the region; the hand orientation is one the map
+stored in the voxel the position falls in (in the arm's root frame at that trunk pose), kept
+when it lies in the region; each sample takes the first of ``candidates`` such proposals (a
+plain draw from the region when none fits). Algorithm 1 then decides every sample as before:
+the map proposes, the IK disposes. Simplification, named: the proposals' orientations come
+from the map's store, not uniformly from the region (every goal is still in the region).
 
 No ROS here.
 """
@@ -57,9 +62,9 @@ import numpy as np
 
 from humanoid_reach_ros.codes import ARMS
 from humanoid_reach_ros.planning.projector import rpy_into
-from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion
+from humanoid_reach_ros.planning.wgr import WorkspaceGoalRegion, rpy_matrix
 
-MAP_VERSION = 1
+MAP_VERSION = 2
 CLEARANCE_UNIT_M = 0.005        # the stored bound's unit (uint8, floored: 0 .. 1.275 m)
 ORIENTATION_BINS = 54 * 4       # z axis: 6 cube faces x 3 x 3; x axis: 4 quarter turns about z
 REFINE_LEVELS = 2               # cells whose bound the slack spoils are split in 16, this many times
@@ -125,8 +130,9 @@ class ArmMap:
     """One arm's two grids (module doc), in its root link. ``clearance`` (nx, ny, nz) uint8 in
     ``CLEARANCE_UNIT_M``: lower bound of the distance from each voxel centre (``origin + (i +
     0.5) voxel_m``) to the outer set of tip positions; ``box_lo`` / ``box_hi``: a box holding
-    that outer set; ``cap_bits`` (mx, my, mz, ORIENTATION_BINS / 8) uint8 over the grid
-    ``cap_origin``, ``cap_voxel_m``."""
+    that outer set; the capability map on the grid ``cap_origin``, ``cap_voxel_m``,
+    ``cap_shape``: voxel ``v`` (flat index) holds the orientations ``pose_rpy[pose_start[v]:
+    pose_start[v + 1]]`` (roll, pitch, yaw in 256 steps of 2 pi, :func:`decode_rpy`)."""
 
     joints: tuple[str, ...]
     origin: np.ndarray
@@ -136,7 +142,9 @@ class ArmMap:
     box_hi: np.ndarray
     cap_origin: np.ndarray
     cap_voxel_m: float
-    cap_bits: np.ndarray
+    cap_shape: np.ndarray
+    pose_start: np.ndarray
+    pose_rpy: np.ndarray
     meta: dict = field(default_factory=dict)
 
     def lower_bound(self, x: np.ndarray) -> np.ndarray:
@@ -151,17 +159,28 @@ class ArmMap:
         out[inside] = self.clearance[i[:, 0], i[:, 1], i[:, 2]] * CLEARANCE_UNIT_M - self.voxel_m * _SQRT3_2
         return out
 
-    def capable(self, p: np.ndarray, R: np.ndarray) -> np.ndarray:
-        """(N,) whether a training sample reached the voxel of ``p`` (N, 3) with ``R``'s
-        orientation bin (root frame): the inner map (module doc)."""
-        p = np.asarray(p, float).reshape(-1, 3)
-        idx = np.floor((p - self.cap_origin) / self.cap_voxel_m).astype(np.int64)
-        inside = np.all((idx >= 0) & (idx < np.array(self.cap_bits.shape[:3])), axis=1)
-        out = np.zeros(len(p), bool)
-        b = orientation_bins(R)[inside]
-        i = idx[inside]
-        out[inside] = (self.cap_bits[i[:, 0], i[:, 1], i[:, 2], b >> 3] >> (b & 7)) & 1 == 1
-        return out
+    def poses_at(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(first, count)`` (N,) each: where the stored orientations of the voxel of each
+        point ``x`` (N, 3) (root frame) start in ``pose_rpy``, and how many (0 outside)."""
+        x = np.asarray(x, float).reshape(-1, 3)
+        idx = np.floor((x - self.cap_origin) / self.cap_voxel_m).astype(np.int64)
+        inside = np.all((idx >= 0) & (idx < self.cap_shape), axis=1)
+        v = np.zeros(len(x), np.int64)
+        v[inside] = np.ravel_multi_index(idx[inside].T, tuple(self.cap_shape))
+        first = self.pose_start[v].astype(np.int64)
+        count = np.where(inside, self.pose_start[v + 1] - first, 0)
+        return first, count
+
+
+def encode_rpy(rpy: np.ndarray) -> np.ndarray:
+    """Angles (..., 3) [rad] -> uint8 in 256 steps of 2 pi (nearest)."""
+    return (np.round((np.asarray(rpy, float) + math.pi) * (256 / (2 * math.pi))).astype(np.int64) % 256).astype(
+        np.uint8)
+
+
+def decode_rpy(code: np.ndarray) -> np.ndarray:
+    """:func:`encode_rpy`'s inverse (within pi / 256 of the angle encoded, modulo 2 pi)."""
+    return np.asarray(code, float) * (2 * math.pi / 256) - math.pi
 
 
 @dataclass(frozen=True, eq=False)
@@ -177,7 +196,8 @@ class ReachMap:
         path = Path(path).with_suffix(".npz")
         arrays = {}
         for arm, m in self.arms.items():
-            for name in ("origin", "clearance", "box_lo", "box_hi", "cap_origin", "cap_bits"):
+            for name in ("origin", "clearance", "box_lo", "box_hi", "cap_origin", "cap_shape", "pose_start",
+                         "pose_rpy"):
                 arrays[f"{arm}.{name}"] = getattr(m, name)
             arrays[f"{arm}.meta"] = np.array(json.dumps({**m.meta, "joints": list(m.joints), "voxel_m": m.voxel_m,
                                                          "cap_voxel_m": m.cap_voxel_m}))
@@ -201,24 +221,27 @@ class ReachMap:
             with np.load(path, allow_pickle=False) as z:
                 data = {k: z[k] for k in z.files}
             meta = json.loads(str(data["meta"]))
+            if meta.get("version") != MAP_VERSION:
+                raise ValueError(f"reach map {path} has version {meta.get('version')}, this code reads "
+                                 f"{MAP_VERSION}")
             arms = {}
             for arm in meta["arms"]:
                 am = json.loads(str(data[f"{arm}.meta"]))
                 m = ArmMap(tuple(am["joints"]), data[f"{arm}.origin"].astype(float), float(am["voxel_m"]),
                            data[f"{arm}.clearance"], data[f"{arm}.box_lo"].astype(float),
                            data[f"{arm}.box_hi"].astype(float), data[f"{arm}.cap_origin"].astype(float),
-                           float(am["cap_voxel_m"]), data[f"{arm}.cap_bits"], am)
+                           float(am["cap_voxel_m"]), data[f"{arm}.cap_shape"].astype(np.int64),
+                           data[f"{arm}.pose_start"], data[f"{arm}.pose_rpy"], am)
                 _check_arm_map(m)
                 arms[arm] = m
         except ValueError as e:
+            if str(e).startswith(f"reach map {path}"):
+                raise ValueError(f"{e}: {fix}") from None
             if str(e).startswith("reach map"):
                 raise ValueError(f"{e} ({path}): {fix}") from None
             raise ValueError(f"reach map {path} is not a readable map ({e}): {fix}") from None
         except (OSError, KeyError, TypeError, json.JSONDecodeError, EOFError) as e:
             raise ValueError(f"reach map {path} is not a readable map ({type(e).__name__}: {e}): {fix}") from None
-        if meta.get("version") != MAP_VERSION:
-            raise ValueError(f"reach map {path} has version {meta.get('version')}, this code reads {MAP_VERSION}: "
-                             f"{fix}")
         if set(arms) != set(ARMS):
             raise ValueError(f"reach map {path} holds arms {sorted(arms)}, expected {list(ARMS)}: {fix}")
         if robot is not None:
@@ -234,9 +257,14 @@ def _check_arm_map(m: ArmMap) -> None:
     if m.clearance.ndim != 3 or m.clearance.dtype != np.uint8 or min(m.clearance.shape) < 1:
         raise ValueError(f"reach map: clearance must be a non-empty 3-D uint8 grid, got {m.clearance.shape} "
                          f"{m.clearance.dtype}")
-    if m.cap_bits.ndim != 4 or m.cap_bits.dtype != np.uint8 or m.cap_bits.shape[3] * 8 != ORIENTATION_BINS:
-        raise ValueError(f"reach map: cap_bits must be (mx, my, mz, {ORIENTATION_BINS // 8}) uint8, got "
-                         f"{m.cap_bits.shape} {m.cap_bits.dtype}")
+    if m.cap_shape.shape != (3,) or np.any(m.cap_shape < 1):
+        raise ValueError(f"reach map: cap_shape must be 3 positive counts, got {m.cap_shape}")
+    nv = int(np.prod(m.cap_shape))
+    if (m.pose_start.shape != (nv + 1,) or m.pose_rpy.ndim != 2 or m.pose_rpy.shape[1] != 3
+            or m.pose_rpy.dtype != np.uint8 or m.pose_start[0] != 0 or m.pose_start[-1] != len(m.pose_rpy)
+            or np.any(np.diff(m.pose_start) < 0)):
+        raise ValueError(f"reach map: pose_start ({m.pose_start.shape}) must index pose_rpy ({m.pose_rpy.shape} "
+                         f"{m.pose_rpy.dtype}) over {nv} voxels")
     for name in ("origin", "box_lo", "box_hi", "cap_origin"):
         a = getattr(m, name)
         if a.shape != (3,) or not np.all(np.isfinite(a)):
@@ -284,13 +312,15 @@ def outer_grid(chain, s: int, max_points: float) -> tuple[list[np.ndarray], floa
 
 
 def train_arm_map(chain, joints, rng: np.random.Generator, *, split: int | None = None, max_points: float = 2e7,
-                  fine_m: float = 0.01, voxel_m: float = 0.025, cap_voxel_m: float = 0.05,
-                  cap_samples: int = 2_000_000, cap_box: tuple[np.ndarray, np.ndarray] | None = None,
+                  fine_m: float = 0.01, voxel_m: float = 0.025, cap_voxel_m: float = 0.04,
+                  cap_samples: int = 2_000_000, per_voxel: int = 24,
+                  cap_box: tuple[np.ndarray, np.ndarray] | None = None,
                   chunk: int = 500_000, log=print) -> ArmMap:
     """One arm's :class:`ArmMap` from its chain (``kinematics.Chain6``: placements, axes,
     tip, limits; module doc for the method). ``split``: joints gridded (None: the one of
     3..n-1 with the least ``eps + d_tail``); ``cap_box``: the capability grid's box (both arms
-    share one); ``cap_samples`` random joint vectors for it."""
+    share one); ``cap_samples`` random joint vectors for it, ``per_voxel`` orientations kept
+    per voxel."""
     from scipy.spatial import cKDTree
 
     n = len(chain.axes)
@@ -332,80 +362,52 @@ def train_arm_map(chain, joints, rng: np.random.Generator, *, split: int | None 
     meta = {"split": int(split), "eps_m": eps, "tail_m": tail, "grid": sizes, "fine_m": fine_m}
     if cap_box is None:
         cap_box = (box_lo, box_hi)
-    bits = capability_bits(chain, rng, cap_box, cap_voxel_m, cap_samples, chunk)
-    log(f"  capability: {cap_samples:,} samples, {np.count_nonzero(bits.any(axis=3)):,} voxels reached")
+    shape, start, rpy = capability_poses(chain, rng, cap_box, cap_voxel_m, cap_samples, per_voxel, chunk)
+    log(f"  capability: {cap_samples:,} samples, {int(np.count_nonzero(np.diff(start))):,} voxels reached, "
+        f"{len(rpy):,} orientations kept")
     return ArmMap(tuple(joints), origin, float(voxel_m), clearance, box_lo, box_hi, np.asarray(cap_box[0], float),
-                  float(cap_voxel_m), bits, {**meta, "cap_samples": int(cap_samples)})
+                  float(cap_voxel_m), shape, start, rpy, {**meta, "cap_samples": int(cap_samples),
+                                                          "per_voxel": int(per_voxel)})
 
 
-def capability_bits(chain, rng: np.random.Generator, box, voxel_m: float, samples: int,
-                    chunk: int = 500_000) -> np.ndarray:
+def capability_poses(chain, rng: np.random.Generator, box, voxel_m: float, samples: int, per_voxel: int = 24,
+                     chunk: int = 500_000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The capability map (module doc): ``samples`` uniform random joint vectors within the
-    limits through the chain's forward kinematics, a bit per (voxel of the grid from
-    ``box[0]`` to ``box[1]``, orientation bin) reached."""
+    limits through the chain's forward kinematics; per voxel of the grid from ``box[0]``
+    (``voxel_m``), the first orientation reached in each orientation bin, at most
+    ``per_voxel`` of them (a random subset). Returns ``(shape (3,), start (V + 1,) int32,
+    rpy (M, 3) uint8)``."""
+    from humanoid_reach_ros.planning.wgr import matrix_rpy
+
     origin = np.asarray(box[0], float)
     shape = np.ceil((np.asarray(box[1], float) - origin) / voxel_m).astype(np.int64)
-    bits = np.zeros(tuple(shape) + (ORIENTATION_BINS // 8,), np.uint8)
     n = len(chain.axes)
+    keys, codes = [np.zeros(0, np.int64)], [np.zeros((0, 3), np.uint8)]
     for a in range(0, samples, chunk):
         m = min(chunk, samples - a)
         q = rng.uniform(chain.lower, chain.upper, size=(m, n))
         p, R = chain.fk(q)
         k = np.floor((p - origin) / voxel_m).astype(np.int64)
         ok = np.all((k >= 0) & (k < shape), axis=1)
-        b = orientation_bins(R[ok])
-        k = k[ok]
-        np.bitwise_or.at(bits, (k[:, 0], k[:, 1], k[:, 2], b >> 3), (1 << (b & 7)).astype(np.uint8))
-    return bits
+        key = np.ravel_multi_index(k[ok].T, tuple(shape)) * ORIENTATION_BINS + orientation_bins(R[ok])
+        u, i = np.unique(key, return_index=True)
+        keys.append(u)
+        codes.append(encode_rpy(matrix_rpy(R[ok][i])))
+    key, code = np.concatenate(keys), np.concatenate(codes)
+    u, i = np.unique(key, return_index=True)       # the first of each (voxel, bin)
+    code = code[i]
+    vox = u // ORIENTATION_BINS
+    keep = np.ones(len(u), bool)                    # at most per_voxel per voxel: a random subset
+    order = np.lexsort((rng.random(len(u)), vox))
+    vs = vox[order]
+    rank = np.arange(len(vs)) - np.searchsorted(vs, vs)
+    keep[order[rank >= per_voxel]] = False
+    vox, code = vox[keep], code[keep]
+    start = np.searchsorted(vox, np.arange(int(np.prod(shape)) + 1)).astype(np.int32)
+    return shape, start, code
 
 
 # ------------------------------------------------------------------ the inverse over the trunk manifold
-@nb.njit(cache=True, nogil=False, fastmath=False)
-def _first_capable(z, rpy, p_e, R_e, v, cog_xy, chest_p, chest_R, arms, cap_origin, cap_voxel, bits, k, pick):
-    """For hand pose ``i`` (of n) the first candidate ``j * n + i`` (j < k) whose trunk
-    ``(z, rpy)`` (Algorithm 1's lines 2-4) puts the pose, in an allowed arm's root frame, in a
-    voxel and orientation bin its capability map holds; ``i`` if none."""
-    n = p_e.shape[0]
-    R = np.empty((3, 3))
-    Rc = np.empty((3, 3))
-    Rl = np.empty((3, 3))
-    shape = bits.shape
-    for i in range(n):
-        pick[i] = i
-        for j in range(k):
-            c_ = j * n + i
-            rpy_into(R, rpy[c_, 0], rpy[c_, 1], rpy[c_, 2])
-            # trunk origin
-            px = R[0, 0] * v[0] + R[0, 1] * v[1] + R[0, 2] * v[2] + cog_xy[0]
-            py = R[1, 0] * v[0] + R[1, 1] * v[1] + R[1, 2] * v[2] + cog_xy[1]
-            pz = z[c_]
-            # chest rotation Rc = R chest_R, chest origin = p_t + R chest_p
-            for r in range(3):
-                for c in range(3):
-                    Rc[r, c] = R[r, 0] * chest_R[0, c] + R[r, 1] * chest_R[1, c] + R[r, 2] * chest_R[2, c]
-            cx = px + R[0, 0] * chest_p[0] + R[0, 1] * chest_p[1] + R[0, 2] * chest_p[2]
-            cy = py + R[1, 0] * chest_p[0] + R[1, 1] * chest_p[1] + R[1, 2] * chest_p[2]
-            cz = pz + R[2, 0] * chest_p[0] + R[2, 1] * chest_p[1] + R[2, 2] * chest_p[2]
-            dx, dy, dz = p_e[i, 0] - cx, p_e[i, 1] - cy, p_e[i, 2] - cz
-            found = False
-            for a in arms:
-                ix = int(math.floor((Rc[0, 0] * dx + Rc[1, 0] * dy + Rc[2, 0] * dz - cap_origin[0]) / cap_voxel))
-                iy = int(math.floor((Rc[0, 1] * dx + Rc[1, 1] * dy + Rc[2, 1] * dz - cap_origin[1]) / cap_voxel))
-                iz = int(math.floor((Rc[0, 2] * dx + Rc[1, 2] * dy + Rc[2, 2] * dz - cap_origin[2]) / cap_voxel))
-                if ix < 0 or iy < 0 or iz < 0 or ix >= shape[1] or iy >= shape[2] or iz >= shape[3]:
-                    continue
-                for r in range(3):     # hand rotation in the chest: Rc^T R_e
-                    for c in range(3):
-                        Rl[r, c] = Rc[0, r] * R_e[i, 0, c] + Rc[1, r] * R_e[i, 1, c] + Rc[2, r] * R_e[i, 2, c]
-                b = orientation_bin(Rl)
-                if (bits[a, ix, iy, iz, b >> 3] >> (b & 7)) & 1:
-                    found = True
-                    break
-            if found:
-                pick[i] = c_
-                break
-
-
 @nb.njit(cache=True, nogil=False, fastmath=False)
 def _cell_gaps(cells, half, T, v, cog_xy, chest_p, chest_R, extent, clearance, origin, voxel, box_lo, box_hi,
                centre, gap):
@@ -445,27 +447,49 @@ def _cell_gaps(cells, half, T, v, cog_xy, chest_p, chest_R, extent, clearance, o
 
 
 @dataclass(frozen=True, eq=False)
-class CapabilityFilter:
-    """What :meth:`TrunkSampler.sample_for` needs to prefer trunk draws the map says reach
-    each hand pose: the trunk -> chest transform, Algorithm 1's ``v`` and ``COG_approx``, and
-    the arms' capability bits on one grid (arm order of ``codes.ARMS``)."""
+class PoseProposals:
+    """Goal samples the capability map proposes (module doc): Algorithm 1's trunk pose (``v``,
+    ``COG_approx``), the trunk -> chest transform and the arms' maps (``codes.ARMS`` order)."""
 
     v: np.ndarray
     cog_xy: np.ndarray
     chest_p: np.ndarray
     chest_R: np.ndarray
-    cap_origin: np.ndarray
-    cap_voxel_m: float
-    bits: np.ndarray       # (2, mx, my, mz, ORIENTATION_BINS / 8)
+    arms: dict
 
-    def pick(self, z, rpy, p_e, R_e, arm_names, k) -> np.ndarray:
-        n = len(p_e)
-        pick = np.empty(n, np.int64)
-        arms = np.array([ARMS.index(a) for a in arm_names], np.int64)
-        _first_capable(z, rpy, np.ascontiguousarray(p_e, dtype=float), np.ascontiguousarray(R_e, dtype=float),
-                       self.v, self.cog_xy, self.chest_p, self.chest_R, arms, self.cap_origin, self.cap_voxel_m,
-                       self.bits, k, pick)
-        return pick
+    def propose(self, rng: np.random.Generator, region: WorkspaceGoalRegion, z: np.ndarray, rpy: np.ndarray,
+                p_e: np.ndarray, arm_names) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For trunk poses ``z`` (N,), ``rpy`` (N, 3) and hand positions ``p_e`` (N, 3): hand
+        rotations (N, 3, 3) one of ``arm_names`` (each sample's at random) reached in the
+        voxel of ``p_e`` in its root frame, ``ok`` (N,): a stored orientation exists there
+        and lies in ``region``, and how many orientations that voxel holds (N,): few at the
+        reachable set's border, where a voxel is reachable only in part."""
+        n = len(z)
+        R_t = rpy_matrix(rpy)
+        p_t = np.einsum("nij,j->ni", R_t, self.v)
+        p_t[:, :2] += self.cog_xy
+        p_t[:, 2] = z
+        c_R = R_t @ self.chest_R
+        c_p = p_t + R_t @ self.chest_p
+        x = np.einsum("nji,nj->ni", c_R, p_e - c_p)
+        which = rng.integers(0, len(arm_names), n)
+        code = np.zeros((n, 3), np.uint8)
+        has = np.zeros(n, bool)
+        held = np.zeros(n, np.int64)
+        for k, a in enumerate(arm_names):
+            rows = np.flatnonzero(which == k)
+            m = self.arms[a]
+            first, count = m.poses_at(x[rows])
+            got = count > 0
+            pick = first + np.floor(rng.random(len(rows)) * np.maximum(count, 1)).astype(np.int64)
+            code[rows[got]] = m.pose_rpy[pick[got]]
+            has[rows] = got
+            held[rows] = count
+        R_e = c_R @ rpy_matrix(decode_rpy(code))
+        ok = has.copy()
+        if has.any():
+            ok[has] = region.contains(p_e[has], R_e[has], tol=1e-9)
+        return R_e, ok, held
 
 
 class InverseReach:
@@ -490,13 +514,7 @@ class InverseReach:
         #: (N, 4) cell centres (z, roll, pitch, yaw) and half sizes
         self.cells = np.stack([zs[Z], rolls[R_], ps[Z], yaws[Y]], axis=1)
         self.half = np.array([region.dz / 2, self.droll / 2, region.dpitch / 2, self.dyaw / 2])
-        arms = [reach_map.arms[a] for a in ARMS]
-        if any(not np.allclose(a.cap_origin, arms[0].cap_origin) or a.cap_bits.shape != arms[0].cap_bits.shape
-               or a.cap_voxel_m != arms[0].cap_voxel_m for a in arms):
-            raise ValueError("reach map: the arms' capability grids differ (train both arms on one grid)")
-        self.capability = CapabilityFilter(self.v, self.cog_xy, self.chest_p, self.chest_R, arms[0].cap_origin,
-                                           arms[0].cap_voxel_m, np.ascontiguousarray(np.stack([a.cap_bits
-                                                                                               for a in arms])))
+        self.proposals = PoseProposals(self.v, self.cog_xy, self.chest_p, self.chest_R, dict(reach_map.arms))
 
     def _gaps(self, arm: str, T: np.ndarray, cells: np.ndarray, half: np.ndarray,
               extent: float) -> tuple[np.ndarray, np.ndarray]:
@@ -511,6 +529,18 @@ class InverseReach:
                    self.cog_xy, self.chest_p, self.chest_R, float(extent), m.clearance, m.origin, m.voxel_m,
                    m.box_lo, m.box_hi, centre, gap)
         return centre, gap
+
+    def held(self, region: WorkspaceGoalRegion, cells: np.ndarray, arm_names) -> np.ndarray:
+        """(M,) orientations the capability map holds at the region's centre from each cell's
+        centre pose (the most of ``arm_names``): few where the target is at the border of the
+        reachable set (a voxel reachable only in part), where proposals seldom solve."""
+        T = region_centre(region)
+        R = rpy_matrix(cells[:, 1:4])
+        p = np.einsum("nij,j->ni", R, self.v)
+        p[:, :2] += self.cog_xy
+        p[:, 2] = cells[:, 0]
+        x = np.einsum("ji,nj->ni", self.chest_R, np.einsum("nji,nj->ni", R, T - p) - self.chest_p)
+        return np.max([self.map.arms[a].poses_at(x)[1] for a in arm_names], axis=0)
 
     def _refine(self, arm: str, T: np.ndarray, extent: float, todo: np.ndarray) -> tuple[np.ndarray, float]:
         """The cells ``todo`` (indices) that their slack alone keeps (centre ruled out), split in
@@ -588,5 +618,5 @@ def region_centre(region: WorkspaceGoalRegion) -> np.ndarray:
     return np.asarray(region.target_p, float) + np.asarray(region.target_R, float) @ ((lo + hi) / 2)
 
 
-__all__ = ["ArmMap", "ReachMap", "InverseReach", "CapabilityFilter", "train_arm_map", "orientation_bin",
-           "orientation_bins", "capability_bits", "ORIENTATION_BINS", "MAP_VERSION"]
+__all__ = ["ArmMap", "ReachMap", "InverseReach", "PoseProposals", "train_arm_map", "capability_poses",
+           "orientation_bin", "orientation_bins", "encode_rpy", "decode_rpy", "ORIENTATION_BINS", "MAP_VERSION"]

@@ -96,22 +96,26 @@ class TrunkSampler:
     first_fraction: float = 0.25
     #: 4-D cells (the reach map's inverse, planning/reach_map.py): roll and yaw per cell (cell
     #: sizes ``droll``, ``dyaw``) instead of uniform over ``roll`` / ``yaw``, and the map's
-    #: capability filter choosing :meth:`sample_for`'s draw (``CapabilityFilter.pick``)
+    #: proposals of whole goal samples (``PoseProposals``: :meth:`sample_poses`)
     roll_cells: np.ndarray | None = None
     yaw_cells: np.ndarray | None = None
     droll: float = 0.0
     dyaw: float = 0.0
-    capability: object | None = None
+    proposals: object | None = None
 
-    def near(self, z: float, pitch: float, z_weight: float = 2.0, pitch_weight: float = 1.0) -> "TrunkSampler":
+    def near(self, z: float, pitch: float, z_weight: float = 2.0, pitch_weight: float = 1.0,
+             first: np.ndarray | None = None) -> "TrunkSampler":
         """The same cells, drawn nearest the trunk pose (``z``, ``pitch``) first: after ``b``
         batches without a goal (``sample_for``'s ``batch``), draws come from the nearest
         ``first_fraction * 2**b`` of the cells (all after two dry batches with 0.25),
         distance ``z_weight |dz| + pitch_weight |dpitch|`` (the planner's metric). The
         search starts where the robot stands and moves toward what the target needs only
         when it must: reachable targets get goals, and so paths, close to the start; hard
-        ones get every cell within a few batches."""
+        ones get every cell within a few batches. ``first`` (bool per cell): those cells come
+        first (each group nearest first): the reach map's cells deep inside the reachable set."""
         d = z_weight * np.abs(self.z_cells - z) + pitch_weight * np.abs(self.pitch_cells - pitch)
+        if first is not None:
+            return replace(self, order=np.lexsort((d, ~np.asarray(first, bool))))
         return replace(self, order=np.argsort(d, kind="stable"))
 
     def _cells(self, batch: int) -> np.ndarray:
@@ -144,9 +148,6 @@ class TrunkSampler:
         wrist centre (the first draw when none does; Algorithm 1 then rejects it)."""
         n, k = len(p_e), self.candidates
         z, rpy = self.sample(rng, n * k, batch)
-        if self.capability is not None and k > 1:
-            pick = self.capability.pick(z, rpy, p_e, R_e, _arms(arm), k)
-            return z[pick], rpy[pick]
         if self.arms is None or k <= 1:
             return z[:n], rpy[:n]
         arms = [self.arms[a] for a in _arms(arm)]
@@ -155,6 +156,23 @@ class TrunkSampler:
                         self.v, self.cog_xy, np.array([g.shoulder for g in arms]), np.array([g.Re for g in arms]),
                         np.array([g.te for g in arms]), np.array([g.wrist_reach ** 2 for g in arms]), k, pick)
         return z[pick], rpy[pick]
+
+    def sample_poses(self, rng: np.random.Generator, region: WorkspaceGoalRegion, n: int, arm: str = "auto",
+                     batch: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``n`` whole goal samples ``(p_e, R_e, z_t, rpy_t)`` from the reach map (``proposals``):
+        per sample ``candidates`` trunk draws and hand positions from ``region``, the one whose
+        map proposal (a stored hand orientation in the region) comes from the voxel holding the
+        most orientations (the first of those: deep inside the reachable set rather than at its
+        border); a plain region draw and the first trunk draw when no proposal fits."""
+        k = self.candidates
+        z, rpy = self.sample(rng, n * k, batch)
+        p_e, R_e = region.sample(rng, n * k)
+        R_p, ok, held = self.proposals.propose(rng, region, z, rpy, p_e, _arms(arm))
+        score = np.where(ok, held, -1).reshape(k, n)
+        has = score.max(axis=0) >= 0
+        pick = np.where(has, np.argmax(score, axis=0) * n + np.arange(n), np.arange(n))
+        R_out = np.where(has[:, None, None], R_p[pick], R_e[:n])
+        return p_e[pick], R_out, z[pick], rpy[pick]
 
     @property
     def z_range(self) -> tuple[float, float]:
@@ -216,7 +234,11 @@ class TrunkRegion:
         q_plan[:, :na] = projector.q_ref[projector.cols["right_arm"]]
         q_plan[:, na] = self.z_grid
         q_plan[:, na + 2] = self.pitch_grid
-        self.feasible = projector.project_plan_config(q_plan, "right").ok.copy()
+        res = projector.project_plan_config(q_plan, "right")
+        self.feasible = res.ok.copy()
+        # the grid's leg solutions start a numerical leg's IK near its answer (Projector.set_leg_seeds)
+        Qg = np.where(res.ok[:, None], res.q, np.nan).reshape(len(zs), len(ps), -1)
+        projector.set_leg_seeds(zs, ps, Qg)
         if not self.feasible.any():
             raise ValueError(f"TrunkRegion: the legs' IK admits no trunk height in {self.z_span} m at pitch "
                              f"{self.pitch_span} rad on this stance")
@@ -249,13 +271,13 @@ class TrunkRegion:
         return TrunkSampler(self.z_grid[cells], self.pitch_grid[cells], self.dz, self.dpitch, self.roll, self.yaw,
                             narrowed, self.arms, self.v, self.cog_xy, self.candidates)
 
-    def from_cells(self, cells: np.ndarray, droll: float, dyaw: float, capability, candidates: int) -> TrunkSampler:
+    def from_cells(self, cells: np.ndarray, droll: float, dyaw: float, proposals, candidates: int) -> TrunkSampler:
         """A sampler over 4-D cells (M, 4) = (z, roll, pitch, yaw) centres of sizes ``dz`` x
-        ``droll`` x ``dpitch`` x ``dyaw`` (the reach map's inverse at a target), its draws
-        chosen by ``capability`` (``CapabilityFilter``), ``candidates`` per hand pose."""
+        ``droll`` x ``dpitch`` x ``dyaw`` (the reach map's inverse at a target), its goal
+        samples proposed by ``proposals`` (``PoseProposals``), ``candidates`` per sample."""
         return TrunkSampler(cells[:, 0].copy(), cells[:, 2].copy(), self.dz, self.dpitch, self.roll, self.yaw, True,
                             self.arms, self.v, self.cog_xy, int(candidates), roll_cells=cells[:, 1].copy(),
-                            yaw_cells=cells[:, 3].copy(), droll=float(droll), dyaw=float(dyaw), capability=capability)
+                            yaw_cells=cells[:, 3].copy(), droll=float(droll), dyaw=float(dyaw), proposals=proposals)
 
     def describe(self) -> str:
         s = self.all_cells()
