@@ -452,3 +452,22 @@ def test_the_console_in_a_browser_plans_executes_and_goes_home(ros_env, ros_prob
             browser.close()
         codes = graph.stop()
     assert all(c == 0 for c in codes.values()), codes
+
+
+def test_the_parameter_file_matches_the_declared_defaults() -> None:
+    import yaml
+
+    from humanoid_reach_ros.nodes.operator_console import PARAMETERS
+    from nodetools import REPO_ROOT
+    values = yaml.safe_load((REPO_ROOT / "config" / "operator_console.yaml").read_text())["/**"]["ros__parameters"]
+    assert values == {k: spec.default for k, spec in PARAMETERS.items()}
+
+
+@pytest.mark.node
+def test_a_bad_parameter_stops_the_node_with_one_line(start_node) -> None:
+    proc = start_node("operator_console", params_file="config/operator_console.yaml",
+                      params={"marker_dictionary": "DICT_NOPE", "port": free_port()})
+    wait_for(lambda: not proc.alive(), 60.0, "operator_console to stop", on_timeout=proc.log_tail)
+    assert proc.proc.returncode == 2 and "cannot start: ValueError: marker_dictionary: unknown ArUco dictionary " \
+        "'DICT_NOPE'" in proc.log(), proc.log_tail()
+    proc.ok_exit_codes = (2,)
