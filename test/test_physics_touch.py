@@ -83,3 +83,11 @@ def test_a_touch_pushes_with_a_measured_bounded_force_and_the_retreat_lets_go(se
     # polygon's edge: docs/physics.md, no force guard)
     assert not back["fallen"] and back["hand_n_end"] == 0.0
     np.testing.assert_allclose(plant.targets, robot.half_sitting_joints, atol=1e-9)
+
+
+@pytest.mark.parametrize("name, joint, bound", [("hrp2", "RARM_JOINT5", 88.2), ("talos", "arm_right_7_joint", 16.5),
+                                                ("g1", "right_wrist_pitch_joint", 14.5)])
+def test_the_touch_bound_is_half_the_weakest_wrist_joint_at_the_hand(name, joint, bound) -> None:
+    b = touch_force_bound(RobotModel(name))
+    assert (b.joint, b.bound_n) == (joint, bound)
+    assert b.bound_n == pytest.approx(0.5 * b.effort_nm / b.lever_m, abs=0.05)
