@@ -5,7 +5,8 @@ Waits for ``/joint_states``, then for ``--seconds`` publishes a command that mov
 yaw at 45 deg, would be clipped where it stands and not move), at 50 Hz, while it watches
 ``/joint_states`` (after waiting ``--match-timeout`` for the publisher to match a
 subscription). Prints one JSON line: the joint, where it started, whether the publisher
-matched a subscription, and how far the joint moved. Not a test module (no ``test_`` prefix): a program run inside a network namespace.
+matched a subscription, and how far the joint moved. Not a test module (no ``test_``
+prefix): a program run inside a network namespace.
 """
 from __future__ import annotations
 
