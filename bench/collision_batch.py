@@ -130,8 +130,8 @@ def bench_planner_edges(voxels: np.ndarray, repeat: int) -> dict:
     scalar = PlanChecker(rp.projector, rp.collision, arm, lanes=False)
     rng = np.random.default_rng(3)
     start = rp.projector.plan_config_of(rp.start_config(rp.robot.half_sitting_joints), arm)[0]
-    A = start + rng.normal(scale=0.3, size=(2000, len(start)))
-    B = A + rng.normal(scale=0.3, size=A.shape)
+    A = start + rng.normal(scale=0.1, size=(2000, len(start)))
+    B = A + rng.normal(scale=0.15, size=A.shape)
     m = np.atleast_1d(edge_steps(A, B, space))
     answers = [(lanes.first_invalid_edge(A[i:i + 1], B[i:i + 1], m[i:i + 1], True),
                 scalar.first_invalid_edge(A[i:i + 1], B[i:i + 1], m[i:i + 1], True)) for i in range(len(A))]

@@ -17,9 +17,9 @@ instructions (the idea of VAMP, Thomason et al. 2024; this code is our own):
   above that difference) of its threshold is *undecided*, and the configuration is checked
   again by today's scalar kernels (libm, same arithmetic): every other verdict is the one
   the scalar checker gives, since its value is on the same side of the threshold;
-* **self pairs**: bounding spheres (centre of the segment, half its length + radius) of
-  both shapes, compared in the lanes; the exact segment-segment distance (Ericson 5.1.9,
-  the scalar checker's function) only where they come within the margin + ``EPS_M``;
+* **self pairs**: the exact segment-segment distance of every pair in every lane (the
+  scalar checker's expressions, Ericson 5.1.9, with its branches as selects): cheaper in
+  the lanes than a bounding-sphere filter in front of scalar calls;
 * **environment, broad phase**: a distance field ``F`` on a grid of ``field_cell_m``
   cells around the sphere centres: ``F(x) <= min_i |x - c_i| - r_i`` for every ``x`` in
   the cell (the exact Euclidean distance transform of the cells holding a centre, minus a
@@ -43,7 +43,7 @@ import numba as nb
 import numpy as np
 
 from humanoid_reach_ros.geometry.distance import (_JIT, RobotCollision, _check_kernel, _fk_shapes_kernel,
-                                                   _seg_seg_dist, quaternion_rotation)
+                                                   quaternion_rotation)
 from humanoid_reach_ros.geometry.sphere_tree import _inv_len2, _seg_dist2
 
 #: configurations per block (the SIMD lanes)
@@ -59,6 +59,10 @@ _S = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(1, 9))
 _C = tuple((-1.0) ** k / math.factorial(2 * k) for k in range(1, 10))
 S1, S2, S3, S4, S5, S6, S7, S8 = _S
 C1, C2, C3, C4, C5, C6, C7, C8, C9 = _C
+
+#: the lane kernels with divisions: numpy's error model (no ZeroDivisionError branch per
+#: division, which would keep LLVM from vectorising; every denominator there is made safe)
+_JIT_LANES = dict(_JIT, error_model="numpy")
 
 #: verdicts of the lane tests
 CLEAR, HIT, UNDECIDED = 0, 1, 2
@@ -89,12 +93,17 @@ def _sincos_lanes(QT, jq, SN, CS):
 
 
 @nb.njit(**_JIT)
-def _fk_lanes(QT, jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l, W):
-    """Capsule ends ``P0, P1 [s, a, ln]`` of the configurations ``QT[:, ln]`` (nq, LANES)
-    (the arithmetic of :func:`~humanoid_reach_ros.geometry.distance._fk_shapes_kernel`, the
-    lane index last)."""
-    oR, ot, A, LR, Lt, P0, P1, SN, CS, B = W
-    nl = A.shape[2]       # LANES, read at run time: a loop (not unrolled early) for the loop vectoriser
+def _fk_lanes(QT, lfk, W):
+    """Capsule ends ``P0, P1 [s, a, ln]`` of the configurations ``QT[:, ln]`` (nq, LANES).
+
+    ``lfk`` (:func:`lane_fk_args`): per joint its parent, placement ``jt`` and the rotation
+    ``jRp`` with its columns in the order ``(w, u, v)`` (``w`` the joint axis, ``(u, v, w)``
+    right-handed), so that ``R_axis(q)`` turns columns ``u, v`` alike for every axis; per shape
+    its joint and its ends in that joint's frame. One loop over the lanes per joint and per
+    shape, everything else in registers."""
+    jparent, jperm, jRp, jt, jq, sj, p0j, p1j = lfk
+    oR, ot, P0, P1, SN, CS, B = W
+    nl = SN.shape[1]      # LANES, read at run time: a loop (not unrolled early) for the loop vectoriser
     for ln in range(nl):
         quaternion_rotation(QT[3, ln], QT[4, ln], QT[5, ln], QT[6, ln], B)
         for a in range(3):
@@ -104,67 +113,63 @@ def _fk_lanes(QT, jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l, W):
     _sincos_lanes(QT, jq, SN, CS)
     for j in range(jparent.shape[0]):
         p = jparent[j] + 1
-        for a in range(3):
-            for b in range(3):
-                r0 = jR[j, 0, b]
-                r1 = jR[j, 1, b]
-                r2 = jR[j, 2, b]
-                for ln in range(nl):
-                    A[a, b, ln] = oR[p, a, 0, ln] * r0 + oR[p, a, 1, ln] * r1 + oR[p, a, 2, ln] * r2
-            t0 = jt[j, 0]
-            t1 = jt[j, 1]
-            t2 = jt[j, 2]
-            for ln in range(nl):
-                ot[j + 1, a, ln] = ot[p, a, ln] + oR[p, a, 0, ln] * t0 + oR[p, a, 1, ln] * t1 + oR[p, a, 2, ln] * t2
-        ax = jaxis[j]
-        for a in range(3):
-            if ax == 0:
-                for ln in range(nl):
-                    cs = CS[j, ln]
-                    sn = SN[j, ln]
-                    oR[j + 1, a, 0, ln] = A[a, 0, ln]
-                    oR[j + 1, a, 1, ln] = A[a, 1, ln] * cs + A[a, 2, ln] * sn
-                    oR[j + 1, a, 2, ln] = -A[a, 1, ln] * sn + A[a, 2, ln] * cs
-            elif ax == 1:
-                for ln in range(nl):
-                    cs = CS[j, ln]
-                    sn = SN[j, ln]
-                    oR[j + 1, a, 0, ln] = A[a, 0, ln] * cs - A[a, 2, ln] * sn
-                    oR[j + 1, a, 1, ln] = A[a, 1, ln]
-                    oR[j + 1, a, 2, ln] = A[a, 0, ln] * sn + A[a, 2, ln] * cs
-            else:
-                for ln in range(nl):
-                    cs = CS[j, ln]
-                    sn = SN[j, ln]
-                    oR[j + 1, a, 0, ln] = A[a, 0, ln] * cs + A[a, 1, ln] * sn
-                    oR[j + 1, a, 1, ln] = -A[a, 0, ln] * sn + A[a, 1, ln] * cs
-                    oR[j + 1, a, 2, ln] = A[a, 2, ln]
-    for k in range(lj.shape[0]):
-        p = lj[k] + 1
-        for a in range(3):
-            for b in range(3):
-                r0 = lR[k, 0, b]
-                r1 = lR[k, 1, b]
-                r2 = lR[k, 2, b]
-                for ln in range(nl):
-                    LR[k, a, b, ln] = oR[p, a, 0, ln] * r0 + oR[p, a, 1, ln] * r1 + oR[p, a, 2, ln] * r2
-            t0 = lt[k, 0]
-            t1 = lt[k, 1]
-            t2 = lt[k, 2]
-            for ln in range(nl):
-                Lt[k, a, ln] = ot[p, a, ln] + oR[p, a, 0, ln] * t0 + oR[p, a, 1, ln] * t1 + oR[p, a, 2, ln] * t2
-    for s in range(sl.shape[0]):
-        k = sl[s]
-        u0 = p0l[s, 0]
-        u1 = p0l[s, 1]
-        u2 = p0l[s, 2]
-        v0 = p1l[s, 0]
-        v1 = p1l[s, 1]
-        v2 = p1l[s, 2]
-        for a in range(3):
-            for ln in range(nl):
-                P0[s, a, ln] = Lt[k, a, ln] + LR[k, a, 0, ln] * u0 + LR[k, a, 1, ln] * u1 + LR[k, a, 2, ln] * u2
-                P1[s, a, ln] = Lt[k, a, ln] + LR[k, a, 0, ln] * v0 + LR[k, a, 1, ln] * v1 + LR[k, a, 2, ln] * v2
+        o = j + 1
+        r00 = jRp[j, 0, 0]
+        r01 = jRp[j, 0, 1]
+        r02 = jRp[j, 0, 2]
+        r10 = jRp[j, 1, 0]
+        r11 = jRp[j, 1, 1]
+        r12 = jRp[j, 1, 2]
+        r20 = jRp[j, 2, 0]
+        r21 = jRp[j, 2, 1]
+        r22 = jRp[j, 2, 2]
+        t0 = jt[j, 0]
+        t1 = jt[j, 1]
+        t2 = jt[j, 2]
+        w = jperm[j, 0]
+        u = jperm[j, 1]
+        v = jperm[j, 2]
+        for ln in range(nl):
+            cs = CS[j, ln]
+            sn = SN[j, ln]
+            for a in range(3):
+                x0 = oR[p, a, 0, ln]
+                x1 = oR[p, a, 1, ln]
+                x2 = oR[p, a, 2, ln]
+                aw = x0 * r00 + x1 * r10 + x2 * r20
+                au = x0 * r01 + x1 * r11 + x2 * r21
+                av = x0 * r02 + x1 * r12 + x2 * r22
+                oR[o, a, w, ln] = aw
+                oR[o, a, u, ln] = au * cs + av * sn
+                oR[o, a, v, ln] = av * cs - au * sn
+                ot[o, a, ln] = ot[p, a, ln] + x0 * t0 + x1 * t1 + x2 * t2
+    for s in range(sj.shape[0]):
+        k = sj[s] + 1
+        u0 = p0j[s, 0]
+        u1 = p0j[s, 1]
+        u2 = p0j[s, 2]
+        v0 = p1j[s, 0]
+        v1 = p1j[s, 1]
+        v2 = p1j[s, 2]
+        for ln in range(nl):
+            for a in range(3):
+                x0 = oR[k, a, 0, ln]
+                x1 = oR[k, a, 1, ln]
+                x2 = oR[k, a, 2, ln]
+                P0[s, a, ln] = ot[k, a, ln] + x0 * u0 + x1 * u1 + x2 * u2
+                P1[s, a, ln] = ot[k, a, ln] + x0 * v0 + x1 * v1 + x2 * v2
+
+
+def lane_fk_args(fk: tuple) -> tuple:
+    """The arguments of :func:`_fk_lanes` from ``RobotCollision._fk_args``."""
+    jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l = fk
+    perms = np.array([[0, 1, 2], [1, 2, 0], [2, 0, 1]], np.int64)     # (w, u, v) of x, y, z
+    jperm = np.ascontiguousarray(perms[jaxis])
+    jRp = np.ascontiguousarray(np.stack([jR[j][:, jperm[j]] for j in range(len(jR))]) if len(jR) else jR)
+    sj = np.ascontiguousarray(lj[sl], dtype=np.int64)
+    p0j = np.ascontiguousarray(lt[sl] + np.einsum("sab,sb->sa", lR[sl], p0l))
+    p1j = np.ascontiguousarray(lt[sl] + np.einsum("sab,sb->sa", lR[sl], p1l))
+    return (jparent, jperm, jRp, jt, jq, sj, p0j, p1j)
 
 
 @nb.njit(**_JIT)
@@ -183,33 +188,77 @@ def _bounds_lanes(P0, P1, R, MC, BR):
             BR[s, ln] = 0.5 * math.sqrt(dx * dx + dy * dy + dz * dz) + rs
 
 
-@nb.njit(**_JIT)
-def _self_lanes(P0, P1, MC, BR, pi, pj, R, margin, state, near, T0, T1):
-    """Self pairs of the lanes still open (``state[ln] == CLEAR``): ``state[ln]`` becomes HIT
-    (some pair certainly closer than ``margin``) or UNDECIDED (a pair within ``EPS_M`` of
-    it, none certainly closer)."""
+@nb.njit(**_JIT_LANES)
+def _self_lanes(P0, P1, MC, BR, pi, pj, R, margin, state, HIT_, UND_):
+    """Self pairs, every pair in every lane: ``state[ln]`` becomes HIT (some pair certainly
+    closer than ``margin``) or UNDECIDED (a pair within ``EPS_M`` of it, none certainly
+    closer). The segment-segment distance is the scalar checker's
+    (:func:`~humanoid_reach_ros.geometry.distance.closest_segment_params`, Ericson 5.1.9),
+    same expressions, its branches turned into selects (safe denominators where a branch
+    is not taken), so that the lanes vectorise. A pair whose bounding spheres (``MC``,
+    ``BR``) are apart by more than ``margin + EPS_M`` in every lane is skipped (the lanes of
+    an edge's samples mostly agree)."""
+    nl = HIT_.shape[0]
+    for ln in range(nl):
+        HIT_[ln] = False
+        UND_[ln] = False
+    lo = margin - EPS_M
+    hi = margin + EPS_M
+    eps = 1e-18
     for k in range(pi.shape[0]):
         i = pi[k]
         j = pj[k]
-        for ln in range(LANES):
+        ri = R[i]
+        rj = R[j]
+        near = 0
+        for ln in range(nl):
             dx = MC[i, 0, ln] - MC[j, 0, ln]
             dy = MC[i, 1, ln] - MC[j, 1, ln]
             dz = MC[i, 2, ln] - MC[j, 2, ln]
-            lim = BR[i, ln] + BR[j, ln] + margin + EPS_M
-            near[ln] = lim > 0.0 and dx * dx + dy * dy + dz * dz < lim * lim or lim <= 0.0
-        for ln in range(LANES):
-            if not near[ln] or state[ln] == HIT:
-                continue
-            for a in range(3):
-                T0[0, a] = P0[i, a, ln]
-                T1[0, a] = P1[i, a, ln]
-                T0[1, a] = P0[j, a, ln]
-                T1[1, a] = P1[j, a, ln]
-            d = _seg_seg_dist(T0, T1, 0, 1) - R[i] - R[j]
-            if d < margin - EPS_M:
-                state[ln] = HIT
-            elif d < margin + EPS_M:
-                state[ln] = UNDECIDED
+            lim = BR[i, ln] + BR[j, ln] + hi
+            near += (lim <= 0.0) | (dx * dx + dy * dy + dz * dz < lim * lim)
+        if near == 0:
+            continue
+        for ln in range(nl):
+            d1x = P1[i, 0, ln] - P0[i, 0, ln]
+            d1y = P1[i, 1, ln] - P0[i, 1, ln]
+            d1z = P1[i, 2, ln] - P0[i, 2, ln]
+            d2x = P1[j, 0, ln] - P0[j, 0, ln]
+            d2y = P1[j, 1, ln] - P0[j, 1, ln]
+            d2z = P1[j, 2, ln] - P0[j, 2, ln]
+            rx = P0[i, 0, ln] - P0[j, 0, ln]
+            ry = P0[i, 1, ln] - P0[j, 1, ln]
+            rz = P0[i, 2, ln] - P0[j, 2, ln]
+            a = d1x * d1x + d1y * d1y + d1z * d1z
+            e = d2x * d2x + d2y * d2y + d2z * d2z
+            f = d2x * rx + d2y * ry + d2z * rz
+            c = d1x * rx + d1y * ry + d1z * rz
+            b = d1x * d2x + d1y * d2y + d1z * d2z
+            a_deg = a <= eps
+            e_deg = e <= eps
+            a_s = 1.0 if a_deg else a
+            e_s = 1.0 if e_deg else e
+            den = a * e - b * b
+            gen = den > 1e-14 * a * e
+            den_s = den if gen else 1.0
+            s = min(max((b * f - c * e) / den_s, 0.0), 1.0) if gen else 0.0
+            t = (b * s + f) / e_s
+            s_lo = min(max(-c / a_s, 0.0), 1.0)
+            s_hi = min(max((b - c) / a_s, 0.0), 1.0)
+            s = s_lo if t < 0.0 else (s_hi if t > 1.0 else s)
+            t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
+            # the degenerate cases, in the scalar function's order
+            t_a = min(max(f / e_s, 0.0), 1.0)
+            s = 0.0 if a_deg else (s_lo if e_deg else s)
+            t = (0.0 if e_deg else t_a) if a_deg else (0.0 if e_deg else t)
+            dx = P0[i, 0, ln] + s * d1x - P0[j, 0, ln] - t * d2x
+            dy = P0[i, 1, ln] + s * d1y - P0[j, 1, ln] - t * d2y
+            dz = P0[i, 2, ln] + s * d1z - P0[j, 2, ln] - t * d2z
+            d = math.sqrt(dx * dx + dy * dy + dz * dz) - ri - rj
+            HIT_[ln] = HIT_[ln] | (d < lo)
+            UND_[ln] = UND_[ln] | (d < hi)
+    for ln in range(nl):
+        state[ln] = HIT if HIT_[ln] else (UNDECIDED if UND_[ln] else CLEAR)
 
 
 @nb.njit(**_JIT)
@@ -269,6 +318,19 @@ def _env_lanes(P0, P1, MC, BR, order, R, nodes, children, fld, origin, cell, box
             lb = _field_lb(fld, origin, cell, box_lo, box_hi, r_max, MC[s, 0, ln], MC[s, 1, ln], MC[s, 2, ln])
             if lb - BR[s, ln] > EPS_M:
                 continue
+            # a long capsule: its two halves, each in its own bounding sphere
+            h = 0.5 * (BR[s, ln] - R[s])          # a quarter of the segment's length
+            if h > 0.5 * cell:
+                clear = True
+                for f in (0.25, 0.75):
+                    x = P0[s, 0, ln] + f * (P1[s, 0, ln] - P0[s, 0, ln])
+                    y = P0[s, 1, ln] + f * (P1[s, 1, ln] - P0[s, 1, ln])
+                    z = P0[s, 2, ln] + f * (P1[s, 2, ln] - P0[s, 2, ln])
+                    if _field_lb(fld, origin, cell, box_lo, box_hi, r_max, x, y, z) - h - R[s] <= 2.0 * EPS_M:
+                        clear = False
+                        break
+                if clear:
+                    continue
             v = _tree_lane(nodes, children, P0[s, 0, ln], P0[s, 1, ln], P0[s, 2, ln], P1[s, 0, ln], P1[s, 1, ln],
                            P1[s, 2, ln], R[s], stack)
             if v != CLEAR:
@@ -280,8 +342,8 @@ def _env_lanes(P0, P1, MC, BR, order, R, nodes, children, fld, origin, cell, box
 @nb.njit(**_JIT)
 def _scalar_one(blk, ln, fk, R, order, pi, pj, margin, nodes, children, depth, do_env, WS):
     """The scalar checker on lane ``ln`` of ``blk`` (an undecided lane): True when in collision."""
-    jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l = fk
-    row, S0, S1_, oe, os_ = WS[8], WS[9], WS[10], WS[11], WS[12]
+    jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l = fk[0]
+    row, S0, S1_, oe, os_ = WS[7], WS[8], WS[9], WS[10], WS[11]
     for k in range(row.shape[1]):
         row[0, k] = blk[k, ln]
     _fk_shapes_kernel(row, jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l, S0, S1_)
@@ -290,31 +352,28 @@ def _scalar_one(blk, ln, fk, R, order, pi, pj, margin, nodes, children, depth, d
 
 
 @nb.njit(**_JIT)
-def lane_workspace(nq, J, L, S, depth):
+def lane_workspace(nq, J, S, depth):
     """Scratch of :func:`check_lanes` (one per kernel call)."""
-    return ((np.empty((J + 1, 3, 3, LANES)), np.empty((J + 1, 3, LANES)), np.empty((3, 3, LANES)),
-             np.empty((L, 3, 3, LANES)), np.empty((L, 3, LANES)), np.empty((S, 3, LANES)), np.empty((S, 3, LANES)),
-             np.empty((J, LANES)), np.empty((J, LANES)), np.empty((3, 3))),
+    return ((np.empty((J + 1, 3, 3, LANES)), np.empty((J + 1, 3, LANES)), np.empty((S, 3, LANES)),
+             np.empty((S, 3, LANES)), np.empty((J, LANES)), np.empty((J, LANES)), np.empty((3, 3))),
             np.empty((S, 3, LANES)), np.empty((S, LANES)), np.empty(LANES, np.int64), np.empty(LANES, np.bool_),
-            np.empty((2, 3)), np.empty((2, 3)), np.empty(depth + 2, np.int64),
+            np.empty(LANES, np.bool_), np.empty(depth + 2, np.int64),
             np.empty((1, nq)), np.empty((1, S, 3)), np.empty((1, S, 3)), np.zeros(1, np.bool_), np.zeros(1, np.bool_))
 
 
 @nb.njit(**_JIT)
 def check_lanes(blk, n, fk, R, order, pi, pj, margin, nodes, children, depth, do_env, fld, WS, hits, counts):
     """``hits[ln]`` (ln < n): configuration ``blk[:, ln]`` ((nq, LANES), every lane filled) collides,
-    the scalar checker's verdict. ``fld``: the distance field's arguments; ``WS``:
+    the scalar checker's verdict. ``fk``: (``RobotCollision._fk_args``, :func:`lane_fk_args`,
+    ``BatchCollision.fk``); ``fld``: the distance field's arguments; ``WS``:
     :func:`lane_workspace`; ``counts[1]`` += the undecided lanes redone by the scalar kernels."""
-    jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l = fk
     field, origin, cell, box_lo, box_hi, r_max = fld
-    W, MC, BR, state, near, T0, T1, stack = WS[0], WS[1], WS[2], WS[3], WS[4], WS[5], WS[6], WS[7]
-    P0 = W[5]
-    P1 = W[6]
-    _fk_lanes(blk, jparent, jaxis, jR, jt, jq, lj, lR, lt, sl, p0l, p1l, W)
+    W, MC, BR, state, HIT_, UND_, stack = WS[0], WS[1], WS[2], WS[3], WS[4], WS[5], WS[6]
+    P0 = W[2]
+    P1 = W[3]
+    _fk_lanes(blk, fk[1], W)
     _bounds_lanes(P0, P1, R, MC, BR)
-    for ln in range(LANES):
-        state[ln] = CLEAR
-    _self_lanes(P0, P1, MC, BR, pi, pj, R, margin, state, near, T0, T1)
+    _self_lanes(P0, P1, MC, BR, pi, pj, R, margin, state, HIT_, UND_)
     if do_env:
         _env_lanes(P0, P1, MC, BR, order, R, nodes, children, field, origin, cell, box_lo, box_hi, r_max, state,
                    stack)
@@ -334,7 +393,7 @@ def _batch_kernel(Q, stop_first, fk, R, order, pi, pj, margin, nodes, children, 
     computed, undecided lanes redone by the scalar kernels)."""
     C = Q.shape[0]
     nq = Q.shape[1]
-    WS = lane_workspace(nq, fk[0].shape[0], fk[5].shape[0], fk[8].shape[0], depth)
+    WS = lane_workspace(nq, fk[1][0].shape[0], fk[1][5].shape[0], depth)
     blk = np.empty((nq, LANES))
     hits = np.zeros(LANES, np.bool_)
     for c0 in range(0, C, LANES):
@@ -388,6 +447,8 @@ class BatchCollision:
             raise ValueError(f"BatchCollision: need field_cell_m > 0 and field_pad_m >= 0, got {field_cell_m}, "
                              f"{field_pad_m}")
         self.collision = collision
+        #: the forward kinematics' arguments: (scalar kernel's, lanes')
+        self.fk = (collision._fk_args, lane_fk_args(collision._fk_args))
         self.field_cell_m = float(field_cell_m)
         self.field_pad_m = float(field_pad_m)
         self._field = None
@@ -431,7 +492,7 @@ class BatchCollision:
             return (0, ~col.check_batch(Q), len(Q))
         do_env = bool(tree.n_spheres > 0)
         fld = self.field_args()
-        k = _batch_kernel(Q, bool(stop_first), col._fk_args, col.radii, col.env_order, col._pi, col._pj,
+        k = _batch_kernel(Q, bool(stop_first), self.fk, col.radii, col.env_order, col._pi, col._pj,
                           col.self_margin_m, tree.nodes, tree.children, tree.depth, do_env, fld, out, counts)
         self.undecided += int(counts[1])
         c = col.counters
@@ -462,4 +523,5 @@ def batch_checker(collision: RobotCollision) -> BatchCollision:
     return bc
 
 
-__all__ = ["BatchCollision", "batch_checker", "check_lanes", "distance_field", "lane_workspace", "LANES", "EPS_M"]
+__all__ = ["BatchCollision", "batch_checker", "check_lanes", "distance_field", "lane_fk_args", "lane_workspace",
+           "LANES", "EPS_M"]

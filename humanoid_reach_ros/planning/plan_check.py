@@ -288,7 +288,7 @@ def _plan_edges_lanes_kernel(A, B, m, with_ends, proj, fk, R, order, pi, pj, mar
     tp = np.empty((1, 3))
     tR = np.empty((1, 3, 3))
     fails = np.zeros(3, np.int64)
-    WS = lane_workspace(nq, fk[0].shape[0], fk[5].shape[0], fk[8].shape[0], depth)
+    WS = lane_workspace(nq, fk[1][0].shape[0], fk[1][5].shape[0], depth)
     blk = np.empty((nq, LANES))
     hits = np.zeros(LANES, np.bool_)
     lane_counts = np.zeros(2, np.int64)
@@ -441,9 +441,10 @@ class PlanChecker:
         tree = col.tree
         counts = np.zeros(2, np.int64)
         if self.lanes:
-            fld = batch_checker(col).field_args()      # before the clock: built once per map
+            bc = batch_checker(col)
+            fld = bc.field_args()      # before the clock: built once per map
             t0 = time.perf_counter()
-            e = _plan_edges_lanes_kernel(A, B, m, bool(include_endpoints), self._proj, col._fk_args, col.radii,
+            e = _plan_edges_lanes_kernel(A, B, m, bool(include_endpoints), self._proj, bc.fk, col.radii,
                                          col.env_order, *self._pairs, col.self_margin_m, tree.nodes, tree.children,
                                          tree.depth, bool(tree.n_spheres > 0), self.all_hit, fld, counts)
         else:
