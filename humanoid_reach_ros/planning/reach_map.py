@@ -410,12 +410,13 @@ def capability_poses(chain, rng: np.random.Generator, box, voxel_m: float, sampl
 # ------------------------------------------------------------------ the inverse over the trunk manifold
 @nb.njit(cache=True, nogil=False, fastmath=False)
 def _cell_gaps(cells, half, T, v, cog_xy, chest_p, chest_R, extent, clearance, origin, voxel, box_lo, box_hi,
-               centre, gap):
+               cap_origin, cap_voxel, cap_shape, pose_start, centre, gap, held):
     """:meth:`InverseReach._gaps`, compiled: per cell (z, roll, pitch, yaw) the trunk pose of
     Algorithm 1's lines 2-4, the target ``T`` in the arm's root frame, the outer bound there
     (:meth:`ArmMap.lower_bound`) minus ``extent`` (``centre``), and minus the cell's slack
     (``gap``): ``dz + theta |v| + theta (|a| + dz + theta |v|)``, ``theta`` the half sizes'
-    roll + pitch + yaw, ``a = T - p_t``."""
+    roll + pitch + yaw, ``a = T - p_t``; ``held``: the orientations the capability map holds
+    in the voxel of the target's point (:meth:`ArmMap.poses_at`)."""
     R = np.empty((3, 3))
     nx, ny, nz = clearance.shape
     theta = half[1] + half[2] + half[3]
@@ -441,6 +442,14 @@ def _cell_gaps(cells, half, T, v, cog_xy, chest_p, chest_R, extent, clearance, o
         else:
             lb = max(0.0, box_lo[0] - x0, x0 - box_hi[0], box_lo[1] - x1, x1 - box_hi[1], box_lo[2] - x2,
                      x2 - box_hi[2])
+        jx = int(math.floor((x0 - cap_origin[0]) / cap_voxel))
+        jy = int(math.floor((x1 - cap_origin[1]) / cap_voxel))
+        jz = int(math.floor((x2 - cap_origin[2]) / cap_voxel))
+        if 0 <= jx < cap_shape[0] and 0 <= jy < cap_shape[1] and 0 <= jz < cap_shape[2]:
+            f = (jx * cap_shape[1] + jy) * cap_shape[2] + jz
+            held[i] = pose_start[f + 1] - pose_start[f]
+        else:
+            held[i] = 0
         na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
         centre[i] = lb - extent
         gap[i] = lb - extent - (dz + theta * vn + theta * (na + dz + theta * vn))
@@ -522,25 +531,25 @@ class InverseReach:
         itself may reach a point within ``extent`` of ``T``), and a lower bound of how far
         ``arm``'s hand stays from such a point at any trunk pose of the cell (centre ``cells``,
         half sizes ``half``; <= 0: not ruled out)."""
+        centre, gap, _ = self._cell_bounds(arm, T, cells, half, extent)
+        return centre, gap
+
+    def _cell_bounds(self, arm, T, cells, half, extent) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_gaps` and the capability map's orientations at the target per cell centre."""
         m = self.map.arms[arm]
         n = len(cells)
-        centre, gap = np.empty(n), np.empty(n)
+        centre, gap, held = np.empty(n), np.empty(n), np.empty(n, np.int64)
         _cell_gaps(np.ascontiguousarray(cells, dtype=float), np.asarray(half, float), np.asarray(T, float), self.v,
                    self.cog_xy, self.chest_p, self.chest_R, float(extent), m.clearance, m.origin, m.voxel_m,
-                   m.box_lo, m.box_hi, centre, gap)
-        return centre, gap
+                   m.box_lo, m.box_hi, m.cap_origin, m.cap_voxel_m, m.cap_shape, m.pose_start, centre, gap, held)
+        return centre, gap, held
 
     def held(self, region: WorkspaceGoalRegion, cells: np.ndarray, arm_names) -> np.ndarray:
         """(M,) orientations the capability map holds at the region's centre from each cell's
         centre pose (the most of ``arm_names``): few where the target is at the border of the
         reachable set (a voxel reachable only in part), where proposals seldom solve."""
         T = region_centre(region)
-        R = rpy_matrix(cells[:, 1:4])
-        p = np.einsum("nij,j->ni", R, self.v)
-        p[:, :2] += self.cog_xy
-        p[:, 2] = cells[:, 0]
-        x = np.einsum("ji,nj->ni", self.chest_R, np.einsum("nji,nj->ni", R, T - p) - self.chest_p)
-        return np.max([self.map.arms[a].poses_at(x)[1] for a in arm_names], axis=0)
+        return np.max([self._cell_bounds(a, T, cells, self.half, 0.0)[2] for a in arm_names], axis=0)
 
     def _refine(self, arm: str, T: np.ndarray, extent: float, todo: np.ndarray) -> tuple[np.ndarray, float]:
         """The cells ``todo`` (indices) that their slack alone keeps (centre ruled out), split in
