@@ -82,9 +82,12 @@ def test_lane_trigonometry_and_field_bound(voxels):
     rng = np.random.default_rng(2)
     lo, hi = voxels.min(0) - 1.0, voxels.max(0) + 1.0
     P = lo + rng.random((3000, 3)) * (hi - lo)
-    lb = np.array([_field_lb(field[0], *field[1:], *p) for p in P])
+    lb = np.array([_field_lb(field[0], *field[1:6], *p) for p in P])
     true = np.array([col.tree.min_distance(p, p, 0.0) for p in P])
     assert np.all(lb <= true) and np.mean(true - lb < 0.15) > 0.5
+    # the nearest-sphere grid of the hit probe names leaves of the tree
+    near = field[6]
+    assert near.shape == field[0].shape and np.all(col.tree.children[near.ravel(), 0] < 0)
 
 
 def test_bad_input(voxels):

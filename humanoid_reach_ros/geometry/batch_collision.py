@@ -308,8 +308,35 @@ def _field_lb(field, origin, cell, box_lo, box_hi, r_max, x, y, z):
 
 
 @nb.njit(**_JIT)
-def _env_lanes(P0, P1, MC, BR, order, R, nodes, children, fld, origin, cell, box_lo, box_hi, r_max, state, stack):
-    """Environment test of the lanes still open: field first, then the tree."""
+def _probe_hit(nodes, nearest, origin, cell, ax, ay, az, bx, by, bz, r):
+    """Does the capsule certainly (by more than ``EPS_M``) penetrate the sphere nearest to its
+    first end, midpoint or second end (``nearest``: a leaf of the tree per field cell)? Then
+    the tree descent reaches that leaf too: every node's sphere holds its leaves' spheres."""
+    nx, ny, nz = nearest.shape
+    dx = bx - ax
+    dy = by - ay
+    dz = bz - az
+    inv = _inv_len2(dx, dy, dz)
+    for f in (0.0, 0.5, 1.0):
+        fx = (ax + f * dx - origin[0]) / cell
+        fy = (ay + f * dy - origin[1]) / cell
+        fz = (az + f * dz - origin[2]) / cell
+        if not (fx >= 0.0 and fy >= 0.0 and fz >= 0.0 and fx < nx and fy < ny and fz < nz):
+            continue
+        i = nearest[int(fx), int(fy), int(fz)]
+        if i < 0:
+            continue
+        lo = nodes[i, 3] + r - EPS_M
+        if lo > 0.0 and _seg_dist2(nodes, i, ax, ay, az, dx, dy, dz, inv) < lo * lo:
+            return True
+    return False
+
+
+@nb.njit(**_JIT)
+def _env_lanes(P0, P1, MC, BR, order, R, nodes, children, fld, origin, cell, box_lo, box_hi, r_max, nearest, state,
+               stack):
+    """Environment test of the lanes still open: the field (clear), the nearest spheres of
+    the capsule's ends and midpoint (a certain hit), then the tree."""
     for ln in range(LANES):
         if state[ln] != CLEAR:
             continue
@@ -331,6 +358,10 @@ def _env_lanes(P0, P1, MC, BR, order, R, nodes, children, fld, origin, cell, box
                         break
                 if clear:
                     continue
+            if _probe_hit(nodes, nearest, origin, cell, P0[s, 0, ln], P0[s, 1, ln], P0[s, 2, ln], P1[s, 0, ln],
+                          P1[s, 1, ln], P1[s, 2, ln], R[s]):
+                state[ln] = HIT
+                break
             v = _tree_lane(nodes, children, P0[s, 0, ln], P0[s, 1, ln], P0[s, 2, ln], P1[s, 0, ln], P1[s, 1, ln],
                            P1[s, 2, ln], R[s], stack)
             if v != CLEAR:
@@ -367,7 +398,7 @@ def check_lanes(blk, n, fk, R, order, pi, pj, margin, nodes, children, depth, do
     the scalar checker's verdict. ``fk``: (``RobotCollision._fk_args``, :func:`lane_fk_args`,
     ``BatchCollision.fk``); ``fld``: the distance field's arguments; ``WS``:
     :func:`lane_workspace`; ``counts[1]`` += the undecided lanes redone by the scalar kernels."""
-    field, origin, cell, box_lo, box_hi, r_max = fld
+    field, origin, cell, box_lo, box_hi, r_max, nearest = fld
     W, MC, BR, state, HIT_, UND_, stack = WS[0], WS[1], WS[2], WS[3], WS[4], WS[5], WS[6]
     P0 = W[2]
     P1 = W[3]
@@ -375,7 +406,8 @@ def check_lanes(blk, n, fk, R, order, pi, pj, margin, nodes, children, depth, do
     _bounds_lanes(P0, P1, R, MC, BR)
     _self_lanes(P0, P1, MC, BR, pi, pj, R, margin, state, HIT_, UND_)
     if do_env:
-        _env_lanes(P0, P1, MC, BR, order, R, nodes, children, field, origin, cell, box_lo, box_hi, r_max, state,
+        _env_lanes(P0, P1, MC, BR, order, R, nodes, children, field, origin, cell, box_lo, box_hi, r_max, nearest,
+                   state,
                    stack)
     for ln in range(n):
         hit = state[ln] == HIT
@@ -415,9 +447,12 @@ def _batch_kernel(Q, stop_first, fk, R, order, pi, pj, margin, nodes, children, 
 
 
 # =================================================================== distance field
-def distance_field(centers: np.ndarray, radii: np.ndarray, cell_m: float, pad_m: float):
-    """``(field, origin, box_lo, box_hi, r_max)``: the lower bound ``F`` of the module doc on
-    a grid of ``cell_m`` cells covering the centres' box grown by ``pad_m``."""
+def distance_field(centers: np.ndarray, radii: np.ndarray, cell_m: float, pad_m: float,
+                   labels: np.ndarray | None = None):
+    """``(field, origin, box_lo, box_hi, r_max, nearest)``: the lower bound ``F`` of the module
+    doc on a grid of ``cell_m`` cells covering the centres' box grown by ``pad_m``, and per
+    cell the label (``labels[i]``, default ``i``) of a sphere in the nearest cell holding a
+    centre."""
     from scipy.ndimage import distance_transform_edt
 
     centers = np.asarray(centers, float)
@@ -428,10 +463,17 @@ def distance_field(centers: np.ndarray, radii: np.ndarray, cell_m: float, pad_m:
     occ = np.ones(tuple(shape), bool)
     idx = np.clip(np.floor((centers - origin) / cell_m).astype(int), 0, shape - 1)
     occ[idx[:, 0], idx[:, 1], idx[:, 2]] = False
-    edt = distance_transform_edt(occ, sampling=cell_m)
+    owner = np.full(tuple(shape), -1, np.int64)
+    owner[idx[:, 0], idx[:, 1], idx[:, 2]] = np.arange(len(centers)) if labels is None else labels
+    edt, ind = distance_transform_edt(occ, sampling=cell_m, return_indices=True)
+    nearest = np.ascontiguousarray(owner[ind[0], ind[1], ind[2]].astype(np.int32))
     # x and c_i anywhere in their cells: each at most half a diagonal from its cell's centre
-    field = np.ascontiguousarray(edt - math.sqrt(3.0) * cell_m - r_max - 1e-9)
-    return field, origin, box_lo, box_hi, r_max
+    field = edt - math.sqrt(3.0) * cell_m - r_max - 1e-9
+    # float32 (half the cache footprint), rounded down: still a lower bound
+    f32 = field.astype(np.float32)
+    f32 = np.where(f32.astype(float) > field, np.nextafter(f32, np.float32(-np.inf)), f32)
+    field = np.ascontiguousarray(f32)
+    return field, origin, box_lo, box_hi, r_max, nearest
 
 
 # =================================================================== Python API
@@ -462,12 +504,15 @@ class BatchCollision:
             tree = self.collision.tree
             t0 = time.perf_counter()
             if tree.n_spheres:
-                sph = tree.nodes[tree.children[:, 0] < 0]     # a leaf's node sphere is its input sphere
-                f, origin, lo, hi, r_max = distance_field(sph[:, :3], sph[:, 3], self.field_cell_m, self.field_pad_m)
+                leaves = np.flatnonzero(tree.children[:, 0] < 0)     # a leaf's node sphere is its input sphere
+                sph = tree.nodes[leaves]
+                f, origin, lo, hi, r_max, near = distance_field(sph[:, :3], sph[:, 3], self.field_cell_m,
+                                                                self.field_pad_m, labels=leaves)
             else:
-                f, origin, lo, hi, r_max = np.zeros((1, 1, 1)), np.zeros(3), np.zeros(3), np.zeros(3), 0.0
+                f, origin, lo, hi, r_max = np.zeros((1, 1, 1), np.float32), np.zeros(3), np.zeros(3), np.zeros(3), 0.0
+                near = np.full((1, 1, 1), -1, np.int32)
             self._field = (f, np.ascontiguousarray(origin, float), self.field_cell_m, np.ascontiguousarray(lo, float),
-                           np.ascontiguousarray(hi, float), float(r_max))
+                           np.ascontiguousarray(hi, float), float(r_max), near)
             self.field_build_s = time.perf_counter() - t0
         return self._field
 
