@@ -6,7 +6,7 @@ into the file its robot.yaml names (``reach_map``, beside robot.yaml). Usage:
     python tools/train_reach_map.py [--robot NAME] [--seed S] [--grid-points N] [--samples N] [--per-voxel K]
                                     [--out PATH]
 
-Deterministic for a seed. HRP-2: about 20-40 s on this machine (docs/benchmarks.md).
+Deterministic for a seed. HRP-2: 9 min at load 20-30 on this machine (docs/benchmarks.md).
 """
 from __future__ import annotations
 
