@@ -238,6 +238,24 @@ def _bisect_fill(lo, hi, buf, queue):
 
 
 @nb.njit(**_JIT)
+def _bisect_buffers(m):
+    """Scratch of :func:`_edge_order` for edges of up to ``max(m)`` steps."""
+    mmax = 1
+    for e in range(m.shape[0]):
+        mmax = max(mmax, m[e])
+    return np.empty(mmax + 2, np.int64), np.empty((2 * mmax + 4, 2), np.int64)
+
+
+@nb.njit(**_JIT)
+def _edge_order(me, with_ends, buf, queue):
+    """The step indices of an edge of ``me`` steps (``0..me`` with ``with_ends``, else
+    ``1..me-1``) in bisect order into ``buf``; returns their count."""
+    if with_ends:
+        return _bisect_fill(0, me, buf, queue)
+    return _bisect_fill(1, me - 1, buf, queue)
+
+
+@nb.njit(**_JIT)
 def _plan_edges_kernel(A, B, m, with_ends, proj, fk, R, order, pi, pj, margin, nodes, children, depth, do_env,
                        all_hit, counts):
     """Edges ``A[e] -> B[e]`` in order, each cut into ``m[e]`` steps, its points
@@ -247,18 +265,11 @@ def _plan_edges_kernel(A, B, m, with_ends, proj, fk, R, order, pi, pj, margin, n
     d = A.shape[1]
     W = _scratch(proj[2].shape[0], fk[0].shape[0], fk[8].shape[0], fk[12].shape[0])
     RO = _radii_in_order(R, order)
-    mmax = 1
-    for e in range(E):
-        mmax = max(mmax, m[e])
-    buf = np.empty(mmax + 2, np.int64)
-    queue = np.empty((2 * mmax + 4, 2), np.int64)
+    buf, queue = _bisect_buffers(m)
     row = np.empty((1, d))
     for e in range(E):
         me = m[e]
-        if with_ends:
-            cnt = _bisect_fill(0, me, buf, queue)
-        else:
-            cnt = _bisect_fill(1, me - 1, buf, queue)
+        cnt = _edge_order(me, with_ends, buf, queue)
         for t in range(cnt):
             i = buf[t]
             s = i / me
@@ -292,18 +303,11 @@ def _plan_edges_lanes_kernel(A, B, m, with_ends, proj, fk, R, order, pi, pj, mar
     blk = np.empty((nq, LANES))
     hits = np.zeros(LANES, np.bool_)
     lane_counts = np.zeros(2, np.int64)
-    mmax = 1
-    for e in range(E):
-        mmax = max(mmax, m[e])
-    buf = np.empty(mmax + 2, np.int64)
-    queue = np.empty((2 * mmax + 4, 2), np.int64)
+    buf, queue = _bisect_buffers(m)
     row = np.empty((1, d))
     for e in range(E):
         me = m[e]
-        if with_ends:
-            cnt = _bisect_fill(0, me, buf, queue)
-        else:
-            cnt = _bisect_fill(1, me - 1, buf, queue)
+        cnt = _edge_order(me, with_ends, buf, queue)
         n = 0
         for t in range(cnt):
             s = buf[t] / me
