@@ -83,6 +83,8 @@ def test_first_invalid_edge_matches_check_edges_on_unfused_points(planner, arm):
     rng = np.random.default_rng(7)
     space = planner.planning_space(arm)
     pc = PlanChecker(planner.projector, planner.collision, arm)
+    assert pc.lanes       # the SIMD-lane edge kernel (geometry/batch_collision.py) is the default
+    scalar = PlanChecker(planner.projector, planner.collision, arm, lanes=False)
     ref_fn = _reference(planner, arm, planner.collision)
     start = planner.projector.plan_config_of(planner.start_config(planner.robot.half_sitting_joints), arm)[0]
     for trial in range(60):
@@ -92,6 +94,6 @@ def test_first_invalid_edge_matches_check_edges_on_unfused_points(planner, arm):
         inc = bool(trial % 2)
         ref = check_edges(A, B, ref_fn, space, include_endpoints=inc)            # every point, in order
         want = len(ref) if ref.all() else int(np.argmin(ref))
-        for checker in (pc, CountingChecker(pc)):
+        for checker in (pc, CountingChecker(pc), scalar):
             got = check_edges(A, B, checker, space, include_endpoints=inc, prefix=True)
             assert got[:want].all() and not got[want:].any()
