@@ -67,6 +67,9 @@ from humanoid_reach_ros.planning.service import PlanningService, PlanningService
 from humanoid_reach_ros.robot.spec import DEFAULT_ROBOT
 
 NODE_NAME = "reach_planner"
+#: a request within this long [s] of the first /voxel_map waits (up to the end of it) for the
+#: map's unobserved layers, queued behind the map in its callback group (_wait_for_unobserved_layers)
+UNOBSERVED_LAYERS_WAIT_S = 3.0
 __all__ = ["NODE_PARAMETERS", "PARAMETERS", "PLANNER_PARAMETERS", "PlannerParams", "ReachPlannerNode",
            "main"]
 
@@ -144,6 +147,7 @@ class ReachPlannerNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         self._p = declare_parameters(self, PARAMETERS)
         self.service = PlanningService(PlanningServiceConfig.from_parameters(self._p), log=self._log)
+        self._map_since: float | None = None     # when the first /voxel_map arrived (monotonic)
         self.model, self.planner = self.service.model, self.service.planner
         self.map_frame, self.hardware_id = self.service.config.map_frame, self.model.name
         self.service.warm_up()
@@ -188,6 +192,8 @@ class ReachPlannerNode(Node):
 
     # ------------------------------------------------------------ subscriptions
     def _on_map(self, msg: PointCloud2) -> None:
+        if self._map_since is None:
+            self._map_since = time.monotonic()
         try:
             self.service.set_map(msgs.points_from_cloud(msg))
         except Exception as exc:  # malformed cloud or a map the planner refuses: keep the old one
@@ -198,6 +204,22 @@ class ReachPlannerNode(Node):
         """/voxel_map/unobserved (the frontier) or /voxel_map/unobserved_blocks into the planning
         scene, for the next request."""
         self.service.set_unobserved(self.resolve_topic_name(topic), layer, lambda: msgs.points_from_cloud(msg))
+
+    def _wait_for_unobserved_layers(self, n: int) -> None:
+        """A /voxel_map that arrived just before request ``n`` has its unobserved layers queued
+        behind it (one callback group; the service runs beside it): wait for them up to
+        ``UNOBSERVED_LAYERS_WAIT_S`` rather than answer UNOBSERVED_SPACE ("no
+        /voxel_map/unobserved received"), as a planner whose warm-up ended as the map came did."""
+        scene = self.service.scene
+        snap = scene.snapshot()
+        if (snap.params.unobserved_space != "occupied" or snap.source != "/voxel_map" or snap.knows_unobserved
+                or self._map_since is None or time.monotonic() - self._map_since > UNOBSERVED_LAYERS_WAIT_S):
+            return
+        deadline = self._map_since + UNOBSERVED_LAYERS_WAIT_S
+        while time.monotonic() < deadline and not scene.snapshot().knows_unobserved:
+            time.sleep(0.02)
+        self.get_logger().info(f"plan_reach #{n}: waited for the unobserved layers of the map that just arrived: "
+                               + ("received" if scene.snapshot().knows_unobserved else "none came"))
 
     # ------------------------------------------------------------ inputs
     def current_joints(self):
@@ -220,6 +242,7 @@ class ReachPlannerNode(Node):
             self._fill_response(resp, busy, time.monotonic() - t0)
             return resp
         try:
+            self._wait_for_unobserved_layers(n)
             reply = self.service.plan(n, lambda waist: msgs.reach_request(req, waist), self.current_joints,
                                       self._marker_target)
             total = time.monotonic() - t0
