@@ -31,9 +31,6 @@ own). The verdict of every configuration is the scalar checker's (the tests say 
   outside the grid, the distance to the box of the centres minus the largest radius. A
   capsule ``(p0, p1, r)`` with ``F(m) - |p1 - p0| / 2 - r > EPS_M`` at its midpoint ``m``
   (or the same on both its halves) touches no sphere, and needs no tree query;
-* **a certain hit**: the sphere in the nearest occupied cell of the capsule's ends and
-  midpoint, penetrated by more than ``EPS_M``: the descent reaches it too (every node's
-  sphere holds its leaves' spheres);
 * **environment, narrow phase**: the other capsules go down the sphere tree as the scalar
   checker does (same node test ``|c - seg|^2 < (r_node + r)^2``), with the band on every node.
 
@@ -300,12 +297,13 @@ def _tree_lane(nodes, children, ax, ay, az, bx, by, bz, r, stack):
 
 
 @nb.njit(**_JIT)
-def _field_lb(field, origin, cell, box_lo, box_hi, r_max, x, y, z):
-    """Lower bound of ``min_i |p - c_i| - r_i`` at ``p = (x, y, z)`` (see the module doc)."""
+def _field_lb(field, origin, inv_cell, box_lo, box_hi, r_max, x, y, z):
+    """Lower bound of ``min_i |p - c_i| - r_i`` at ``p = (x, y, z)`` (see the module doc; ``inv_cell``:
+    1 / the cell size)."""
     nx, ny, nz = field.shape
-    fx = (x - origin[0]) / cell
-    fy = (y - origin[1]) / cell
-    fz = (z - origin[2]) / cell
+    fx = (x - origin[0]) * inv_cell
+    fy = (y - origin[1]) * inv_cell
+    fz = (z - origin[2]) * inv_cell
     if fx >= 0.0 and fy >= 0.0 and fz >= 0.0 and fx < nx and fy < ny and fz < nz:
         return field[int(fx), int(fy), int(fz)]
     ex = max(box_lo[0] - x, 0.0, x - box_hi[0])
@@ -315,41 +313,17 @@ def _field_lb(field, origin, cell, box_lo, box_hi, r_max, x, y, z):
 
 
 @nb.njit(**_JIT)
-def _probe_hit(nodes, nearest, origin, cell, ax, ay, az, bx, by, bz, r):
-    """Does the capsule certainly (by more than ``EPS_M``) penetrate the sphere nearest to its
-    first end, midpoint or second end (``nearest``: a leaf of the tree per field cell)? Then
-    the tree descent reaches that leaf too: every node's sphere holds its leaves' spheres."""
-    nx, ny, nz = nearest.shape
-    dx = bx - ax
-    dy = by - ay
-    dz = bz - az
-    inv = _inv_len2(dx, dy, dz)
-    for f in (0.0, 0.5, 1.0):
-        fx = (ax + f * dx - origin[0]) / cell
-        fy = (ay + f * dy - origin[1]) / cell
-        fz = (az + f * dz - origin[2]) / cell
-        if not (fx >= 0.0 and fy >= 0.0 and fz >= 0.0 and fx < nx and fy < ny and fz < nz):
-            continue
-        i = nearest[int(fx), int(fy), int(fz)]
-        if i < 0:
-            continue
-        lo = nodes[i, 3] + r - EPS_M
-        if lo > 0.0 and _seg_dist2(nodes, i, ax, ay, az, dx, dy, dz, inv) < lo * lo:
-            return True
-    return False
-
-
-@nb.njit(**_JIT)
-def _env_lanes(P0, P1, MC, BR, order, R, nodes, children, fld, origin, cell, box_lo, box_hi, r_max, nearest, state,
-               stack):
-    """Environment test of the lanes still open: the field (clear), the nearest spheres of
-    the capsule's ends and midpoint (a certain hit), then the tree."""
+def _env_lanes(P0, P1, MC, BR, order, R, nodes, children, fld, origin, cell, box_lo, box_hi, r_max, state, stack):
+    """Environment test of the lanes still open: the field (certainly clear), then the tree.
+    (A certain-hit probe before the tree -- the sphere of the nearest occupied cell -- was
+    measured slower: 3.0 vs 2.5 us CPU per free configuration, no faster on colliding ones.)"""
+    inv_cell = 1.0 / cell
     for ln in range(LANES):
         if state[ln] != CLEAR:
             continue
         for q in range(order.shape[0]):
             s = order[q]
-            lb = _field_lb(fld, origin, cell, box_lo, box_hi, r_max, MC[s, 0, ln], MC[s, 1, ln], MC[s, 2, ln])
+            lb = _field_lb(fld, origin, inv_cell, box_lo, box_hi, r_max, MC[s, 0, ln], MC[s, 1, ln], MC[s, 2, ln])
             if lb - BR[s, ln] > EPS_M:
                 continue
             # a long capsule: its two halves, each in its own bounding sphere
@@ -360,15 +334,11 @@ def _env_lanes(P0, P1, MC, BR, order, R, nodes, children, fld, origin, cell, box
                     x = P0[s, 0, ln] + f * (P1[s, 0, ln] - P0[s, 0, ln])
                     y = P0[s, 1, ln] + f * (P1[s, 1, ln] - P0[s, 1, ln])
                     z = P0[s, 2, ln] + f * (P1[s, 2, ln] - P0[s, 2, ln])
-                    if _field_lb(fld, origin, cell, box_lo, box_hi, r_max, x, y, z) - h - R[s] <= 2.0 * EPS_M:
+                    if _field_lb(fld, origin, inv_cell, box_lo, box_hi, r_max, x, y, z) - h - R[s] <= 2.0 * EPS_M:
                         clear = False
                         break
                 if clear:
                     continue
-            if _probe_hit(nodes, nearest, origin, cell, P0[s, 0, ln], P0[s, 1, ln], P0[s, 2, ln], P1[s, 0, ln],
-                          P1[s, 1, ln], P1[s, 2, ln], R[s]):
-                state[ln] = HIT
-                break
             v = _tree_lane(nodes, children, P0[s, 0, ln], P0[s, 1, ln], P0[s, 2, ln], P1[s, 0, ln], P1[s, 1, ln],
                            P1[s, 2, ln], R[s], stack)
             if v != CLEAR:
@@ -405,7 +375,7 @@ def check_lanes(blk, n, fk, R, order, pi, pj, margin, nodes, children, depth, do
     the scalar checker's verdict. ``fk``: (``RobotCollision._fk_args``, :func:`lane_fk_args`,
     ``BatchCollision.fk``); ``fld``: the distance field's arguments; ``WS``:
     :func:`lane_workspace`; ``counts[1]`` += the undecided lanes redone by the scalar kernels."""
-    field, origin, cell, box_lo, box_hi, r_max, nearest = fld
+    field, origin, cell, box_lo, box_hi, r_max = fld
     W, MC, BR, state, HIT_, UND_, stack = WS[0], WS[1], WS[2], WS[3], WS[4], WS[5], WS[6]
     P0 = W[2]
     P1 = W[3]
@@ -413,8 +383,7 @@ def check_lanes(blk, n, fk, R, order, pi, pj, margin, nodes, children, depth, do
     _bounds_lanes(P0, P1, R, MC, BR)
     _self_lanes(P0, P1, MC, BR, pi, pj, R, margin, state, HIT_, UND_)
     if do_env:
-        _env_lanes(P0, P1, MC, BR, order, R, nodes, children, field, origin, cell, box_lo, box_hi, r_max, nearest,
-                   state,
+        _env_lanes(P0, P1, MC, BR, order, R, nodes, children, field, origin, cell, box_lo, box_hi, r_max, state,
                    stack)
     for ln in range(n):
         hit = state[ln] == HIT
@@ -454,12 +423,9 @@ def _batch_kernel(Q, stop_first, fk, R, order, pi, pj, margin, nodes, children, 
 
 
 # =================================================================== distance field
-def distance_field(centers: np.ndarray, radii: np.ndarray, cell_m: float, pad_m: float,
-                   labels: np.ndarray | None = None):
-    """``(field, origin, box_lo, box_hi, r_max, nearest)``: the lower bound ``F`` of the module
-    doc on a grid of ``cell_m`` cells covering the centres' box grown by ``pad_m``, and per
-    cell the label (``labels[i]``, default ``i``) of a sphere in the nearest cell holding a
-    centre."""
+def distance_field(centers: np.ndarray, radii: np.ndarray, cell_m: float, pad_m: float):
+    """``(field, origin, box_lo, box_hi, r_max)``: the lower bound ``F`` of the module doc on
+    a grid of ``cell_m`` cells covering the centres' box grown by ``pad_m``."""
     from scipy.ndimage import distance_transform_edt
 
     centers = np.asarray(centers, float)
@@ -470,17 +436,14 @@ def distance_field(centers: np.ndarray, radii: np.ndarray, cell_m: float, pad_m:
     occ = np.ones(tuple(shape), bool)
     idx = np.clip(np.floor((centers - origin) / cell_m).astype(int), 0, shape - 1)
     occ[idx[:, 0], idx[:, 1], idx[:, 2]] = False
-    owner = np.full(tuple(shape), -1, np.int64)
-    owner[idx[:, 0], idx[:, 1], idx[:, 2]] = np.arange(len(centers)) if labels is None else labels
-    edt, ind = distance_transform_edt(occ, sampling=cell_m, return_indices=True)
-    nearest = np.ascontiguousarray(owner[ind[0], ind[1], ind[2]].astype(np.int32))
+    edt = distance_transform_edt(occ, sampling=cell_m)
     # x and c_i anywhere in their cells: each at most half a diagonal from its cell's centre
     field = edt - math.sqrt(3.0) * cell_m - r_max - 1e-9
     # float32 (half the cache footprint), rounded down: still a lower bound
     f32 = field.astype(np.float32)
     f32 = np.where(f32.astype(float) > field, np.nextafter(f32, np.float32(-np.inf)), f32)
     field = np.ascontiguousarray(f32)
-    return field, origin, box_lo, box_hi, r_max, nearest
+    return field, origin, box_lo, box_hi, r_max
 
 
 # =================================================================== Python API
@@ -511,15 +474,12 @@ class BatchCollision:
             tree = self.collision.tree
             t0 = time.perf_counter()
             if tree.n_spheres:
-                leaves = np.flatnonzero(tree.children[:, 0] < 0)     # a leaf's node sphere is its input sphere
-                sph = tree.nodes[leaves]
-                f, origin, lo, hi, r_max, near = distance_field(sph[:, :3], sph[:, 3], self.field_cell_m,
-                                                                self.field_pad_m, labels=leaves)
+                sph = tree.nodes[tree.children[:, 0] < 0]     # a leaf's node sphere is its input sphere
+                f, origin, lo, hi, r_max = distance_field(sph[:, :3], sph[:, 3], self.field_cell_m, self.field_pad_m)
             else:
                 f, origin, lo, hi, r_max = np.zeros((1, 1, 1), np.float32), np.zeros(3), np.zeros(3), np.zeros(3), 0.0
-                near = np.full((1, 1, 1), -1, np.int32)
             self._field = (f, np.ascontiguousarray(origin, float), self.field_cell_m, np.ascontiguousarray(lo, float),
-                           np.ascontiguousarray(hi, float), float(r_max), near)
+                           np.ascontiguousarray(hi, float), float(r_max))
             self.field_build_s = time.perf_counter() - t0
         return self._field
 
