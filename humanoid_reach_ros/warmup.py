@@ -33,6 +33,18 @@ def warm_up_all() -> dict[str, float]:
         raise RuntimeError("the planner's warm-up plans did not succeed")
     times["planner_and_collision"] = time.perf_counter() - t
     t = time.perf_counter()
+    from humanoid_reach_ros.geometry.batch_collision import LANES, BatchCollision
+    from humanoid_reach_ros.geometry.distance import RobotCollision
+    from humanoid_reach_ros.geometry.sphere_tree import SphereTree
+    from humanoid_reach_ros.robot.model import RobotModel
+    from humanoid_reach_ros.robot.shapes import load_collision_model
+
+    robot = RobotModel()
+    batch = BatchCollision(RobotCollision(robot, load_collision_model(None, robot),
+                                          SphereTree.build(np.array([[5.0, 5.0, 5.0]]), 0.01)))
+    batch.first_collision(np.tile(robot.half_sitting(), (LANES + 1, 1)))   # check_batch's kernel too
+    times["batch_collision"] = time.perf_counter() - t
+    t = time.perf_counter()
     from humanoid_reach_ros.control.executor import ExecutorParams, WholeBodyExecutor
     from humanoid_reach_ros.robot.model import RobotModel
     from humanoid_reach_ros.robot.shapes import load_collision_model
