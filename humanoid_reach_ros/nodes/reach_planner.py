@@ -70,6 +70,10 @@ NODE_NAME = "reach_planner"
 #: a request within this long [s] of the first /voxel_map waits (up to the end of it) for the
 #: map's unobserved layers, queued behind the map in its callback group (_wait_for_unobserved_layers)
 UNOBSERVED_LAYERS_WAIT_S = 3.0
+#: a request within this long [s] of the node's start waits until then: its subscriptions are new
+#: and a client that waited for the service (the demo) asked before they matched the latched map and
+#: the 10 Hz target (make demo ROBOT=talos: NO_TARGET "no /target_pose received" 14 ms after ready)
+START_SETTLE_S = 1.5
 __all__ = ["NODE_PARAMETERS", "PARAMETERS", "PLANNER_PARAMETERS", "PlannerParams", "ReachPlannerNode",
            "main"]
 
@@ -174,6 +178,7 @@ class ReachPlannerNode(Node):
         self.add_on_set_parameters_callback(self._check_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.get_logger().info(self.service.ready_line())
+        self._ready_at = time.monotonic()
 
     def _log(self, level: str, text: str, throttled: bool = False) -> None:
         """The service's log lines, through this node's logger (looked up per line); rclpy keys a line's
@@ -237,6 +242,8 @@ class ReachPlannerNode(Node):
     # ------------------------------------------------------------ service
     def _on_plan_reach(self, req: PlanReach.Request, resp: PlanReach.Response) -> PlanReach.Response:
         t0 = time.monotonic()
+        if t0 - self._ready_at < START_SETTLE_S:     # the subscriptions are new: let them match first
+            time.sleep(self._ready_at + START_SETTLE_S - t0)
         n, busy = self.service.begin()
         if busy is not None:
             self._fill_response(resp, busy, time.monotonic() - t0)
