@@ -46,9 +46,12 @@ def test_verdicts_identical(voxels, name, n):
     bc = BatchCollision(col)
     Q = _configs(col.robot, n, seed=len(name))
     ref = col.check_batch(Q)
-    got = bc.check_batch(Q)
+    got = bc.check_batch(Q)                  # one call: the lazy field is not built yet (tree only)
+    assert bc._field is None
     assert 0.05 < ref.mean() < 0.95          # both answers well represented
     np.testing.assert_array_equal(got, ref)
+    bc.field_args()                          # now with the distance field's broad phase
+    np.testing.assert_array_equal(bc.check_batch(Q), ref)
     # first_collision on slices that start and end inside blocks
     rng = np.random.default_rng(1)
     for _ in range(200):

@@ -446,11 +446,12 @@ class PlanChecker:
         counts = np.zeros(2, np.int64)
         if self.lanes:
             bc = batch_checker(col)
-            fld = bc.field_args()      # before the clock: built once per map
+            fld = bc.field_args(lazy=True)      # before the clock: built once per map, when it pays
             t0 = time.perf_counter()
             e = _plan_edges_lanes_kernel(A, B, m, bool(include_endpoints), self._proj, bc.fk, col.radii,
                                          col.env_order, *self._pairs, col.self_margin_m, tree.nodes, tree.children,
                                          tree.depth, bool(tree.n_spheres > 0), self.all_hit, fld, counts)
+            bc.configs_checked += int(counts[1])
         else:
             t0 = time.perf_counter()
             e = _plan_edges_kernel(A, B, m, bool(include_endpoints), self._proj, self._fk, col.radii, col.env_order,
