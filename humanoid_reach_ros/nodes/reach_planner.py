@@ -99,7 +99,9 @@ PLANNER_PARAMETERS: dict[str, ParamSpec] = {
                                  (1e-4, 1.0)),
     "rrt_step": ParamSpec(_D.rrt_step, "RRT-connect extension step [rad, planning space]", (1e-3, 10.0)),
     "seed": ParamSpec(_D.seed, "random seed used when a request's seed is negative"),
-    "use_reach_map": ParamSpec(_D.use_reach_map, "use the robot's reach map (robot.yaml reach_map): the proof of "
+    # off in the node (the library's PlannerParams has it on, bench/generality.py measures with it): in the
+    # graph, a plan before the scan wanted space behind the robot with it (config/reach_planner.yaml)
+    "use_reach_map": ParamSpec(False, "use the robot's reach map (robot.yaml reach_map): the proof of "
                                "TARGET_OUT_OF_REACH and the goal sampler's trunk cells; a map named but missing or "
                                "unreadable is a configuration error (exit 2)"),
     "reach_map_step_rad": ParamSpec(_D.reach_map_step_rad, "roll and yaw cell size of the reach map's trunk cells "
