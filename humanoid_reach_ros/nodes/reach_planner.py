@@ -217,12 +217,14 @@ class ReachPlannerNode(Node):
         behind it (one callback group; the service runs beside it): wait for them up to
         ``UNOBSERVED_LAYERS_WAIT_S`` rather than answer UNOBSERVED_SPACE ("no
         /voxel_map/unobserved received"), as a planner whose warm-up ended as the map came did."""
+        if self._map_since is None:
+            return
+        deadline = self._map_since + UNOBSERVED_LAYERS_WAIT_S
         scene = self.service.scene
         snap = scene.snapshot()
         if (snap.params.unobserved_space != "occupied" or snap.source != "/voxel_map" or snap.knows_unobserved
-                or self._map_since is None or time.monotonic() - self._map_since > UNOBSERVED_LAYERS_WAIT_S):
+                or time.monotonic() >= deadline):
             return
-        deadline = self._map_since + UNOBSERVED_LAYERS_WAIT_S
         while time.monotonic() < deadline and not scene.snapshot().knows_unobserved:
             time.sleep(0.02)
         self.get_logger().info(f"plan_reach #{n}: waited for the unobserved layers of the map that just arrived: "
