@@ -134,12 +134,13 @@ class DemoClient:
             self.executor.spin_once(0.01)
 
     def look(self, yaw_deg: list[float], pitch_deg: list[float], dwell_s: float, timeout: float = 120.0,
-             gaze_points=None):
+             gaze_points=None, come_back: bool = False):
         """The executor's ``/look`` action (the operator's ``reach_operator --scan`` / ``--look``):
         the head through the poses (empty: the executor's scan pattern), each held ``dwell_s``;
-        ``gaze_points`` (K, 3) [m, world]: a whole-body gaze at each instead (the automatic look)."""
+        ``gaze_points`` (K, 3) [m, world]: a whole-body gaze at each instead (the automatic look);
+        ``come_back``: then back to the posture the look began in."""
         goal = self.Look.Goal(yaw_rad=np.radians(yaw_deg).tolist(), pitch_rad=np.radians(pitch_deg).tolist(),
-                              dwell_s=dwell_s)
+                              dwell_s=dwell_s, come_back=come_back)
         if gaze_points is not None:
             from humanoid_reach_ros.io.msgs import points_list
             goal.gaze_points = points_list(gaze_points)
@@ -254,7 +255,7 @@ def plan(op: DemoClient, args: argparse.Namespace, home: bool = False, relocate:
         pts = msgs.points_array(resp.unobserved_points)
         print(f"[demo] the plan needs to see {np.round(pts, 2).tolist()} m (unobserved): looking there "
               f"(automatic look {looks}/{max_looks})")
-        op.look([], [], args.settle, gaze_points=pts)
+        op.look([], [], args.settle, gaze_points=pts, come_back=True)
         if relocate is not None:
             relocate()
 

@@ -190,6 +190,22 @@ def test_a_scan_gazes_around_the_body_comes_back_then_looks_ahead(robot) -> None
     assert none.look(lambda: LookGoal((), (), None, 0.01), Port()).poses_done == 1
 
 
+def test_a_look_that_comes_back_ends_where_it_began(robot) -> None:
+    """The automatic looks (``come_back``): after the last gaze point, back to the posture the look
+    began in; without it the look ends at its last gaze, as before."""
+    m, loop, log, _ = make(robot)
+    point = np.array([[0.7, 0.2, 0.9]])
+    out = m.look(lambda: LookGoal((), (), point, 0.01, come_back=True), Port())
+    assert out.success and out.poses_done == 2 and "then back to the posture the look began in" in out.message, out
+    starts = [c.motion for c in loop.sent if isinstance(c, StartMotion)]
+    assert len(starts) == 2 and "back to the posture" in starts[1].note
+    np.testing.assert_allclose(starts[1].spline.position(starts[1].spline.duration), robot.half_sitting_joints)
+    stay, loop2, _, _ = make(robot)
+    out = stay.look(lambda: LookGoal((), (), point, 0.01), Port())
+    assert out.success and out.poses_done == 1 and "back" not in out.message
+    assert sum(isinstance(c, StartMotion) for c in loop2.sent) == 1
+
+
 def test_stale_joint_states_abort_the_running_motion_once(robot) -> None:
     m, loop, log, state = make(robot, FakeLoop(hold=True))
     assert m.trajectory_topic(lambda: TrajectoryGoal(reference(robot)))

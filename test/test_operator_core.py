@@ -64,6 +64,7 @@ class FakeClient:
         self.sightings = MarkerSightings(lambda: publishers)
         self.requests: list[Any] = []
         self.looks: list[tuple[list[float], list[float], float, Any]] = []
+        self.came_back: list[bool] = []
         self.executed: list[Any] = []
 
     def spin_until(self, done, timeout_s, cancelable: bool = True) -> bool:
@@ -89,8 +90,9 @@ class FakeClient:
             on_feedback(Progress(p, 1.5 * p, 0.05, 1e-4, 0.01))
         return self.execution
 
-    def look(self, yaw_rad, pitch_rad, dwell_s, on_feedback, gaze_points=None):
+    def look(self, yaw_rad, pitch_rad, dwell_s, on_feedback, gaze_points=None, come_back=False):
         self.looks.append((list(yaw_rad), list(pitch_rad), dwell_s, gaze_points))
+        self.came_back.append(come_back)
         on_feedback(NS(holding=True, pose_index=0, pose_count=1, yaw_rad=0.1, pitch_rad=0.2))
         self.marker_in_view = self.marker_after_look   # marker_localizer publishes from now on
         return self.look_outcome
@@ -136,6 +138,7 @@ def test_the_automatic_look_loop_looks_where_the_plan_needs_to_see_then_plans_ag
     assert code == EXIT["success"] and len(c.requests) == 3 and c.requests == ["the request"] * 3, text
     assert [g.shape for *_, g in c.looks] == [(1, 3), (2, 3)] and np.allclose(c.looks[0][3], [[0.25, -0.29, 0.66]])
     assert all(yaw == [] and pitch == [] for yaw, pitch, _, _ in c.looks)   # a whole-body gaze, no head angles
+    assert c.came_back == [True, True]   # and back to where it stood: the next plan starts there
     assert "the plan needs to see [0.25, -0.29, 0.66] m (unobserved): looking there, automatic look 1/3" in text
     assert "automatic look 2/3" in text and text.count("planning again ...") == 2
     assert len(summary["auto_looks"]) == 2 and summary["auto_looks"][0]["outcome"] == "done"
@@ -242,7 +245,7 @@ def test_scan_and_look_alone_move_the_head_only() -> None:
     assert code == 0 and summary["map_voxels"] is None and "map: size unknown (no voxel_mapper diagnostics" in text
     c = FakeClient([])
     code, _, _, _ = run(c, "--look", "10", "20", "--dwell", "2")
-    assert code == 0 and c.looks == [([math.radians(10)], [math.radians(20)], 2.0, None)]
+    assert code == 0 and c.looks == [([math.radians(10)], [math.radians(20)], 2.0, None)] and c.came_back == [False]
     for look, exit_code in ((("rejected", None), 7), (("canceled", None), 130), (("timeout", None), 3),
                             (("unavailable", None), 3), (("canceled", result(ExecuteCode.CANCELED)), 130)):
         code, summary, _, _ = run(FakeClient([plan_response()], look=look), "--scan", "--execute")

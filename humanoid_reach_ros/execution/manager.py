@@ -106,6 +106,7 @@ class LookGoal:
     pitch: tuple[float, ...] = ()
     points: np.ndarray | None = None
     dwell_s: float = 0.0
+    come_back: bool = False   # after the last pose or point, back to the posture the look began in
 
 
 @dataclasses.dataclass(frozen=True)
@@ -399,10 +400,15 @@ class ExecutionManager:
             return Outcome(code, str(exc))
         # a scan first gazes around the body, then returns to the posture it began in (the gazes turn
         # the chest, which a head pose holds), then its head poses (or its directions' gaze points):
-        # it ends looking at the workspace in front, as before
-        start = self.joints()[0] if len(around) else None
-        items = [("point", p) for p in around] + ([("back", start)] if start is not None else []) \
-            + ([("pose", p) for p in poses] if points is None else [("point", p) for p in points])
+        # it ends looking at the workspace in front, as before. ``come_back`` (the automatic looks):
+        # after the last pose or point, back to where the look began, through the space the body just
+        # swept -- the next plan starts where the robot stood, not bent over a gaze (the hosts test:
+        # from a gaze with the chest pitched 60 deg, the way onto the planning manifold went a few cm
+        # beside the swept space, into unobserved space: START_IN_COLLISION)
+        start = self.joints()[0] if len(around) or goal.come_back else None
+        items = [("point", p) for p in around] + ([("back", start)] if len(around) and start is not None else []) \
+            + ([("pose", p) for p in poses] if points is None else [("point", p) for p in points]) \
+            + ([("back", start)] if goal.come_back and start is not None else [])
         asked, what = (len(poses), "head poses") if points is None else (len(points), "gaze points")
         self.log.info(f"{label}: accepted: {counted(asked, what)}, {dwell:g} s each"
                       + (" (the directions asked, for a robot without a neck)" if directions else "")
@@ -453,7 +459,8 @@ class ExecutionManager:
                            + (f" ({'; '.join(unseen)})" if unseen else ""))
         elif out.success:
             out.message = (f"{counted(asked, 'gaze points')} looked at and held {dwell:g} s each"
-                           + (f"; {'; '.join(unseen)}" if unseen else ": every point in view"))
+                           + (f"; {'; '.join(unseen)}" if unseen else ": every point in view")
+                           + ("; then back to the posture the look began in" if goal.come_back else ""))
         line = (f"{label}: {code_name(out.code)}: {out.message} "
                 f"[{out.duration_s:.1f} s, max COG error {out.max_com_error_m * 1e3:.2f} mm]")
         if out.code in (C.SUCCESS, C.CANCELED):   # one severity per call site (rclpy's rule)

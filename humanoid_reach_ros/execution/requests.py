@@ -466,7 +466,7 @@ class ExecutionRequests:
         if goal.shape != start.shape or not np.all(np.isfinite(goal)):
             raise RequestError(C.INVALID_REQUEST, f"back_to: {len(start)} finite joint angles needed")
         return Motion(mid, label, "trajectory", spline=self._look_spline(start, goal), arm="right",
-                      params=self._executor_params(), q_measured=q0, note="back to the posture the scan began in")
+                      params=self._executor_params(), q_measured=q0, note="back to the posture the look began in")
 
     def _look_spline(self, start: np.ndarray, goal: np.ndarray):
         """The reference of a look or gaze motion from ``start`` to ``goal``: a joint's peak speed

@@ -187,7 +187,8 @@ class ReachExecutorNode(Node):
         req = goal_handle.request
         port = GoalHandlePort(goal_handle, _look_feedback)
         out = self.manager.look(lambda: LookGoal(tuple(req.yaw_rad), tuple(req.pitch_rad),
-                                                 exec_msgs.gaze_points(req), float(req.dwell_s)), port)
+                                                 exec_msgs.gaze_points(req), float(req.dwell_s),
+                                                 bool(req.come_back)), port)
         port.close(out.code)
         return Look.Result(success=out.success, error_code=msgs.error_code(out.code), message=out.message,
                            poses_done=out.poses_done, duration_s=out.duration_s, max_com_error_m=out.max_com_error_m)

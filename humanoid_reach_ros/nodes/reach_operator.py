@@ -194,11 +194,14 @@ class Operator:
                            trajectory_duration(trajectory) + self.timeout_s)
 
     def look(self, yaw_rad: list[float], pitch_rad: list[float], dwell_s: float,
-             on_feedback: Callable[[Any], None], gaze_points: np.ndarray | None = None) -> tuple[str, Any]:
-        """/look: head angles, or a whole-body gaze at each of ``gaze_points`` (K, 3) [m, world]."""
+             on_feedback: Callable[[Any], None], gaze_points: np.ndarray | None = None,
+             come_back: bool = False) -> tuple[str, Any]:
+        """/look: head angles, or a whole-body gaze at each of ``gaze_points`` (K, 3) [m, world];
+        ``come_back``: then back to the posture the look began in (the automatic looks)."""
         if (down := self._executor_up(self.look_client, "/look")) is not None:
             return down, None
-        goal = self.Look.Goal(yaw_rad=list(yaw_rad), pitch_rad=list(pitch_rad), dwell_s=float(dwell_s))
+        goal = self.Look.Goal(yaw_rad=list(yaw_rad), pitch_rad=list(pitch_rad), dwell_s=float(dwell_s),
+                              come_back=bool(come_back))
         if gaze_points is not None:
             from humanoid_reach_ros.io.msgs import points_list
             goal.gaze_points = points_list(gaze_points)

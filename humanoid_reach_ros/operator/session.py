@@ -66,7 +66,7 @@ class OperatorClient(Protocol):
                 on_feedback: Callable[[Progress], None]) -> tuple[str, Any]: ...
 
     def look(self, yaw_rad: list[float], pitch_rad: list[float], dwell_s: float, on_feedback: Callable[[Any], None],
-             gaze_points: np.ndarray | None = None) -> tuple[str, Any]: ...
+             gaze_points: np.ndarray | None = None, come_back: bool = False) -> tuple[str, Any]: ...
 
     def wait_for_look(self, owner: str) -> bool:
         """Wait (``timeout_s``, with waiting lines) for the /look server; False when it did not come."""
@@ -153,9 +153,9 @@ class OperatorSession:
         return (exit_class(result.error_code.val) if result.success or result.error_code.val
                 else EXIT["execution"])
 
-    def look(self, gaze_points: np.ndarray | None = None) -> int:
-        """``--scan`` / ``--look`` (or an automatic look at ``gaze_points``): the /look action with a
-        line per head pose."""
+    def look(self, gaze_points: np.ndarray | None = None, come_back: bool = False) -> int:
+        """``--scan`` / ``--look`` (or a look at ``gaze_points``): the /look action with a line per head
+        pose; ``come_back`` (the automatic looks): then back to the posture the look began in."""
         a = self.args
         yaw, pitch = ([], []) if a.scan or gaze_points is not None else (
             [math.radians(a.look[0])], [math.radians(a.look[1])])
@@ -163,7 +163,7 @@ class OperatorSession:
             self.say("scanning with the head (the executor's scan pattern) ..." if a.scan else
                      f"turning the head to yaw {a.look[0]:g}, pitch {a.look[1]:g} deg ...")
         outcome, result = self.client.look(yaw, pitch, a.dwell or 0.0, lambda fb: self.say(head_pose_line(fb)),
-                                           gaze_points)
+                                           gaze_points, come_back)
         if gaze_points is None and result is not None and result.success:
             self.summary["map_voxels"] = self.map_size()
         looked = execution_summary(outcome, result, LOOK_FIELDS)
@@ -245,7 +245,8 @@ class OperatorSession:
             looks += 1
             self.say(f"the plan needs to see {where} m (unobserved): looking there, automatic look {looks}/"
                      f"{a.max_looks} (--no-auto-look turns this off) ...")
-            code = self.look(gaze_points=pts)
+            # and back: the next plan starts where the robot stood, and the head looks where it did
+            code = self.look(gaze_points=pts, come_back=True)
             if code != EXIT["success"]:
                 return None, code
             if a.marker and (code := self.ensure_marker_target()) != EXIT["success"]:

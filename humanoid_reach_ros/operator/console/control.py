@@ -73,7 +73,7 @@ class _Reporting:
             self._emit({"t": "progress", "op": self._op, "fraction": _finite(p.progress), "text": progress_bar(p)})
         return self._client.execute(trajectory, arm, args, fb)
 
-    def look(self, yaw_rad, pitch_rad, dwell_s, on_feedback, gaze_points=None):
+    def look(self, yaw_rad, pitch_rad, dwell_s, on_feedback, gaze_points=None, come_back=False):
         if gaze_points is not None:
             self._emit({"t": "looked", "points": np.round(np.asarray(gaze_points, float), 3).tolist()})
 
@@ -82,7 +82,7 @@ class _Reporting:
             n = max(int(m.pose_count), 1)
             self._emit({"t": "progress", "op": self._op, "fraction": min(1.0, (int(m.pose_index) + 1) / n),
                         "text": head_pose_line(m).strip()})
-        return self._client.look(yaw_rad, pitch_rad, dwell_s, fb, gaze_points)
+        return self._client.look(yaw_rad, pitch_rad, dwell_s, fb, gaze_points, come_back)
 
 
 def _failed(outcome: str | None) -> str:
