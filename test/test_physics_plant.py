@@ -166,6 +166,11 @@ def test_bad_plant_name() -> None:
     (lambda d: d["gains"].pop("ankles"), r"has no gain: add gains\.ankles"),
     (lambda d: d.update(joint_gains={"NO_SUCH_JOINT": {"kp": 1.0, "kv": 1.0}}),
      r"the robot has no joint 'NO_SUCH_JOINT'"),
+    (lambda d: d["force_guard"].update(gain=1.0), r"force_guard: unknown key\(s\) \['gain'\]"),
+    (lambda d: d["force_guard"].update(bound_fraction=1.5), r"force_guard\.bound_fraction: at most 1"),
+    (lambda d: d["force_guard"].update(release_s=0.001), r"force_guard\.release_s: at least 0\.01 s"),
+    (lambda d: d["force_guard"].update(enabled="yes"), r"force_guard\.enabled: expected true or false"),
+    (lambda d: d.update(force_guard=[0.8]), r"force_guard: expected a mapping"),
 ])
 def test_bad_physics_settings_are_clear_errors(models, edit, message) -> None:
     model = robot_model(models, "hrp2")

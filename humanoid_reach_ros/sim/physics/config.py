@@ -33,9 +33,10 @@ from humanoid_reach_ros.yaml_checks import number, positive, top_level
 PHYSICS_FILE = "physics.yaml"
 JOINT_GROUPS = ("legs", "ankles", "torso", "neck", "arms", "grippers", "other")
 _TOP = {"timestep_s", "friction", "impratio", "sole_thickness_m", "torus_segments", "armature_kgm2", "gains",
-        "joint_gains", "fall", "hand_sphere_radius_m"}
+        "joint_gains", "fall", "hand_sphere_radius_m", "force_guard"}
 _GAIN_KEYS = {"kp", "dampratio", "kv"}
 _FALL_KEYS = {"base_drop_m", "tilt_deg", "capture_point_out_m"}
+_GUARD_KEYS = {"enabled", "bound_fraction", "release_s", "release_rad"}
 
 
 @dataclass(frozen=True)
@@ -60,6 +61,45 @@ class FallThresholds:
 
 
 @dataclass(frozen=True)
+class ForceGuardConfig:
+    """The wrist force guard (sim/physics/force_guard.py): an arm is held at its measured joints while its
+    hand pushes beyond ``bound_fraction`` of the robot's touch bound (sim/physics/touch.py); released,
+    the held offset fades over ``release_s``; a hand that no longer touches is released once the
+    command is back within ``release_rad`` of the held joints."""
+
+    enabled: bool = True
+    bound_fraction: float = 0.8
+    release_s: float = 0.2
+    release_rad: float = 0.02
+
+
+def _section(raw: Any, cls, keys: set, where: str):
+    """The ``force_guard`` mapping of physics.yaml as ``cls`` (absent: the defaults)."""
+    if raw is None:
+        return cls()
+    if not isinstance(raw, dict):
+        raise ValueError(f"{where}: expected a mapping with keys among {sorted(keys)}, got {raw!r}")
+    unknown = set(raw) - keys
+    if unknown:
+        raise ValueError(f"{where}: unknown key(s) {sorted(unknown)}; expected among {sorted(keys)}")
+    values: dict[str, Any] = {}
+    for k, v in raw.items():
+        if k == "enabled":
+            if not isinstance(v, bool):
+                raise ValueError(f"{where}.enabled: expected true or false, got {v!r}")
+            values[k] = v
+        else:
+            values[k] = positive(v, f"{where}.{k}")
+    if values.get("bound_fraction", 0.0) > 1.0:
+        raise ValueError(f"{where}.bound_fraction: at most 1 (a share of the touch bound), "
+                         f"got {values['bound_fraction']}")
+    if values.get("release_s", 1.0) < 0.01:
+        raise ValueError(f"{where}.release_s: at least 0.01 s (two ticks of the joint driver's 5 ms loop), "
+                         f"got {values['release_s']}")
+    return cls(**values)
+
+
+@dataclass(frozen=True)
 class PhysicsConfig:
     """The settings of one robot's physics plant (module doc)."""
 
@@ -74,6 +114,7 @@ class PhysicsConfig:
     gains: dict[str, Gain]           # group -> gain
     joint_gains: dict[str, Gain]     # joint -> gain (overrides its group)
     fall: FallThresholds
+    force_guard: ForceGuardConfig = ForceGuardConfig()
 
     def gain_of(self, joint: str, group: str) -> Gain:
         """The gain of ``joint`` (of ``group``): its own entry, else its group's; ValueError when neither."""
@@ -149,7 +190,7 @@ def physics_config_from_dict(doc: Any, path: Path) -> PhysicsConfig:
         hand_sphere_radius_m=_non_negative(doc.get("hand_sphere_radius_m", 0.0), f"{where}: hand_sphere_radius_m"),
         gains={str(k): _gain(v, f"{where}: gains.{k}") for k, v in gains_raw.items()},
         joint_gains={str(k): _gain(v, f"{where}: joint_gains.{k}") for k, v in joint_raw.items()},
-        fall=fall)
+        fall=fall, force_guard=_section(doc.get("force_guard"), ForceGuardConfig, _GUARD_KEYS, f"{where}: force_guard"))
 
 
 def load_physics_config(robot_dir: str | Path) -> PhysicsConfig:
@@ -169,5 +210,5 @@ def load_physics_config(robot_dir: str | Path) -> PhysicsConfig:
     return physics_config_from_dict(doc, p)
 
 
-__all__ = ["FallThresholds", "Gain", "JOINT_GROUPS", "PHYSICS_FILE", "PhysicsConfig", "load_physics_config",
-           "physics_config_from_dict"]
+__all__ = ["FallThresholds", "ForceGuardConfig", "Gain", "JOINT_GROUPS", "PHYSICS_FILE", "PhysicsConfig",
+           "load_physics_config", "physics_config_from_dict"]

@@ -28,7 +28,9 @@ import pinocchio as pin
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.sim.physics.metrics import ContactMetrics
 from humanoid_reach_ros.sim.physics.model_builder import build_for_robot
+from humanoid_reach_ros.sim.physics.force_guard import WristForceGuard, hand_contacts
 from humanoid_reach_ros.sim.physics.stepper import PhysicsPlant
+from humanoid_reach_ros.sim.physics.touch import touch_force_bound
 
 OK, WARN, ERROR = 0, 1, 2     # diagnostic_msgs/DiagnosticStatus levels
 #: the real-time factor's worst is taken over windows this long [s], after the first one
@@ -63,6 +65,10 @@ class PhysicsDriver:
     def __init__(self, model: RobotModel, joints: np.ndarray, scene_file: str | None = None) -> None:
         self.model = model
         self.plant = PhysicsPlant(build_for_robot(model, scene_file), np.asarray(joints, float))
+        pm = self.plant.pm
+        # under the servos, from the hands' contact forces (force_guard.py): none when physics.yaml turns it off
+        self.guard = WristForceGuard(pm, touch_force_bound(model).bound_n) if pm.config.force_guard.enabled else None
+        self.correction = np.zeros(model.n_joints)      # the servo targets' offsets of the last tick
         self.lock = threading.Lock()        # the loop thread steps, the diagnostics timer reads
         self.metrics: ContactMetrics = self.plant.metrics()
         self._worst = {"cop_margin_mm_min": math.inf, "foot_slip_mm_max": 0.0, "base_tilt_deg_max": 0.0,
@@ -77,7 +83,13 @@ class PhysicsDriver:
         """Set the servos' targets, simulate ``dt`` and measure; returns (joints, velocities, base pose)."""
         with self.lock:
             plant = self.plant
-            plant.advance_ramped(targets, dt)
+            targets = np.asarray(targets, float)
+            corr = np.zeros(len(targets))
+            if self.guard is not None:
+                forces, _ = hand_contacts(plant.pm, plant.data)
+                corr += self.guard.offsets(targets, plant.joints, forces, dt)
+            self.correction = corr
+            plant.advance_ramped(targets + corr, dt)
             m = self.metrics = plant.metrics()
             w = self._worst
             if m.cop is not None:
@@ -149,7 +161,12 @@ class PhysicsDriver:
             **{f"{side}_hand_force_n": f for side, f in m.hand_force_n.items()},
             **{k: (v if math.isfinite(v) else "no foot contact yet") for k, v in w.items()},
             "fallen": bool(self.fallen_reason), "fall_reason": self.fallen_reason,
+            "force_guard_n": self.guard.guard_n if self.guard is not None else "off",
+            "servo_target_correction_rad_max": float(np.abs(self.correction).max()),
         }
+        if self.guard is not None:
+            values.update({f"{side}_hand_held_by_force_guard": h for side, h in self.guard.holding.items()})
+            values["force_guard_holds"] = self.guard.holds
         for side, cop in zip(("right", "left"), m.foot_cop):
             if cop is not None:
                 values[f"{side}_foot_cop_x_m"], values[f"{side}_foot_cop_y_m"] = float(cop[0]), float(cop[1])
