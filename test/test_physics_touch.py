@@ -32,15 +32,22 @@ TOUCH_TARGET = (0.35, -0.15, 0.78)     # 1 cm above the passage pipe (axis z 0.7
 TICK_S = 0.005
 
 
-def play(driver: PhysicsDriver, out, settle_s: float = 0.5) -> dict:
-    """The plan's samples as the servos' targets every 5 ms, then ``settle_s`` holding the last;
-    the worst figures on the way."""
+def play(driver: PhysicsDriver, out, settle_s: float = 0.5, blend_s: float = 0.2) -> dict:
+    """The plan's samples as the commands every 5 ms, then ``settle_s`` holding the last; the worst
+    figures on the way. A plan that starts away from the last command (planned from the measured
+    joints) is blended in from it over ``blend_s`` with a quintic smoothstep, as the executor does
+    (control/executor.py's blend): the driver's targets never jump."""
     traj = out.trajectory
     worst = {"margin_m": np.inf, "slip_m": 0.0, "hand_n": 0.0, "fallen": ""}
+    last = driver.plant.targets
     t = 0.0
     while t < traj.duration + settle_s:
         t += TICK_S
-        driver.step(traj.position(min(t, traj.duration)), TICK_S)
+        q = traj.position(min(t, traj.duration))
+        if t < blend_s:
+            s = t / blend_s
+            q = last + (q - last) * s**3 * (10.0 - 15.0 * s + 6.0 * s * s)
+        driver.step(q, TICK_S)
         m = driver.metrics
         worst["margin_m"] = min(worst["margin_m"], m.cop_margin_m)
         worst["slip_m"] = max(worst["slip_m"], *m.sole_slip_m)

@@ -361,7 +361,7 @@ def test_an_automatic_look_waits_for_a_slowly_discovered_look_server(monkeypatch
     action; a 3 s guess then planned without looking). Without any /look it says so after
     --timeout and returns the planner's answer; --no-auto-look never waits."""
     # the look itself (the /look action's feedback and result) is tested against the real executor elsewhere
-    monkeypatch.setattr(op.OperatorSession, "look", lambda session, gaze_points=None: (
+    monkeypatch.setattr(op.OperatorSession, "look", lambda session, gaze_points=None, come_back=False: (
         session.client.looks.append(gaze_points), op.EXIT["success"])[1])
     args = op.parse_args(["--target", "0.45", "-0.35", "0.50"])
     slow = _SlowLookGraph(look_after_s=4.0, timeout_s=20.0)

@@ -33,9 +33,11 @@ from humanoid_reach_ros.yaml_checks import number, positive, top_level
 PHYSICS_FILE = "physics.yaml"
 JOINT_GROUPS = ("legs", "ankles", "torso", "neck", "arms", "grippers", "other")
 _TOP = {"timestep_s", "friction", "impratio", "sole_thickness_m", "torus_segments", "armature_kgm2", "gains",
-        "joint_gains", "fall", "hand_sphere_radius_m", "force_guard"}
+        "joint_gains", "fall", "hand_sphere_radius_m", "force_guard", "stabilizer"}
 _GAIN_KEYS = {"kp", "dampratio", "kv"}
 _FALL_KEYS = {"base_drop_m", "tilt_deg", "capture_point_out_m"}
+_STABILIZER_KEYS = {"enabled", "ankle_time_constant_s", "ankle_return_time_s", "ankle_max_rad", "cop_margin_m",
+                    "force_time_constant_s", "force_return_time_s", "leg_length_max_m"}
 _GUARD_KEYS = {"enabled", "bound_fraction", "release_s", "release_rad"}
 
 
@@ -61,6 +63,23 @@ class FallThresholds:
 
 
 @dataclass(frozen=True)
+class StabilizerConfig:
+    """The foot force stabilizer (sim/physics/stabilizer.py): ankle torque control (time constant of the
+    foot torque's error, return time, bound of the offset; the reference CoP ``cop_margin_m`` inside the
+    sole) and foot force difference control (time constant, 0: off; return time; bound of the legs'
+    length difference)."""
+
+    enabled: bool = False
+    ankle_time_constant_s: float = 0.1
+    ankle_return_time_s: float = 1.0
+    ankle_max_rad: float = 0.05
+    cop_margin_m: float = 0.03
+    force_time_constant_s: float = 0.1
+    force_return_time_s: float = 1.0
+    leg_length_max_m: float = 0.01
+
+
+@dataclass(frozen=True)
 class ForceGuardConfig:
     """The wrist force guard (sim/physics/force_guard.py): an arm is held at its measured joints while its
     hand pushes beyond ``bound_fraction`` of the robot's touch bound (sim/physics/touch.py); released,
@@ -74,7 +93,7 @@ class ForceGuardConfig:
 
 
 def _section(raw: Any, cls, keys: set, where: str):
-    """The ``force_guard`` mapping of physics.yaml as ``cls`` (absent: the defaults)."""
+    """The ``stabilizer`` / ``force_guard`` mapping of physics.yaml as ``cls`` (absent: the defaults)."""
     if raw is None:
         return cls()
     if not isinstance(raw, dict):
@@ -88,11 +107,17 @@ def _section(raw: Any, cls, keys: set, where: str):
             if not isinstance(v, bool):
                 raise ValueError(f"{where}.enabled: expected true or false, got {v!r}")
             values[k] = v
+        elif k == "force_time_constant_s":
+            values[k] = _non_negative(v, f"{where}.{k}")
         else:
             values[k] = positive(v, f"{where}.{k}")
     if values.get("bound_fraction", 0.0) > 1.0:
         raise ValueError(f"{where}.bound_fraction: at most 1 (a share of the touch bound), "
                          f"got {values['bound_fraction']}")
+    for k in ("ankle_time_constant_s", "force_time_constant_s"):
+        if 0.0 < values.get(k, 1.0) < 0.01:
+            raise ValueError(f"{where}.{k}: at least 0.01 s (two ticks of the joint driver's 5 ms loop), "
+                             f"got {values[k]}")
     if values.get("release_s", 1.0) < 0.01:
         raise ValueError(f"{where}.release_s: at least 0.01 s (two ticks of the joint driver's 5 ms loop), "
                          f"got {values['release_s']}")
@@ -115,6 +140,7 @@ class PhysicsConfig:
     joint_gains: dict[str, Gain]     # joint -> gain (overrides its group)
     fall: FallThresholds
     force_guard: ForceGuardConfig = ForceGuardConfig()
+    stabilizer: StabilizerConfig = StabilizerConfig()
 
     def gain_of(self, joint: str, group: str) -> Gain:
         """The gain of ``joint`` (of ``group``): its own entry, else its group's; ValueError when neither."""
@@ -190,7 +216,9 @@ def physics_config_from_dict(doc: Any, path: Path) -> PhysicsConfig:
         hand_sphere_radius_m=_non_negative(doc.get("hand_sphere_radius_m", 0.0), f"{where}: hand_sphere_radius_m"),
         gains={str(k): _gain(v, f"{where}: gains.{k}") for k, v in gains_raw.items()},
         joint_gains={str(k): _gain(v, f"{where}: joint_gains.{k}") for k, v in joint_raw.items()},
-        fall=fall, force_guard=_section(doc.get("force_guard"), ForceGuardConfig, _GUARD_KEYS, f"{where}: force_guard"))
+        fall=fall,
+        stabilizer=_section(doc.get("stabilizer"), StabilizerConfig, _STABILIZER_KEYS, f"{where}: stabilizer"),
+        force_guard=_section(doc.get("force_guard"), ForceGuardConfig, _GUARD_KEYS, f"{where}: force_guard"))
 
 
 def load_physics_config(robot_dir: str | Path) -> PhysicsConfig:
@@ -211,4 +239,4 @@ def load_physics_config(robot_dir: str | Path) -> PhysicsConfig:
 
 
 __all__ = ["FallThresholds", "ForceGuardConfig", "Gain", "JOINT_GROUPS", "PHYSICS_FILE", "PhysicsConfig",
-           "load_physics_config", "physics_config_from_dict"]
+           "StabilizerConfig", "load_physics_config", "physics_config_from_dict"]

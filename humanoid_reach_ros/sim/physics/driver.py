@@ -28,6 +28,7 @@ import pinocchio as pin
 from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.sim.physics.metrics import ContactMetrics
 from humanoid_reach_ros.sim.physics.model_builder import build_for_robot
+from humanoid_reach_ros.sim.physics.stabilizer import FootStabilizer
 from humanoid_reach_ros.sim.physics.force_guard import WristForceGuard, hand_contacts
 from humanoid_reach_ros.sim.physics.stepper import PhysicsPlant
 from humanoid_reach_ros.sim.physics.touch import touch_force_bound
@@ -66,7 +67,8 @@ class PhysicsDriver:
         self.model = model
         self.plant = PhysicsPlant(build_for_robot(model, scene_file), np.asarray(joints, float))
         pm = self.plant.pm
-        # under the servos, from the hands' contact forces (force_guard.py): none when physics.yaml turns it off
+        # under the servos, from the plant's force sensors (stabilizer.py, force_guard.py): off in physics.yaml: none
+        self.stabilizer = FootStabilizer(pm) if pm.config.stabilizer.enabled else None
         self.guard = WristForceGuard(pm, touch_force_bound(model).bound_n) if pm.config.force_guard.enabled else None
         self.correction = np.zeros(model.n_joints)      # the servo targets' offsets of the last tick
         self.lock = threading.Lock()        # the loop thread steps, the diagnostics timer reads
@@ -85,11 +87,13 @@ class PhysicsDriver:
             plant = self.plant
             targets = np.asarray(targets, float)
             corr = np.zeros(len(targets))
+            if self.stabilizer is not None:
+                corr += self.stabilizer.offsets(targets, self.metrics, plant.data, dt)
             if self.guard is not None:
                 forces, _ = hand_contacts(plant.pm, plant.data)
                 corr += self.guard.offsets(targets, plant.joints, forces, dt)
             self.correction = corr
-            plant.advance_ramped(targets + corr, dt)
+            plant.advance_ramped(targets, dt, corr)
             m = self.metrics = plant.metrics()
             w = self._worst
             if m.cop is not None:
@@ -98,7 +102,7 @@ class PhysicsDriver:
             w["base_tilt_deg_max"] = max(w["base_tilt_deg_max"], m.base_tilt_deg)
             w["hand_contact_force_n_max"] = max(w["hand_contact_force_n_max"], *m.hand_force_n.values())
             joints = plant.joints
-            self.tracking_error_rad = float(np.abs(plant.targets - joints).max())
+            self.tracking_error_rad = float(np.abs(plant.servo_targets - joints).max())
             w["joint_tracking_error_rad_max"] = max(w["joint_tracking_error_rad_max"], self.tracking_error_rad)
             if m.fallen and not self.fallen_reason:
                 self.fallen_reason = m.fall_reason
@@ -161,9 +165,13 @@ class PhysicsDriver:
             **{f"{side}_hand_force_n": f for side, f in m.hand_force_n.items()},
             **{k: (v if math.isfinite(v) else "no foot contact yet") for k, v in w.items()},
             "fallen": bool(self.fallen_reason), "fall_reason": self.fallen_reason,
+            "stabilizer": "on" if self.stabilizer is not None else "off",
             "force_guard_n": self.guard.guard_n if self.guard is not None else "off",
             "servo_target_correction_rad_max": float(np.abs(self.correction).max()),
         }
+        if self.stabilizer is not None:
+            values["stabilizer_leg_length_offset_mm"] = 1e3 * self.stabilizer.z
+            values["stabilizer_ankle_offset_rad_max"] = float(np.abs(self.stabilizer.theta).max())
         if self.guard is not None:
             values.update({f"{side}_hand_held_by_force_guard": h for side, h in self.guard.holding.items()})
             values["force_guard_holds"] = self.guard.holds

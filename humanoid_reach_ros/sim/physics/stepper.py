@@ -85,6 +85,7 @@ class PhysicsPlant:
         self._kv_over_kp = np.where(kp > 0.0, -self.model.actuator_biasprm[pm.actuator_ids, 2] / np.where(
             kp > 0.0, kp, 1.0), 0.0)
         self._target = np.zeros(robot.n_joints)
+        self._offset = np.zeros(robot.n_joints)     # the corrections under the servos (advance_ramped)
         self.set_targets(joints)
         mujoco.mj_forward(self.model, self.data)
         self.reference: StandReference = stand_reference(pm, self.data)
@@ -99,12 +100,18 @@ class PhysicsPlant:
         """The servos' position targets (robot model joint order), clipped into the joint ranges;
         held still (no velocity feed-forward)."""
         self._target = np.clip(joints, self._lo, self._hi)
-        self.data.ctrl[self.pm.actuator_ids] = self._target
+        self.data.ctrl[self.pm.actuator_ids] = np.clip(self._target + self._offset, self._lo, self._hi)
 
     @property
     def targets(self) -> np.ndarray:
-        """The servos' position targets (without the velocity feed-forward's shift)."""
+        """The commanded position targets (without the corrections under the servos and without the velocity
+        feed-forward's shift)."""
         return self._target.copy()
+
+    @property
+    def servo_targets(self) -> np.ndarray:
+        """What the servos track: the targets plus the corrections (``advance_ramped``'s offsets), in range."""
+        return np.clip(self._target + self._offset, self._lo, self._hi)
 
     @property
     def joints(self) -> np.ndarray:
@@ -165,7 +172,7 @@ class PhysicsPlant:
             self.step(n)
         return n
 
-    def advance_ramped(self, targets: np.ndarray, duration_s: float) -> int:
+    def advance_ramped(self, targets: np.ndarray, duration_s: float, offsets: np.ndarray | None = None) -> int:
         """Simulate ``duration_s`` (as :meth:`advance`) with the servos' targets ramped linearly from
         the current ones to ``targets`` over its steps: the interpolator of a real joint controller
         (1 kHz under a 200 Hz command). A tick that came late (a loaded machine) moves the targets
@@ -176,23 +183,33 @@ class PhysicsPlant:
         ``kv v / kp`` (HRP-2's torso, kv/kp 0.1 s: 0.1 rad behind a 1 rad/s gaze, enough to tip the
         robot onto one foot). Its target shifted by ``(kv/kp) v_ref`` makes it
         ``tau = kp (q_ref - q) + kv (v_ref - qdot)``: a PD on the tracking error, what a joint
-        controller does. Returns the steps taken."""
+        controller does.
+
+        ``offsets`` (robot joint order [rad]): corrections of the targets by the controllers under the
+        servos (sim/physics/force_guard.py), ramped from the previous tick's over the same steps but
+        **without** velocity feed-forward: a correction that changes from tick to tick would otherwise be
+        multiplied by ``kv / kp / dt`` (HRP-2's legs: 27 times) into torque kicks. Returns the steps taken."""
         dt = self.pm.timestep_s
         total = self._carry_s + duration_s
         n = int(total / dt + 1e-9)
         goal = np.clip(np.asarray(targets, float), self._lo, self._hi)
+        off_goal = self._offset if offsets is None else np.asarray(offsets, float)
+        if off_goal.shape != goal.shape or not np.all(np.isfinite(off_goal)):
+            raise ValueError(f"advance_ramped: offsets must be {goal.shape[0]} finite values, got {off_goal!r}")
         if n < 1:
             self._carry_s = total
+            self._offset = off_goal.copy()
             self.set_targets(goal)
             return 0
-        start = self._target
+        start, off_start = self._target, self._offset
         self._carry_s = total - n * dt
         v_ref = (goal - start) / (n * dt)
         shift = self._kv_over_kp * v_ref
         ids = self.pm.actuator_ids
         for k in range(1, n + 1):
             self._target = start + (k / n) * (goal - start)
-            self.data.ctrl[ids] = self._target + shift
+            self._offset = off_start + (k / n) * (off_goal - off_start)
+            self.data.ctrl[ids] = np.clip(self._target + self._offset, self._lo, self._hi) + shift
             self.step(1)
         return n
 
