@@ -171,6 +171,9 @@ def test_bad_plant_name() -> None:
     (lambda d: d["force_guard"].update(release_s=0.001), r"force_guard\.release_s: at least 0\.01 s"),
     (lambda d: d["force_guard"].update(enabled="yes"), r"force_guard\.enabled: expected true or false"),
     (lambda d: d.update(force_guard=[0.8]), r"force_guard: expected a mapping"),
+    (lambda d: d["stabilizer"].update(gain=1.0), r"stabilizer: unknown key\(s\) \['gain'\]"),
+    (lambda d: d["stabilizer"].update(ankle_time_constant_s=0.002), r"stabilizer\.ankle_time_constant_s: at least"),
+    (lambda d: d["stabilizer"].update(ankle_max_rad=-0.1), r"stabilizer\.ankle_max_rad: must be > 0"),
 ])
 def test_bad_physics_settings_are_clear_errors(models, edit, message) -> None:
     model = robot_model(models, "hrp2")

@@ -65,9 +65,9 @@ class FallThresholds:
 @dataclass(frozen=True)
 class StabilizerConfig:
     """The foot force stabilizer (sim/physics/stabilizer.py): ankle torque control (time constant of the
-    foot torque's error, return time, bound of the offset; the reference CoP ``cop_margin_m`` inside the
-    sole) and foot force difference control (time constant, 0: off; return time; bound of the legs'
-    length difference)."""
+    foot torque's error, 0: off; return time; bound of the offset; the reference CoP ``cop_margin_m``
+    inside the sole) and foot force difference control (time constant, 0: off; return time; bound of the
+    legs' length difference)."""
 
     enabled: bool = False
     ankle_time_constant_s: float = 0.1
@@ -107,7 +107,7 @@ def _section(raw: Any, cls, keys: set, where: str):
             if not isinstance(v, bool):
                 raise ValueError(f"{where}.enabled: expected true or false, got {v!r}")
             values[k] = v
-        elif k == "force_time_constant_s":
+        elif k in ("ankle_time_constant_s", "force_time_constant_s"):
             values[k] = _non_negative(v, f"{where}.{k}")
         else:
             values[k] = positive(v, f"{where}.{k}")
