@@ -29,7 +29,7 @@ from humanoid_reach_ros.robot.model import RobotModel
 from humanoid_reach_ros.sim.physics.metrics import ContactMetrics
 from humanoid_reach_ros.sim.physics.model_builder import build_for_robot
 from humanoid_reach_ros.sim.physics.stabilizer import FootStabilizer
-from humanoid_reach_ros.sim.physics.force_guard import WristForceGuard, hand_contacts
+from humanoid_reach_ros.sim.physics.force_guard import ContactForceGuard, body_contacts
 from humanoid_reach_ros.sim.physics.stepper import PhysicsPlant
 from humanoid_reach_ros.sim.physics.touch import touch_force_bound
 
@@ -69,7 +69,7 @@ class PhysicsDriver:
         pm = self.plant.pm
         # under the servos, from the plant's force sensors (stabilizer.py, force_guard.py): off in physics.yaml: none
         self.stabilizer = FootStabilizer(pm) if pm.config.stabilizer.enabled else None
-        self.guard = WristForceGuard(pm, touch_force_bound(model).bound_n) if pm.config.force_guard.enabled else None
+        self.guard = ContactForceGuard(pm, touch_force_bound(model).bound_n) if pm.config.force_guard.enabled else None
         self.correction = np.zeros(model.n_joints)      # the servo targets' offsets of the last tick
         self.lock = threading.Lock()        # the loop thread steps, the diagnostics timer reads
         self.metrics: ContactMetrics = self.plant.metrics()
@@ -90,10 +90,9 @@ class PhysicsDriver:
             if self.stabilizer is not None:
                 corr += self.stabilizer.offsets(targets, self.metrics, plant.data, dt)
             if self.guard is not None:
-                forces, _ = hand_contacts(plant.pm, plant.data)
-                corr += self.guard.offsets(targets, plant.joints, forces, dt)
+                corr += self.guard.offsets(targets, plant.joints, body_contacts(plant.pm, plant.data), dt)
             self.correction = corr
-            plant.advance_ramped(targets, dt, corr)
+            plant.advance_ramped(targets, dt, corr, None if self.guard is None else self.guard.held_now)
             m = self.metrics = plant.metrics()
             w = self._worst
             if m.cop is not None:
@@ -173,8 +172,9 @@ class PhysicsDriver:
             values["stabilizer_leg_length_offset_mm"] = 1e3 * self.stabilizer.z
             values["stabilizer_ankle_offset_rad_max"] = float(np.abs(self.stabilizer.theta).max())
         if self.guard is not None:
-            values.update({f"{side}_hand_held_by_force_guard": h for side, h in self.guard.holding.items()})
+            values["force_guard_holding"] = ", ".join(self.guard.holding_bodies) or "nothing"
             values["force_guard_holds"] = self.guard.holds
+            values["force_guard_held_bodies"] = ", ".join(self.guard.held_bodies) or "none"
         for side, cop in zip(("right", "left"), m.foot_cop):
             if cop is not None:
                 values[f"{side}_foot_cop_x_m"], values[f"{side}_foot_cop_y_m"] = float(cop[0]), float(cop[1])

@@ -172,7 +172,8 @@ class PhysicsPlant:
             self.step(n)
         return n
 
-    def advance_ramped(self, targets: np.ndarray, duration_s: float, offsets: np.ndarray | None = None) -> int:
+    def advance_ramped(self, targets: np.ndarray, duration_s: float, offsets: np.ndarray | None = None,
+                       still: np.ndarray | None = None) -> int:
         """Simulate ``duration_s`` (as :meth:`advance`) with the servos' targets ramped linearly from
         the current ones to ``targets`` over its steps: the interpolator of a real joint controller
         (1 kHz under a 200 Hz command). A tick that came late (a loaded machine) moves the targets
@@ -188,7 +189,9 @@ class PhysicsPlant:
         ``offsets`` (robot joint order [rad]): corrections of the targets by the controllers under the
         servos (sim/physics/force_guard.py), ramped from the previous tick's over the same steps but
         **without** velocity feed-forward: a correction that changes from tick to tick would otherwise be
-        multiplied by ``kv / kp / dt`` (HRP-2's legs: 27 times) into torque kicks. Returns the steps taken."""
+        multiplied by ``kv / kp / dt`` (HRP-2's legs: 27 times) into torque kicks. ``still`` (bool per joint):
+        joints whose servo target a correction holds still (the force guard's): no feed-forward of the
+        command's speed either (it would push on at that speed). Returns the steps taken."""
         dt = self.pm.timestep_s
         total = self._carry_s + duration_s
         n = int(total / dt + 1e-9)
@@ -205,6 +208,8 @@ class PhysicsPlant:
         self._carry_s = total - n * dt
         v_ref = (goal - start) / (n * dt)
         shift = self._kv_over_kp * v_ref
+        if still is not None:
+            shift = np.where(np.asarray(still, bool), 0.0, shift)
         ids = self.pm.actuator_ids
         for k in range(1, n + 1):
             self._target = start + (k / n) * (goal - start)
