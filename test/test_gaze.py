@@ -504,27 +504,3 @@ def test_the_scan_looks_all_around_the_body() -> None:
     assert int(seen.sum()) == info["seen_after"] > 0.3 * len(P)
     assert info["never_seen"] > 0                       # behind the back: no gaze sees it
 
-
-def test_a_pair_that_stays_at_the_dampers_distance_does_not_hold_a_look_back() -> None:
-    """Issue 31 (``make demo ROBOT=talos``): Talos's thighs are 10.0 mm apart at half-sitting,
-    the dampers' ``security_distance_m`` itself; judged by the nearest pair alone, the legs'
-    rounding while they hold the COG stopped every gaze at 0 % and the space beside its hands
-    was never seen. Pair by pair, a gaze beside the right hip turns all the way without a map,
-    and a look that swings the right arm into the torso still stops short, naming the pair."""
-    from humanoid_reach_ros.execution.requests import ExecutionRequests
-    from humanoid_reach_ros.execution import config as reach_executor_params
-
-    robot = RobotModel("talos")
-    p = {k: spec.default for k, spec in reach_executor_params.PARAMETERS.items()}
-    p["scene_file"] = ""
-    req = ExecutionRequests(robot, p)
-    j0 = robot.half_sitting_joints
-    coll = req._look_collision()
-    assert coll.self_min_distance(robot.config(j0, robot.base_on_feet(j0))) <= p["security_distance_m"] + 1e-9
-    _, g = req.gaze(0, "point 0", np.array([0.21, -0.51, 0.81]), j0, "")
-    assert not g.held_back and g.visible and g.chest_moved_rad > 0.3, (g.held_back, g.chest_moved_rad)
-    roll = robot.joint_index[robot.limbs["right_arm"].joints[1]]
-    into = j0.copy()
-    into[roll] += 1.2          # the shoulder's roll brings the right arm in, through the torso
-    share, why = req.look_clearance(j0, into)
-    assert 0.0 < share < 1.0 and "its own body (" in why, (share, why)

@@ -55,10 +55,6 @@ def _cache_dir() -> Path:
 _SURROUNDINGS_LOCK = threading.Lock()
 #: serialises the gaze solves of every ExecutionRequests (a GazeSolver owns one pinocchio data)
 _GAZE_LOCK = threading.Lock()
-#: a look's self-collision pair that starts nearer than its clearance may come this much nearer
-#: still (ExecutionRequests.look_clearance): the legs holding the COG move a pair that stays put
-#: by rounding (Talos's thighs, 10.0 mm apart at half-sitting, blocked every gaze at 0 %)
-LOOK_NOISE_M = 1e-4
 
 # A requested arm whose joints travel less than this fraction of the other arm's, while the other
 # arm's travel more than WRONG_ARM_MIN_TRAVEL_RAD, is the wrong arm for the trajectory.
@@ -593,11 +589,8 @@ class ExecutionRequests:
         """How far a look or gaze from joints ``start`` towards ``goal`` may go: ``(share, why)``,
         ``share`` in [0, 1] of the joint-space way (the look's reference is that straight line,
         timed), the largest with every sample keeping the clearance ``security_distance_m +
-        look_clearance_m`` to the map and for each of the robot's self-collision pairs (or, a
-        pair or the map already nearer at the start, no nearer than that start, less
-        ``LOOK_NOISE_M``), and why it stops (``""`` at 1). Self-collision is judged pair by pair:
-        with the nearest pair alone, a pair that never moves but starts at the dampers' distance
-        (Talos's thighs) held back every turn of the chest. Why: a gaze
+        look_clearance_m`` to the map and between the robot's own shapes (or, from a start
+        already nearer, no nearer than the start), and why it stops (``""`` at 1). Why: a gaze
         that turns the chest swings the arms with it (a robot without a neck turns its body to
         look); where that reference runs into the velocity dampers the hand stays off its
         reference and the look fails after the settle timeout (the G1's 33 deg turns, hands in
@@ -610,48 +603,30 @@ class ExecutionRequests:
         d_s, margin = float(self.config.executor.security_distance_m), float(self.config.look_clearance_m)
         need = d_s + margin
 
-        def allowed(d0: np.ndarray | float) -> np.ndarray | float:
-            # from a start already nearer than need (a hand at the valve): it may come nearer by the
-            # margin, never within 2 mm of the dampers' d_s, never nearer than it is where it is
-            # nearer still (less LOOK_NOISE_M: a pair that does not move, Talos's thighs 10.0 mm
-            # apart at half-sitting, moves by rounding while the legs hold the COG)
-            return np.where(d0 < need, np.minimum(np.maximum(d_s + 0.002, d0 - margin), d0) - LOOK_NOISE_M, need)
-
-        def distances(share: float) -> tuple[float, np.ndarray]:
+        def clearance(share: float) -> tuple[float, str]:
             j = start + share * (goal - start)
             with self._fk_lock:
                 q = self.robot.config(j, self.robot.base_on_feet(j))
-            return coll.min_distance(q), coll.self_pair_distances(q)
+            d_env, d_self = coll.min_distance(q), coll.self_min_distance(q)
+            return (d_env, "the map") if d_env <= d_self else (d_self, "its own body")
 
-        env0, self0 = distances(0.0)
-        need_env, need_self = float(allowed(env0)), allowed(self0)
-
-        def blocked(share: float) -> tuple[float, str] | None:
-            """None where the sample keeps its clearances, else (distance, what)."""
-            d_env, d_self = distances(share)
-            if d_env < need_env:
-                return d_env, "the map", need_env
-            short = d_self - need_self
-            if len(short) and short.min() < 0.0:
-                k = int(np.argmin(short))
-                a, b = (coll.cm.names[i] for i in coll.cm.pair_index[k])
-                return float(d_self[k]), f"its own body ({a} and {b})", float(need_self[k])
-            return None
-
+        d0 = clearance(0.0)[0]
+        if d0 < need:   # a start already nearer (a hand at the valve): it may come nearer by the margin,
+            # never within 2 mm of the dampers' d_s, never nearer than it is where it is nearer still
+            need = min(max(d_s + 0.002, d0 - margin), d0)
         last = 0.0
         for share in np.linspace(0.0, 1.0, samples + 1)[1:]:
-            hit = blocked(float(share))
-            if hit is not None:
+            d, what = clearance(float(share))
+            if d < need:
                 lo, hi = last, float(share)
                 for _ in range(bisections):
                     mid = 0.5 * (lo + hi)
-                    if blocked(mid) is None:
+                    if clearance(mid)[0] >= need:
                         lo = mid
                     else:
                         hi = mid
-                d, what, keeps = hit
                 return lo, (f"further, the body would come within {max(d, 0.0) * 1e3:.0f} mm of {what} (the look "
-                            f"keeps {keeps * 1e3:.0f} mm)")
+                            f"keeps {need * 1e3:.0f} mm)")
             last = float(share)
         return 1.0, ""
 
