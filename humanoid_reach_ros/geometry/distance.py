@@ -196,12 +196,6 @@ def _self_min(P0, P1, pi, pj, R):
 
 
 @nb.njit(**_JIT)
-def _self_dists(P0, P1, pi, pj, R, out):
-    for k in range(pi.shape[0]):
-        out[k] = _seg_seg_dist(P0, P1, pi[k], pj[k]) - R[pi[k]] - R[pj[k]]
-
-
-@nb.njit(**_JIT)
 def _check_kernel(P0, P1, R, order, pi, pj, R_self, margin, nodes, children, depth, do_env, do_self, stop_early,
                   out_env, out_self):
     """Per configuration: env hit (ordered shapes, early exit) and self hit (pairs).
@@ -450,13 +444,6 @@ class RobotCollision:
         """Smallest signed distance [m] over the self-collision pairs."""
         P0, P1 = self.world_shapes(q)
         return float(_self_min(P0, P1, self._pi, self._pj, self.radii))
-
-    def self_pair_distances(self, q) -> np.ndarray:
-        """The signed distance [m] of each self-collision pair (``collision_model.pair_index``'s order)."""
-        P0, P1 = self.world_shapes(q)
-        out = np.empty(self._pi.shape[0])
-        _self_dists(P0, P1, self._pi, self._pj, self.radii, out)
-        return out
 
     def reset_counters(self) -> None:
         self.counters = CollisionCounters()
