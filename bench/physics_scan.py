@@ -18,7 +18,7 @@ acceleration (between 5 ms commands) and which joint, and every contact of the r
 other than the soles on the floor (largest normal force per pair of shapes). The last line is JSON.
 
 Usage: python bench/physics_scan.py [--robot hrp2 ...] [--scene demo|floor] [--map] [--stabilizer]
-[--gazes N] [--dwell-s 1.0]
+[--no-guard] [--gazes N] [--dwell-s 1.0]
 """
 from __future__ import annotations
 
@@ -68,7 +68,8 @@ def world_contacts(driver: PhysicsDriver, seen: dict) -> None:
         seen[key] = max(seen.get(key, 0.0), float(f6[0]))
 
 
-def run(name: str, scene: str, with_map: bool, stabilizer: bool, gazes: int, dwell_s: float, log) -> dict:
+def run(name: str, scene: str, with_map: bool, stabilizer: bool, gazes: int, dwell_s: float, log,
+        guard: bool = True) -> dict:
     robot = RobotModel(name)
     cfg = ExecutionConfig.from_values({})
     req = ExecutionRequests(robot, cfg)
@@ -84,6 +85,8 @@ def run(name: str, scene: str, with_map: bool, stabilizer: bool, gazes: int, dwe
         ex.set_environment(req._tree(None))
     else:
         params = dataclasses.replace(params, collision_avoidance=False)
+    if not guard:
+        driver.guard = None
     if stabilizer:
         pm = driver.plant.pm
         driver.stabilizer = FootStabilizer(pm)
@@ -149,6 +152,7 @@ def main() -> None:
     ap.add_argument("--map", action="store_true", help="the executor knows the scene's voxels")
     ap.add_argument("--stabilizer", action="store_true",
                     help="the foot force stabilizer on (physics.yaml's settings)")
+    ap.add_argument("--no-guard", action="store_true", help="the force guard off")
     ap.add_argument("--gazes", type=int, default=8, help="at most this many gazes (default 8)")
     ap.add_argument("--dwell-s", type=float, default=1.0)
     args = ap.parse_args()
@@ -159,10 +163,11 @@ def main() -> None:
         if args.scene == "floor":
             scene = str(Path(tmp) / "bare_floor.yaml")
             Path(scene).write_text(FLOOR)
-        per = {r: run(r, scene, args.map, args.stabilizer, args.gazes, args.dwell_s, lambda s: print(s, flush=True))
-               for r in (args.robot or ["hrp2", "talos", "g1"])}
+        per = {r: run(r, scene, args.map, args.stabilizer, args.gazes, args.dwell_s, lambda s: print(s, flush=True),
+                      guard=not args.no_guard) for r in (args.robot or ["hrp2", "talos", "g1"])}
     summary = {r: {k: v for k, v in d.items() if k != "gazes"} for r, d in per.items()}
-    print(json.dumps({"scene": args.scene, "map": args.map, "stabilizer": args.stabilizer, "robots": summary,
+    print(json.dumps({"scene": args.scene, "map": args.map, "stabilizer": args.stabilizer, "guard": not args.no_guard,
+                      "robots": summary,
                       "details": per}))
 
 

@@ -504,3 +504,34 @@ def test_the_scan_looks_all_around_the_body() -> None:
     assert int(seen.sum()) == info["seen_after"] > 0.3 * len(P)
     assert info["never_seen"] > 0                       # behind the back: no gaze sees it
 
+
+
+def test_a_gaze_held_back_turns_the_head_alone_the_rest_of_its_way() -> None:
+    """Talos in its demo scene: a gaze at the space beside its hanging right hand pitches the chest,
+    which would swing the hands into the passage pipe, so it is held back; the head alone (which
+    moves no arm) turns the rest of its way from there, and its field of view brings the point into
+    view. The chest and the legs stop where the held-back gaze did; the way keeps the clearance."""
+    from humanoid_reach_ros.execution.requests import ExecutionRequests
+    from humanoid_reach_ros.execution import config as reach_executor_params
+    from humanoid_reach_ros.sim.scene import load_scene
+
+    talos = RobotModel("talos")
+    p = {k: spec.default for k, spec in reach_executor_params.PARAMETERS.items()}
+    p["scene_file"] = ""
+    req = ExecutionRequests(talos, p)
+    req.scene_map(load_scene(talos.spec.demo_scene).voxelize(exclude_groups=("valve",)), "talos plant")
+    j = talos.half_sitting_joints
+    solver = req.gaze_solver()
+    head = solver.index[2:]
+    for point, seen in ((np.array([0.27, -0.31, 1.04]), True), (np.array([0.21, -0.51, 0.81]), False)):
+        _, g = req.gaze(0, "point 0", point, j, "")
+        assert g.held_back.startswith("turned ") and "the head alone further" in g.held_back, g.held_back
+        assert g.visible == seen, (g.off_axis_deg, g.unseen_reason)   # the second: 24.8 deg off, 23.4 seen
+        assert req.look_clearance(j, g.joints)[0] == 1.0
+        full = solver.balanced(j, point)
+        share = req.look_clearance(j, full.joints)[0]
+        partial = j + share * (full.joints - j)      # where the held-back gaze stopped, its head with it
+        unaimed = solver.stopped_short(full, j, partial, "")
+        others = np.setdiff1d(np.arange(len(j)), head)
+        np.testing.assert_allclose(g.joints[others], partial[others], atol=1e-9)   # the chest and legs stop there
+        assert g.off_axis_deg < unaimed.off_axis_deg - 5.0, (g.off_axis_deg, unaimed.off_axis_deg)

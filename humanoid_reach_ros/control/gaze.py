@@ -466,6 +466,23 @@ class GazeSolver:
         return Gaze(joints, point.copy(), c, a, float(alpha[0]), float(rng[0]), bool(self._sees(alpha, rng)[0]),
                     cam.half_fov_rad, chest_moved, balanced, (cam.min_range_m, cam.max_range_m))
 
+    def head_reaimed(self, joints, point) -> np.ndarray:
+        """``joints`` with the head alone aimed at ``point`` again, the chest and the legs kept: where
+        a gaze is held back part of the way (its clearance), the head -- which moves no arm --
+        still turns the rest of its way, and the camera's field of view, not its axis, may bring the
+        point into view (Talos, the space beside its hanging right hand: the chest's pitch would
+        swing the hands into the passage pipe, the head alone at its pitch limit sees it 11 deg off
+        the axis). Without a neck: ``joints`` unchanged."""
+        j = self._joints(joints)
+        if not self.has_neck:
+            return j
+        P = self._points(np.asarray(point, dtype=float).reshape(1, 3))[0]
+        q = self.robot.config(j, self._base(j))
+        x, _ = self._head_aim(q, P, np.clip(j[self.index[:_N_CHEST]], self.lower[:_N_CHEST], self.upper[:_N_CHEST]))
+        out = j.copy()
+        out[self.index[_N_CHEST:]] = x[_N_CHEST:]
+        return out
+
     def stopped_short(self, gaze: Gaze, start, joints, why: str) -> Gaze:
         """``gaze`` (from joints ``start``) stopped at ``joints`` on its way (the executor's look
         keeps its clearance): the camera as it is there, whether it sees the point, and

@@ -39,39 +39,15 @@ import numpy as np
 import pinocchio as pin
 
 from humanoid_reach_ros.dual_arm.lower_body_ik import LowerBodyIK, LowerBodyResult
-from humanoid_reach_ros.kinematics import LEG_WORK_SIZE, LimbIK, leg_ik_pose
+from humanoid_reach_ros.kinematics import (LEG_WORK_SIZE, LimbIK, LimbStructureError, chain_axis_rotation as _rot,
+                                           leg_ik_pose, limb_solver, numerical_ik_track, numerical_leg_constants,
+                                           numerical_work_size)
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 
 _JIT = dict(cache=True, nogil=False, fastmath=False)
 #: forward-difference step of the CoM Jacobian d p_CoM / d p_w [m]
 FD_STEP_M = 1e-6
-_AXIS = {"x": 0, "y": 1, "z": 2}
-
-
-@nb.njit(**_JIT)
-def _rot_axis(axis, th, out):
-    c, s = math.cos(th), math.sin(th)
-    for a in range(3):
-        for b in range(3):
-            out[a, b] = 0.0
-    if axis == 0:
-        out[0, 0] = 1.0
-        out[1, 1] = c
-        out[1, 2] = -s
-        out[2, 1] = s
-        out[2, 2] = c
-    elif axis == 1:
-        out[1, 1] = 1.0
-        out[0, 0] = c
-        out[0, 2] = s
-        out[2, 0] = -s
-        out[2, 2] = c
-    else:
-        out[2, 2] = 1.0
-        out[0, 0] = c
-        out[0, 1] = -s
-        out[1, 0] = s
-        out[1, 1] = c
+_AXIS = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}
 
 
 @nb.njit(**_JIT)
@@ -93,7 +69,7 @@ def _leg_mass_moment(p, R, q, chain_t, chain_R, axes, mass, lever, acc, scratch)
         for a in range(3):
             for b in range(3):
                 T[a, b] = Rc[a, 0] * chain_R[k, 0, b] + Rc[a, 1] * chain_R[k, 1, b] + Rc[a, 2] * chain_R[k, 2, b]
-        _rot_axis(axes[k], q[k], Rr)
+        _rot(axes[k], q[k], Rr)
         for a in range(3):
             for b in range(3):
                 Rc[a, b] = T[a, 0] * Rr[0, b] + T[a, 1] * Rr[1, b] + T[a, 2] * Rr[2, b]
@@ -103,16 +79,33 @@ def _leg_mass_moment(p, R, q, chain_t, chain_R, axes, mass, lever, acc, scratch)
 
 
 @nb.njit(**_JIT)
+def _numerical_leg(pw, Rw, sole_p, sole_R, ref, KN, q_out, nwork):
+    """A numerical leg (kind 1): the sole pose in the waist frame, the tracking iteration of
+    ``kinematics/numerical_ik.py`` from ``ref``; returns an IKReason code (0 ok, 1 unreachable)."""
+    P = np.empty(3)
+    Rt = np.empty((3, 3))
+    for i in range(3):
+        P[i] = Rw[0, i] * (sole_p[0] - pw[0]) + Rw[1, i] * (sole_p[1] - pw[1]) + Rw[2, i] * (sole_p[2] - pw[2])
+        for j in range(3):
+            Rt[i, j] = Rw[0, i] * sole_R[0, j] + Rw[1, i] * sole_R[1, j] + Rw[2, i] * sole_R[2, j]
+    return 0 if numerical_ik_track(P, Rt, ref, KN, q_out, nwork) else 1
+
+
+@nb.njit(**_JIT)
 def _eval_legs(pw, Rw, sole_p, sole_R, ref, kc_R, kc_t, kc_len, lo, hi, chain_t, chain_R, axes, mass, lever,
-               m_up, c_up, m_tot, q_out, com_out, work, scratch):
-    """Both legs' closed-form IK for the waist at ``(pw, Rw)`` (rows 0/1 = support/swing of
-    the stacked constants) and the whole-body CoM; returns the first failing reason (0 ok)."""
+               m_up, c_up, m_tot, q_out, com_out, work, scratch, kind, KN, nwork):
+    """Both legs' IK for the waist at ``(pw, Rw)`` (rows 0/1 = support/swing of the stacked
+    constants) and the whole-body CoM; returns the first failing reason (0 ok). ``kind[leg]``
+    0: the hand-derived closed form; 1: the numerical tracking iteration (constants ``KN[leg]``)."""
     for a in range(3):
         com_out[a] = m_up * (pw[a] + Rw[a, 0] * c_up[0] + Rw[a, 1] * c_up[1] + Rw[a, 2] * c_up[2])
     for leg in range(2):
-        reason, _ = leg_ik_pose(pw, Rw, sole_p[leg], sole_R[leg], ref[leg], kc_R[leg, 0], kc_t[leg, 0],
-                                kc_R[leg, 1], kc_t[leg, 1], kc_len[leg, 0], kc_len[leg, 1], lo[leg], hi[leg],
-                                q_out[leg], work)
+        if kind[leg] == 0:
+            reason, _ = leg_ik_pose(pw, Rw, sole_p[leg], sole_R[leg], ref[leg], kc_R[leg, 0], kc_t[leg, 0],
+                                    kc_R[leg, 1], kc_t[leg, 1], kc_len[leg, 0], kc_len[leg, 1], lo[leg], hi[leg],
+                                    q_out[leg], work)
+        else:
+            reason = _numerical_leg(pw, Rw, sole_p[leg], sole_R[leg], ref[leg], KN[leg], q_out[leg], nwork)
         if reason != 0:
             return reason
         _leg_mass_moment(pw, Rw, q_out[leg], chain_t[leg], chain_R[leg], axes[leg], mass[leg], lever[leg],
@@ -142,7 +135,7 @@ def _solve3(J, r, out):
 
 @nb.njit(**_JIT)
 def legs_newton(pw, Rw, sole_p, sole_R, ref, kc_R, kc_t, kc_len, lo, hi, chain_t, chain_R, axes, mass, lever,
-                m_up, c_up, m_tot, com_target, tol, max_iter, h, q_out, J, jstate):
+                m_up, c_up, m_tot, com_target, tol, max_iter, h, q_out, J, jstate, kind, KN):
     """Newton on the waist position (module docstring). ``pw`` (3,) start value, updated
     in place; ``q_out`` (2, 6) support / swing leg angles. ``J`` (3, 3) the Jacobian kept
     from the previous call (valid if ``jstate[0] == 1``): it is reused (chord steps) and
@@ -151,6 +144,7 @@ def legs_newton(pw, Rw, sole_p, sole_R, ref, kc_R, kc_t, kc_len, lo, hi, chain_t
     |p*_CoM - p_CoM|)``; status 0 converged, 1-3 an ``IKReason`` of a leg, 4 not converged,
     5 singular Jacobian."""
     work = np.empty(LEG_WORK_SIZE)
+    nwork = np.empty(numerical_work_size(6))
     scratch = np.empty((4, 3, 3))
     com = np.empty(3)
     com_h = np.empty(3)
@@ -162,9 +156,13 @@ def legs_newton(pw, Rw, sole_p, sole_R, ref, kc_R, kc_t, kc_len, lo, hi, chain_t
     prev_err = np.inf
     for it in range(max_iter + 1):
         st = _eval_legs(pw, Rw, sole_p, sole_R, ref, kc_R, kc_t, kc_len, lo, hi, chain_t, chain_R, axes, mass,
-                        lever, m_up, c_up, m_tot, q_out, com, work, scratch)
+                        lever, m_up, c_up, m_tot, q_out, com, work, scratch, kind, KN, nwork)
         if st != 0:
             return st, it, err
+        for leg in range(2):     # a numerical leg's next solve starts from this iterate's angles
+            if kind[leg] == 1:
+                for k in range(6):
+                    ref[leg, k] = q_out[leg, k]
         for a in range(3):
             r[a] = com_target[a] - com[a]
         err = math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
@@ -179,7 +177,8 @@ def legs_newton(pw, Rw, sole_p, sole_R, ref, kc_R, kc_t, kc_len, lo, hi, chain_t
                     p_h[a] = pw[a]
                 p_h[c] += h
                 st = _eval_legs(p_h, Rw, sole_p, sole_R, q_out, kc_R, kc_t, kc_len, lo, hi, chain_t, chain_R,
-                                axes, mass, lever, m_up, c_up, m_tot, q_h, com_h, work, scratch)
+                                axes, mass, lever, m_up, c_up, m_tot, q_h, com_h, work, scratch, kind, KN,
+                                nwork)
                 if st != 0:
                     jstate[0] = 0
                     return st, it, err
@@ -197,7 +196,7 @@ def legs_newton(pw, Rw, sole_p, sole_R, ref, kc_R, kc_t, kc_len, lo, hi, chain_t
 
 #: layout of one leg's row of the packed constants (name, size)
 _CONST_LAYOUT = (("R0", 9), ("t0", 3), ("Re", 9), ("te", 3), ("len", 2), ("lo", 6), ("hi", 6),
-                 ("chain_t", 18), ("chain_R", 54), ("axes", 6), ("mass", 6), ("lever", 18))
+                 ("chain_t", 18), ("chain_R", 54), ("axes", 18), ("mass", 6), ("lever", 18))
 _OFF: dict[str, int] = {}
 _o = 0
 for _name, _size in _CONST_LAYOUT:
@@ -245,12 +244,13 @@ def _rot_to_quat(R, out):
 
 
 @nb.njit(**_JIT)
-def solve_legs_packed(q, qcols, com_now, inp, C, m_tot, tol, max_iter, h, J, jstate):
+def solve_legs_packed(q, qcols, com_now, inp, C, m_tot, tol, max_iter, h, J, jstate, kind, KN):
     """The whole closed-form lower-body solve on a configuration ``q`` (nq, base = torso
     link; updated in place on success): ``c_up`` from the whole-body CoM ``com_now`` of
     ``q`` minus its legs, then :func:`legs_newton`. ``qcols`` (2, 6) configuration indices
     of the support / swing leg; ``C`` (2, N_CONST) packed constants; ``inp`` (N_INPUT,)
-    packed targets; ``J``, ``jstate`` the kept Jacobian (:func:`legs_newton`). Returns
+    packed targets; ``J``, ``jstate`` the kept Jacobian (:func:`legs_newton`); ``kind`` (2,),
+    ``KN`` (2, k) each leg's solver and numerical constants (:func:`_eval_legs`). Returns
     ``(status, iterations, |p*_CoM - p_CoM|)``."""
     kc_R = np.empty((2, 2, 3, 3))
     kc_t = np.empty((2, 2, 3))
@@ -259,7 +259,7 @@ def solve_legs_packed(q, qcols, com_now, inp, C, m_tot, tol, max_iter, h, J, jst
     hi = np.empty((2, 6))
     chain_t = np.empty((2, 6, 3))
     chain_R = np.empty((2, 6, 3, 3))
-    axes = np.empty((2, 6), np.int64)
+    axes = np.empty((2, 6, 3))
     mass = np.empty((2, 6))
     lever = np.empty((2, 6, 3))
     for g in range(2):
@@ -273,10 +273,9 @@ def solve_legs_packed(q, qcols, com_now, inp, C, m_tot, tol, max_iter, h, J, jst
         hi[g] = c[32:38]
         chain_t[g] = c[38:56].reshape((6, 3))
         chain_R[g] = c[56:110].reshape((6, 3, 3))
-        for k in range(6):
-            axes[g, k] = int(c[110 + k])
-        mass[g] = c[116:122]
-        lever[g] = c[122:140].reshape((6, 3))
+        axes[g] = c[110:128].reshape((6, 3))
+        mass[g] = c[128:134]
+        lever[g] = c[134:152].reshape((6, 3))
     Rw = inp[0:9].copy().reshape((3, 3))
     sole_p = np.empty((2, 3))
     sole_R = np.empty((2, 3, 3))
@@ -305,7 +304,8 @@ def solve_legs_packed(q, qcols, com_now, inp, C, m_tot, tol, max_iter, h, J, jst
         c_loc[a] = Rb[0, a] * d[0] + Rb[1, a] * d[1] + Rb[2, a] * d[2]
     q_legs = np.empty((2, 6))
     st, it, err = legs_newton(pb, Rw, sole_p, sole_R, ref, kc_R, kc_t, kc_len, lo, hi, chain_t, chain_R, axes,
-                              mass, lever, m_up, c_loc, m_tot, com_target, tol, max_iter, h, q_legs, J, jstate)
+                              mass, lever, m_up, c_loc, m_tot, com_target, tol, max_iter, h, q_legs, J, jstate,
+                              kind, KN)
     if st == 0:
         for g in range(2):
             for k in range(6):
@@ -331,26 +331,47 @@ class ClosedFormLowerBodyIK:
         self.data = ref.data          # one pin.Data: callers read frames from it after either path
         m = robot.model
         swing = "left" if ref.support == "right" else "right"
-        legs = [LimbIK(robot, f"{ref.support}_leg"), LimbIK(robot, f"{swing}_leg")]
-        for leg in legs:
-            if robot.limbs[leg.limb_name].root != robot.base_link:
-                raise ValueError(f"{leg.limb_name}: root must be the torso link {robot.base_link!r}")
+        names = (f"{ref.support}_leg", f"{swing}_leg")
+        for name in names:
+            if robot.limbs[name].root != robot.base_link:
+                raise ValueError(f"{name}: root must be the torso link {robot.base_link!r}")
+            if len(robot.limbs[name].joints) != 6:
+                raise ValueError(f"{name}: the compiled lower body takes 6-joint legs, got "
+                                 f"{len(robot.limbs[name].joints)}")
         bl = m.frames[robot.frame_id(robot.base_link)]
         if bl.parentJoint != 1 or not bl.placement.isIdentity(1e-12):
-            raise ValueError(f"closed-form legs: {robot.base_link!r} must be the free-flyer body itself")
-        jids = [[m.getJointId(j) for j in robot.limbs[lg.limb_name].joints] for lg in legs]
+            raise ValueError(f"compiled legs: {robot.base_link!r} must be the free-flyer body itself")
+        jids = [[m.getJointId(j) for j in robot.limbs[n].joints] for n in names]
         for js in jids:     # every body below the hip is one of the six leg joints' bodies
             below = [j for j in range(1, m.njoints) if self._is_descendant(j, js[0])]
             if sorted(below) != sorted(js):
-                raise ValueError("closed-form legs: a leg subtree has bodies beyond its six joints")
+                raise ValueError("compiled legs: a leg subtree has bodies beyond its six joints")
         self.consts = np.zeros((2, N_CONST))
-        for g, (lg, js) in enumerate(zip(legs, jids)):
-            vals = {"R0": lg.R0, "t0": lg.t0, "Re": lg.Re, "te": lg.te, "len": [lg.l1, lg.l2],
-                    "lo": lg.lower, "hi": lg.upper, "chain_t": [t for t, _ in lg._chain],
-                    "chain_R": [R for _, R in lg._chain], "axes": [_AXIS[a] for a in lg.axes],
-                    "mass": [m.inertias[j].mass for j in js], "lever": [m.inertias[j].lever for j in js]}
-            for name, size in _CONST_LAYOUT:
-                self.consts[g, _OFF[name]:_OFF[name] + size] = np.ravel(np.asarray(vals[name], dtype=float))
+        #: per leg (support, swing): 0 the hand-derived closed form, 1 the numerical tracking iteration
+        self.kind = np.zeros(2, np.int64)
+        kn: list[np.ndarray] = []
+        for g, (name, js) in enumerate(zip(names, jids)):
+            try:
+                lg = LimbIK(robot, name)
+                vals = {"R0": lg.R0, "t0": lg.t0, "Re": lg.Re, "te": lg.te, "len": [lg.l1, lg.l2],
+                        "lo": lg.lower, "hi": lg.upper, "chain_t": [t for t, _ in lg._chain],
+                        "chain_R": [R for _, R in lg._chain], "axes": [_AXIS[a] for a in lg.axes]}
+                kn.append(np.zeros(0))
+            except LimbStructureError:
+                # no hand-derived closed form (e.g. offsets between the hip or ankle axes): the
+                # numerical solver's chain, solved by its tracking iteration from the previous legs
+                c = limb_solver(robot, name).chain
+                self.kind[g] = 1
+                vals = {"lo": c.lower, "hi": c.upper, "chain_t": c.t, "chain_R": c.R, "axes": c.axes}
+                kn.append(numerical_leg_constants(c, np.asarray(robot.half_sitting_joints)[
+                    list(robot.limbs[name].joint_index)]))
+            vals.update({"mass": [m.inertias[j].mass for j in js], "lever": [m.inertias[j].lever for j in js]})
+            for key, size in _CONST_LAYOUT:
+                if key in vals:
+                    self.consts[g, _OFF[key]:_OFF[key] + size] = np.ravel(np.asarray(vals[key], dtype=float))
+        self.KN = np.zeros((2, max(1, max(len(k) for k in kn))))
+        for g, k in enumerate(kn):
+            self.KN[g, :len(k)] = k
         self.m_tot = float(sum(inertia.mass for inertia in m.inertias))
         self.qcols = np.stack([N_BASE_Q + np.array(ref.sup_index), N_BASE_Q + np.array(ref.swing_index)])
         self._inp = np.empty(N_INPUT)
@@ -379,7 +400,7 @@ class ClosedFormLowerBodyIK:
         inp[24:33] = targets.R_swing.ravel()
         inp[33:36] = targets.p_com
         st, it, err = solve_legs_packed(q, self.qcols, com_now, inp, self.consts, self.m_tot, self.tol,
-                                        self.max_iter, FD_STEP_M, self._J, self._jstate)
+                                        self.max_iter, FD_STEP_M, self._J, self._jstate, self.kind, self.KN)
         if st != 0:
             self.fallbacks += 1
             return self.reference.solve(q0, targets, sole_world)

@@ -21,11 +21,18 @@ final-configuration check), and through
 :class:`~humanoid_reach_ros.kinematics.redundant_tracker.RedundantArmTracker` (the first joint moved
 at most its velocity limit times ``period_s`` per step, away from the joint limits) in the
 steps of a motion, where the grid's jumps between first-joint values would be unbounded
-accelerations. ``closed_form_legs=False, compiled_arms=False`` gives the reference path; the
-tests check both agree.
+accelerations. An arm that no closed form solves (kind ``numerical``, e.g. the Unitree G1's
+7-joint arms, whose axes miss each other by millimetres) goes, in the steps of a motion,
+through :class:`~humanoid_reach_ros.kinematics.numerical_ik.NumericalLimbTracker` (one
+compiled damped least-squares iteration from the previous step's angles -- a named
+simplification: local, the self-motion the damped minimal-norm steps give) and, for a
+configuration looked for from afar, through the protocol's ``solve`` (with restarts); legs of
+that kind run inside the compiled lower body by the same iteration
+(``dual_arm/fast_legs.py``). ``closed_form_legs=False, compiled_arms=False`` gives the
+reference path; the tests check both agree.
 
 :class:`FullBodyLMIK` -- the conventional method of Sec. 5.2 (Table 2): one LM
-(Sugihara, ref. [24]) on legs + chest + arms (26 joints) with 24 task rows (both hands'
+(Sugihara, ref. [24]) on legs + chest + arms (26 joints on HRP-2, 28 with 7-joint arms) with 24 task rows (both hands'
 poses, CoM, torso orientation, swing sole pose), the support sole fixed the same way.
 
 No rclpy here.
@@ -84,7 +91,8 @@ class ProposedWholeBodyIK:
             for s in self.arm_ik:
                 if CompiledArmIK.supports(self.limb_ik[f"{s}_arm"]):
                     self.arm_ik[s] = CompiledArmIK(self.limb_ik[f"{s}_arm"])
-        #: side -> RedundantArmTracker for a 7-DOF arm (the steps of a motion; module docstring)
+        #: side -> RedundantArmTracker for a 7-DOF arm of the closed form, NumericalLimbTracker for an
+        #: arm of the numerical kind (the steps of a motion; module docstring)
         self.arm_track = {}
         for s in ("right", "left"):
             limb = self.limb_ik[f"{s}_arm"]
@@ -92,6 +100,9 @@ class ProposedWholeBodyIK:
                 from humanoid_reach_ros.kinematics import RedundantArmTracker
                 first = N_BASE_V + robot.joint_index[limb.joint_names[0]]
                 self.arm_track[s] = RedundantArmTracker(limb, float(robot.model.velocityLimit[first]) * period_s)
+            elif getattr(limb, "kind", "") == "numerical":
+                from humanoid_reach_ros.kinematics import NumericalLimbTracker
+                self.arm_track[s] = NumericalLimbTracker(limb)
         if closed_form_legs or compiled_arms:
             self.warm_up()
 

@@ -573,9 +573,15 @@ class ExecutionRequests:
             raise RequestError(C.INVALID_REQUEST, f"gaze point {point!r}: {exc}") from None
         share, why = self.look_clearance(start, g.joints)
         if share < 1.0:   # the body would come too near the map or itself: turn only part of the way
+            partial = start + share * (g.joints - start)
+            with _GAZE_LOCK:   # ... and the head alone the rest of its way, where that keeps the clearance
+                reaimed = self.gaze_solver().head_reaimed(partial, g.point)
+            head = self.look_clearance(start, reaimed)[0] >= 1.0 and not np.allclose(reaimed, partial)
             with _GAZE_LOCK:
-                g = self.gaze_solver().stopped_short(g, start, start + share * (g.joints - start),
-                                                     f"turned {100 * share:.0f} % of the way to its gaze: {why}")
+                g = self.gaze_solver().stopped_short(
+                    g, start, reaimed if head else partial,
+                    f"turned {100 * share:.0f} % of the way to its gaze"
+                    + (", the head alone further" if head else "") + f": {why}")
         yaw, pitch = self.head_targets(g.joints)
         note = (f"gaze at {np.round(g.point, 3).tolist()}: head yaw {math.degrees(yaw):.1f}, pitch "
                 f"{math.degrees(pitch):.1f} deg, chest moved {math.degrees(g.chest_moved_rad):.1f} deg, "

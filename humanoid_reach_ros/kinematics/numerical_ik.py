@@ -48,6 +48,7 @@ import numpy as np
 
 from humanoid_reach_ros.kinematics.general_ik import FK_TOL, Chain6, GeneralIKResult
 from humanoid_reach_ros.kinematics.general_ik_compiled import _mm, _one, _rot, _rows
+from humanoid_reach_ros.kinematics.ik_types import IKReason
 
 #: numba options of the house (general_ik_compiled.py): nogil=False, see geometry/distance.py
 _JIT = dict(cache=True, nogil=False, fastmath=False)
@@ -433,6 +434,105 @@ def numerical_ik_pose(P, Rt, ref, K, q_out, work):
 
 
 @nb.njit(**_JIT)
+def numerical_ik_track(P, Rt, ref, K, q_out, work):
+    """The tracking case of :func:`numerical_ik_pose`: the iteration from ``ref`` (clipped into
+    the limits) only -- no ``q_default``, no quasi-random starts -- so the answer is the
+    solution the damped steps reach from the previous control step's angles (continuous along
+    a motion; for a 7-joint chain the self-motion follows the damped minimal-norm steps).
+    Writes ``q_out`` (n,) (NaN when not ok), returns ok. ``work``: :func:`work_size` floats."""
+    n = int(K[0])
+    _, _, _, _, _, o_lo, o_hi, o_qd, _ = _offsets(n)
+    for k in range(n):
+        q_out[k] = np.nan
+    for i in range(3):
+        if not np.isfinite(P[i]):
+            return False
+        for j in range(3):
+            if not np.isfinite(Rt[i, j]):
+                return False
+    base = work.shape[0] - 2 * n
+    q = work[base:base + n]
+    inner = work[:base]
+    for k in range(n):
+        q[k] = min(max(ref[k], K[o_lo + k]), K[o_hi + k]) if np.isfinite(ref[k]) else K[o_qd + k]
+    err = _converge(P, Rt, K, n, q, inner)
+    if not err < POLISH_ERR or not _reaches(P, Rt, K, n, q, inner):
+        return False
+    for k in range(n):
+        q_out[k] = q[k]
+    return True
+
+
+@nb.njit(**_JIT)
+def numerical_track_world(root_p, root_R, tip_p, tip_R, ref, K, q_out, work):
+    """:func:`numerical_ik_track` on world poses: the root link at ``(root_p, root_R)``, the
+    tip at ``(tip_p, tip_R)``; one call per limb and control step (``NumericalLimbTracker``).
+    Returns an ``IKReason`` code: 0 OK, 1 UNREACHABLE, 3 INVALID_INPUT (a non-finite value)."""
+    n = int(K[0])
+    for k in range(n):
+        q_out[k] = np.nan
+        if not np.isfinite(ref[k]):
+            return 3
+    for i in range(3):
+        if not (np.isfinite(root_p[i]) and np.isfinite(tip_p[i])):
+            return 3
+        for j in range(3):
+            if not (np.isfinite(root_R[i, j]) and np.isfinite(tip_R[i, j])):
+                return 3
+    P = np.empty(3)
+    Rt = np.empty((3, 3))
+    for i in range(3):
+        P[i] = (root_R[0, i] * (tip_p[0] - root_p[0]) + root_R[1, i] * (tip_p[1] - root_p[1])
+                + root_R[2, i] * (tip_p[2] - root_p[2]))
+        for j in range(3):
+            Rt[i, j] = root_R[0, i] * tip_R[0, j] + root_R[1, i] * tip_R[1, j] + root_R[2, i] * tip_R[2, j]
+    return 0 if numerical_ik_track(P, Rt, ref, K, q_out, work) else 1
+
+
+def numerical_leg_constants(chain: Chain6, q_default: np.ndarray) -> np.ndarray:
+    """The packed constants of :func:`numerical_ik_track` for ``chain`` (no quasi-random
+    starts: the tracking iteration starts from the reference only); for kernels that solve a
+    limb inside their own loop (the dual-arm method's compiled lower body)."""
+    n = len(chain.axes)
+    if n not in (6, 7):
+        raise ValueError(f"a 6- or 7-joint chain, got {n}")
+    return _pack(chain, np.clip(np.asarray(q_default, float), chain.lower, chain.upper), np.zeros((0, n)))
+
+
+class NumericalLimbTracker:
+    """Control-step IK of a limb of the numerical kind (the G1's 6- and 7-joint limbs): one
+    compiled call of :func:`numerical_track_world` from the previous step's angles.
+
+    **Simplification, named:** a local step; where the damped iteration from the previous
+    angles does not reach the pose the limb is reported unreachable (the dual-arm controller
+    then holds, or its path check refuses the pair) rather than restarted elsewhere, which
+    would be a jump. A 7-joint limb's self-motion is whatever the damped minimal-norm steps
+    give (no limit-avoidance objective, unlike ``RedundantArmTracker``'s cost); the joint
+    limits are kept by the iteration's active set."""
+
+    def __init__(self, limb) -> None:
+        if getattr(limb, "kind", "") != "numerical" or not isinstance(getattr(limb, "ik", None), NumericalLimbIK):
+            raise ValueError(f"{getattr(limb, 'limb_name', limb)!r}: NumericalLimbTracker needs a limb of the "
+                             "numerical kind (kinematics/general_limb.py)")
+        self.limb = limb
+        self.n_joints = limb.n_joints
+        self.K = limb.ik.K
+        self._work = np.empty(work_size(self.n_joints))
+
+    def solve(self, root_p, root_R, tip_p, tip_R, q_prev) -> tuple[int, np.ndarray]:
+        """``(reason, q)``: ``IKReason`` code (0 = OK; INVALID_INPUT for a non-finite value;
+        UNREACHABLE where the iteration from ``q_prev`` does not reach the pose) and the (n,)
+        angles (NaN on failure). ``ValueError`` on wrong shapes."""
+        n = self.n_joints
+        a = [np.ascontiguousarray(x, dtype=np.float64) for x in (root_p, root_R, tip_p, tip_R, q_prev)]
+        if (a[0].shape, a[1].shape, a[2].shape, a[3].shape, a[4].shape) != ((3,), (3, 3), (3,), (3, 3), (n,)):
+            raise ValueError(f"{self.limb.limb_name}: root / tip poses (3,), (3, 3) and q_prev ({n},) expected, got "
+                             f"{[x.shape for x in a]}")
+        q = np.empty(n)
+        return int(numerical_track_world(a[0], a[1], a[2], a[3], a[4], self.K, q, self._work)), q
+
+
+@nb.njit(**_JIT)
 def numerical_ik_batch(P, Rt, ref, K, q_out, ok_out):
     """:func:`numerical_ik_pose` over N poses: ``P`` (N, 3), ``Rt`` (N or 1, 3, 3), ``ref``
     (N or 1, n); writes ``q_out`` (N, n), ``ok_out`` (N,)."""
@@ -512,7 +612,11 @@ def warm_up() -> None:
         p, R = c.fk(np.full((1, nj), 0.3))
         ik.solve(p, R)
         ik.solve_one(p[0], R[0])
+        q = np.empty(nj)
+        numerical_track_world(np.zeros(3), np.eye(3), p[0], np.ascontiguousarray(R[0]), np.full(nj, 0.29), ik.K, q,
+                              ik._work)
 
 
-__all__ = ["NumericalLimbIK", "numerical_ik_pose", "numerical_ik_batch", "quasi_random_starts", "warm_up",
+__all__ = ["NumericalLimbIK", "NumericalLimbTracker", "numerical_leg_constants", "numerical_ik_pose", "numerical_ik_track",
+           "numerical_track_world", "numerical_ik_batch", "quasi_random_starts", "warm_up",
            "work_size"]
