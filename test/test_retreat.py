@@ -232,3 +232,32 @@ def test_a_retreat_never_brings_the_robot_into_itself() -> None:
     _, reasons = planner.retreat_planner.plan(j, contact, planner.collision.tree, 0.0, self_margin_m=margin)
     assert any("chest home: l_hand<->l_thigh would come within the self-collision margin" in r for r in reasons), \
         reasons
+
+
+def test_back_along_a_way_in_that_grazed_the_object_a_little_deeper() -> None:
+    """Talos's gripper at the valve's rim, 38 mm into the rim's voxels (the planner left them out
+    around the target): the way in grazed the rim 2.4 mm deeper at its second sample back. The
+    way back along it may go ``way_back_depth_m`` deeper than the start; with no allowance at all
+    (``clearance_tolerance_m`` only) it is refused, and in the measured map nothing else freed the hand."""
+    robot = RobotModel("talos")
+    pl = ReachPlanner(robot, PlannerParams(safety_margin_m=0.01))
+    pl.scene = PlanningScene(robot, SceneParams(safety_margin_m=0.01, target_exclusion_radius_m=0.15),
+                             pl.collision_model)
+    pl.scene.set_occupied(scene_file_voxels(str(robot.spec.demo_scene), 0.02, ()), "set_map")
+    reach = pl.plan(robot.half_sitting_joints, PlanRequest(valve_region(), seed=0, time_budget_s=5.0))
+    assert reach.success, reach.message
+    end = reach.positions[-1]
+    reverse = pl._reverse_of_last(end)
+    assert reverse is not None
+    contact, hit = pl.retreat_planner.classify_start(pl.start_config(end), pl.collision.tree, 0.01)
+    assert contact is not None and hit is None and contact.distance_m < -0.02, contact
+    back, _ = pl.retreat_planner.plan(end, contact, pl.collision.tree, 0.01, reverse_path=reverse)
+    assert back is not None and back.label == "back along the approach", back
+    strict = dataclasses.replace(pl.retreat_planner.params, way_back_depth_m=pl.retreat_planner.params.clearance_tolerance_m)
+    old, pl.retreat_planner.params = pl.retreat_planner.params, strict
+    try:
+        refused, reasons = pl.retreat_planner.plan(end, contact, pl.collision.tree, 0.01, reverse_path=reverse)
+    finally:
+        pl.retreat_planner.params = old
+    assert refused is None or refused.label != "back along the approach"
+    assert any("back along the approach: the hand would press into the contact's voxels" in r for r in reasons), reasons

@@ -36,7 +36,12 @@ that stage for a humanoid:
    that was not that close at the start (a chest brought home once swung the other forearm
    into the waist); the hand's shapes touch only the voxels within ``contact_radius_m`` of the contact
    (the allowed contact) and never press into them deeper than at the start (never into them
-   at all when the start is clear of them; ``clearance_tolerance_m``), and the clearance is
+   at all when the start is clear of them; ``clearance_tolerance_m``) -- on the way back along
+   the approach, ``way_back_depth_m`` (15 mm) deeper: the planner left the voxels around the
+   target out, so the way in grazed the object deeper than where the hand rests (Talos's gripper
+   at the valve's rim: 38 mm in at its end, 40-48 mm at the samples before; in the measured map
+   every other retreat was blocked and the way home failed), but a way in *through* the object
+   (a reach onto a pipe's top from above it) goes far deeper and is still refused; the clearance is
    ``end_clearance_m`` beyond the margin at the end. A named simplification of "clearance
    grows along the retreat": it may dip on the way (the way back along the approach passes a
    valve ring's edge: the planner left the ring out around the target, so the approach came
@@ -75,6 +80,7 @@ class RetreatParams:
     step_m: float = 0.01
     end_clearance_m: float = 0.02
     clearance_tolerance_m: float = 0.002
+    way_back_depth_m: float = 0.015     # back along the approach: this much deeper than at the start, at most
     damping: float = 1e-3
     iterations: int = 6
     orientation_weight: float = 0.3     # the hand's orientation kept where the arm can, the line first
@@ -357,8 +363,11 @@ class RetreatPlanner:
                 return Retreat(np.array(path), d, s, label, arm_clear), ""
         return None, f"no clearance of {1e3 * p.end_clearance_m:.0f} mm within {1e3 * p.max_distance_m:.0f} mm"
 
-    def _step_ok(self, q, contact, tree, margin_m, allowed, prev_clear, where: str) -> tuple[str, np.ndarray, float]:
-        """The checks of one retreat posture (module doc, step 4): ``(why not or '', dist, clearance)``."""
+    def _step_ok(self, q, contact, tree, margin_m, allowed, prev_clear, where: str,
+                 way_in: bool = False) -> tuple[str, np.ndarray, float]:
+        """The checks of one retreat posture (module doc, step 4): ``(why not or '', dist, clearance)``;
+        ``way_in``: a sample of the way the hand came in (:meth:`_back_along`), which may go
+        ``way_back_depth_m`` deeper into the contact's voxels than the start."""
         hand, other = self.hand[contact.arm], ~self.hand[contact.arm]
         P0, P1, R = self.cm.world_shapes(q)
         dist = tree.nearest_batch(P0, P1, R)[0] + margin_m
@@ -368,7 +377,8 @@ class RetreatPlanner:
         if (pairs := self._new_self_contacts(P0, P1)):
             return f"{pairs} would come within the self-collision margin {where}", dist, prev_clear
         clear = self._hand_clearance(q, allowed, hand)
-        if clear < min(prev_clear, 0.0) - self.params.clearance_tolerance_m:
+        depth = self.params.way_back_depth_m if way_in else self.params.clearance_tolerance_m
+        if clear < min(prev_clear, 0.0) - depth:
             return f"the hand would press into the contact's voxels {where}", dist, prev_clear
         if np.any(dist[hand] < 0) and self._outside_contact(P0, P1, R, hand, tree, margin_m, contact):
             return f"the hand would touch voxels away from the contact {where}", dist, prev_clear
@@ -400,7 +410,7 @@ class RetreatPlanner:
             if np.any(j < lo) or np.any(j > hi):
                 return None, f"sample {k} outside the joint limits"
             q = self.robot.config(j, self.robot.base_on_feet(j))
-            why, dist, prev = self._step_ok(q, contact, tree, margin_m, allowed, prev, f"at sample {k}")
+            why, dist, prev = self._step_ok(q, contact, tree, margin_m, allowed, prev, f"at sample {k}", way_in=True)
             if why:
                 return None, why
             out.append(j)
