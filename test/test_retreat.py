@@ -253,7 +253,8 @@ def test_back_along_a_way_in_that_grazed_the_object_a_little_deeper() -> None:
     assert contact is not None and hit is None and contact.distance_m < -0.02, contact
     back, _ = pl.retreat_planner.plan(end, contact, pl.collision.tree, 0.01, reverse_path=reverse)
     assert back is not None and back.label == "back along the approach", back
-    strict = dataclasses.replace(pl.retreat_planner.params, way_back_depth_m=pl.retreat_planner.params.clearance_tolerance_m)
+    params = pl.retreat_planner.params
+    strict = dataclasses.replace(params, way_back_depth_m=params.clearance_tolerance_m)
     old, pl.retreat_planner.params = pl.retreat_planner.params, strict
     try:
         refused, reasons = pl.retreat_planner.plan(end, contact, pl.collision.tree, 0.01, reverse_path=reverse)
