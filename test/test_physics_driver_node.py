@@ -12,6 +12,7 @@ from sensor_msgs.msg import JointState
 
 from humanoid_reach_ros.io import msgs
 from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.sim.physics.touch import touch_force_bound
 from test_physics_plant import copy_robot, drop_inertial
 
 PARAMS_FILE = "config/joint_driver.yaml"
@@ -45,6 +46,10 @@ def test_mujoco_plant_publishes_measured_joints_base_and_metrics(start_node, ros
     assert float(values["cop_margin_mm"]) > 30.0
     assert float(values["foot_slip_mm_max"]) < 1.0
     assert float(values["real_time_factor"]) > 0.5        # paced by the wall clock: about 1
+    # the controllers under the servos (physics.yaml): the force guard on at 0.8 x the touch bound, holding
+    # nothing while the robot stands; the stabilizer off
+    assert float(values["force_guard_n"]) == pytest.approx(0.8 * touch_force_bound(model).bound_n)
+    assert values["force_guard_holding"] == "nothing" and values["stabilizer"] == "off"
     # measured, not placed: the joints sag under gravity away from the command, the base is the plant's
     last = np.array(states.last.position)
     assert tuple(states.last.name) == model.joint_names
