@@ -22,6 +22,15 @@ differences (``FD_STEP_M``; kept between calls and re-evaluated only when a step
 reduces the residual by less than 10x), all in one numba kernel; the stopping test is Algorithm 3's
 ``|e| < tol`` (torso and swing rows of ``e`` are zero up to round-off by construction).
 
+**Legs without a hand-derived closed form** (the Unitree G1's: the hip pitch, roll and yaw
+axes miss each other by 2-3 cm): the same Newton on the waist position, each leg's six angles
+from the numerical solver's tracking iteration instead (``kinematics/numerical_ik.py``
+``numerical_ik_track``: damped least squares on the leg's chain from the previous step's angles,
+then from the previous Newton iterate's, polished to 1e-12; **a named simplification**: a local
+solve, no branch search, so a leg the iteration does not reach from there counts as failed and
+the call falls back to Algorithm 3). The mass sums take each joint's axis as a vector
+(``kind`` 0 / 1 per leg, the numerical constants ``KN``). Tests: test_g1_dual_arm.py.
+
 When the closed form has no in-limit solution (a leg out of reach or beyond its limits)
 or Newton does not converge within ``max_iter``, :class:`ClosedFormLowerBodyIK` falls back
 to the numerical :class:`~humanoid_reach_ros.dual_arm.lower_body_ik.LowerBodyIK` (the

@@ -36,6 +36,6 @@ from humanoid_reach_ros.kinematics.redundant_tracker import RedundantArmTracker
 from humanoid_reach_ros.kinematics.registry import SOLVERS, LimbIKSet, limb_solver, warm_up
 
 __all__ = ["Chain6", "chain_rotations", "chain_axis_rotation", "NumericalLimbTracker", "numerical_ik_track",
-           "numerical_leg_constants", "numerical_work_size", "CompiledArmIK", "IKReason", "IKResult", "LEG_WORK_SIZE", "LimbIK",
-           "LimbIKSet", "LimbSolver", "LimbStructureError", "RedundantArmTracker", "SOLVERS", "leg_ik_pose",
+           "numerical_leg_constants", "numerical_work_size", "CompiledArmIK", "IKReason", "IKResult", "LEG_WORK_SIZE",
+           "LimbIK", "LimbIKSet", "LimbSolver", "LimbStructureError", "RedundantArmTracker", "SOLVERS", "leg_ik_pose",
            "limb_solver", "warm_up"]

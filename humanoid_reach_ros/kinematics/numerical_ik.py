@@ -48,7 +48,6 @@ import numpy as np
 
 from humanoid_reach_ros.kinematics.general_ik import FK_TOL, Chain6, GeneralIKResult
 from humanoid_reach_ros.kinematics.general_ik_compiled import _mm, _one, _rot, _rows
-from humanoid_reach_ros.kinematics.ik_types import IKReason
 
 #: numba options of the house (general_ik_compiled.py): nogil=False, see geometry/distance.py
 _JIT = dict(cache=True, nogil=False, fastmath=False)
@@ -617,6 +616,6 @@ def warm_up() -> None:
                               ik._work)
 
 
-__all__ = ["NumericalLimbIK", "NumericalLimbTracker", "numerical_leg_constants", "numerical_ik_pose", "numerical_ik_track",
-           "numerical_track_world", "numerical_ik_batch", "quasi_random_starts", "warm_up",
+__all__ = ["NumericalLimbIK", "NumericalLimbTracker", "numerical_leg_constants", "numerical_ik_pose",
+           "numerical_ik_track", "numerical_track_world", "numerical_ik_batch", "quasi_random_starts", "warm_up",
            "work_size"]
