@@ -66,6 +66,11 @@ STEP_MAX = 0.5           # a step's largest joint change [rad] (a far-off start 
 N_STARTS = 16            # quasi-random starts besides q_ref and q_default
 SEED = 23                # their fixed seed
 
+#: the tracking iteration's weighted least norm (_active_step): a joint within this of a limit [rad] slows
+#: down towards it (RedundantArmTracker's limit margin), its mobility floored at MOBILITY_MIN
+TRACK_LIMIT_MARGIN = 0.2
+MOBILITY_MIN = 1e-3
+
 HIST_MAX = 16            # the stall ring's size (STALL_ITERS at most)
 #: the tunables, as packed into K[2:8] (the kernels read them there)
 PARAMS = (MAX_ITERS, STALL_ITERS, STALL_FACTOR, MU0, LAMBDA_FLOOR, STEP_MAX)
@@ -171,14 +176,17 @@ def _error(P, Rt, p, R, e, M):
 
 @nb.njit(**_JIT)
 def _step(n, J, free, e, lam, A, L, y, dq):
-    """``dq = J_f^T (J_f J_f^T + lam I)^-1 e`` with ``J_f`` the columns of the free joints
-    (Cholesky on 6 x 6); False when the system is not positive definite (lam = 0, singular)."""
+    """``dq = M J^T (J M J^T + lam I)^-1 e`` with ``M = diag(free)`` the joints' mobilities:
+    0 (a joint out of the step) or 1 (free) in the solver's iteration -- the step of the
+    free joints' columns --, between them in the tracking iteration's weighted least norm
+    (:func:`_active_step`). Cholesky on 6 x 6; False when the system is not positive definite
+    (lam = 0, singular)."""
     for i in range(6):
         for j in range(i + 1):
             s = 0.0
             for k in range(n):
-                if free[k] > 0.5:
-                    s += J[i, k] * J[j, k]
+                if free[k] > 0.0:
+                    s += free[k] * J[i, k] * J[j, k]
             A[i, j] = s
         A[i, i] += lam
     for i in range(6):           # A = L L^T
@@ -204,9 +212,10 @@ def _step(n, J, free, e, lam, A, L, y, dq):
         y[i] = s / L[i, i]
     for k in range(n):
         s = 0.0
-        if free[k] > 0.5:
+        if free[k] > 0.0:
             for i in range(6):
                 s += J[i, k] * y[i]
+            s *= free[k]
         dq[k] = s
     return True
 
@@ -223,19 +232,34 @@ def _jacobian(n, Org, W, p, J):
 
 
 @nb.njit(**_JIT)
-def _active_step(n, J, e, q, lo, hi, lam, free, A, L, y, dq):
+def _active_step(n, J, e, q, lo, hi, lam, free, A, L, y, dq, margin):
     """The step of :func:`_step` with the joint limits as an active set: a joint at a limit
     whose step would leave the limits drops out (its Jacobian column) and the step is
-    recomputed, until no such joint is left; False when a system is singular."""
+    recomputed, until no such joint is left; False when a system is singular.
+
+    ``margin`` > 0 (the tracking iteration): a weighted least-norm step in the manner of Chan and
+    Dubey (1995), simplified (named): a joint within ``margin`` [rad] of a limit has mobility
+    ``max(d / margin, MOBILITY_MIN)`` (``d`` its distance to the nearer limit) while its step
+    goes towards that limit, 1 when it goes away. A redundant chain's self-motion then slows a
+    joint down continuously as it nears a limit, where the active set alone stops it dead in one
+    step and swings the others (an unbounded acceleration). A square chain (6 joints) reaches the
+    same solution either way (``M`` drops out of ``J^-1``). ``margin`` = 0: the plain active set."""
     for k in range(n):
         free[k] = 1.0
-    for _ in range(n):
+        if margin > 0.0:
+            d = min(q[k] - lo[k], hi[k] - q[k])
+            if d < margin:
+                free[k] = max(d / margin, MOBILITY_MIN)
+    for _ in range(2 * n + 1):
         if not _step(n, J, free, e, lam, A, L, y, dq):
             return False
         changed = False
         for k in range(n):
-            if free[k] > 0.5 and ((q[k] <= lo[k] and dq[k] < 0.0) or (q[k] >= hi[k] and dq[k] > 0.0)):
+            if free[k] > 0.0 and ((q[k] <= lo[k] and dq[k] < 0.0) or (q[k] >= hi[k] and dq[k] > 0.0)):
                 free[k] = 0.0
+                changed = True
+            elif 0.0 < free[k] < 1.0 and ((q[k] - lo[k] <= hi[k] - q[k]) == (dq[k] > 0.0)):
+                free[k] = 1.0          # going away from the nearer limit: full mobility
                 changed = True
         if not changed:
             return True
@@ -260,9 +284,9 @@ def _accept(n, errn, q, qn, p, pn, R, Rn, e, en, Org, Orgn, W, Wn):
 
 
 @nb.njit(**_JIT)
-def _converge(P, Rt, K, n, q, work):
+def _converge(P, Rt, K, n, q, work, margin):
     """Run the iteration from ``q`` (n,) (inside the limits; updated in place); returns the
-    final |e| (inf when given up)."""
+    final |e| (inf when given up). ``margin``: :func:`_active_step`'s (0: the plain active set)."""
     _, _, _, _, _, o_lo, o_hi, _, _ = _offsets(n)
     lo, hi = K[o_lo:o_lo + n], K[o_hi:o_hi + n]
     o = 0
@@ -321,7 +345,7 @@ def _converge(P, Rt, K, n, q, work):
         _jacobian(n, Org, W, p, J)
         while True:
             lam = mu * (err * err + floor)
-            _active_step(n, J, e, q, lo, hi, lam, free, A, L, y, dq)
+            _active_step(n, J, e, q, lo, hi, lam, free, A, L, y, dq, margin)
             big = 0.0
             for k in range(n):
                 big = max(big, abs(dq[k]))
@@ -342,8 +366,8 @@ def _converge(P, Rt, K, n, q, work):
         if err < POLISH_TOL:
             break
         _jacobian(n, Org, W, p, J)
-        if not _active_step(n, J, e, q, lo, hi, 0.0, free, A, L, y, dq):
-            _active_step(n, J, e, q, lo, hi, 1e-3 * (err * err + floor), free, A, L, y, dq)
+        if not _active_step(n, J, e, q, lo, hi, 0.0, free, A, L, y, dq, margin):
+            _active_step(n, J, e, q, lo, hi, 1e-3 * (err * err + floor), free, A, L, y, dq, margin)
         for k in range(n):
             qn[k] = min(max(q[k] + dq[k], lo[k]), hi[k])
         _fk(K, n, qn, Orgn, Wn, pn, Rn, M)
@@ -415,7 +439,7 @@ def numerical_ik_pose(P, Rt, ref, K, q_out, work):
                     break
             if same:
                 continue
-        err = _converge(P, Rt, K, n, q, inner)
+        err = _converge(P, Rt, K, n, q, inner, 0.0)
         if not err < POLISH_ERR:
             continue
         if not _reaches(P, Rt, K, n, q, inner):
@@ -433,11 +457,12 @@ def numerical_ik_pose(P, Rt, ref, K, q_out, work):
 
 
 @nb.njit(**_JIT)
-def numerical_ik_track(P, Rt, ref, K, q_out, work):
+def numerical_ik_track(P, Rt, ref, K, q_out, work, margin=TRACK_LIMIT_MARGIN):
     """The tracking case of :func:`numerical_ik_pose`: the iteration from ``ref`` (clipped into
     the limits) only -- no ``q_default``, no quasi-random starts -- so the answer is the
     solution the damped steps reach from the previous control step's angles (continuous along
-    a motion; for a 7-joint chain the self-motion follows the damped minimal-norm steps).
+    a motion; for a 7-joint chain the self-motion follows the damped least-norm steps, weighted
+    away from the joint limits within ``margin`` [rad]: :func:`_active_step`).
     Writes ``q_out`` (n,) (NaN when not ok), returns ok. ``work``: :func:`work_size` floats."""
     n = int(K[0])
     _, _, _, _, _, o_lo, o_hi, o_qd, _ = _offsets(n)
@@ -454,7 +479,7 @@ def numerical_ik_track(P, Rt, ref, K, q_out, work):
     inner = work[:base]
     for k in range(n):
         q[k] = min(max(ref[k], K[o_lo + k]), K[o_hi + k]) if np.isfinite(ref[k]) else K[o_qd + k]
-    err = _converge(P, Rt, K, n, q, inner)
+    err = _converge(P, Rt, K, n, q, inner, margin)
     if not err < POLISH_ERR or not _reaches(P, Rt, K, n, q, inner):
         return False
     for k in range(n):
@@ -505,9 +530,11 @@ class NumericalLimbTracker:
     **Simplification, named:** a local step; where the damped iteration from the previous
     angles does not reach the pose the limb is reported unreachable (the dual-arm controller
     then holds, or its path check refuses the pair) rather than restarted elsewhere, which
-    would be a jump. A 7-joint limb's self-motion is whatever the damped minimal-norm steps
-    give (no limit-avoidance objective, unlike ``RedundantArmTracker``'s cost); the joint
-    limits are kept by the iteration's active set."""
+    would be a jump. A 7-joint limb's self-motion is the one the damped least-norm steps give,
+    weighted away from the joint limits within ``TRACK_LIMIT_MARGIN`` (a simplified weighted
+    least norm of Chan and Dubey: :func:`_active_step`; no optimisation of the self-motion
+    beyond that, unlike ``RedundantArmTracker``'s cost over a window); the joint limits are kept
+    by the iteration's active set."""
 
     def __init__(self, limb) -> None:
         if getattr(limb, "kind", "") != "numerical" or not isinstance(getattr(limb, "ik", None), NumericalLimbIK):
