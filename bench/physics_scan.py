@@ -5,8 +5,10 @@ For each robot (``--robot``, default HRP-2, Talos and the G1): the executor's 5 
 (``control/executor.py``, the reach executor's parameters) runs the scan's whole-body gazes around
 the body (``ExecutionRequests.surroundings_points``, each the balanced gaze of ``control/gaze.py``
 from the last command, timed by the look's spline, then ``--dwell-s`` held), and every command is one
-tick of the joint driver's plant side (``PhysicsDriver.step``: MuJoCo, the force guard; the
-stabilizer with ``--stabilizer``). No ROS, no graph: a few simulated seconds per gaze.
+tick of the joint driver (its kinematic simulator's rate limit and first-order tracking, time constant
+``--tracking-tau-s``, config/joint_driver.yaml's 0.01 s, whose joints are the servos' targets; then
+``PhysicsDriver.step``: MuJoCo, the force guard; the stabilizer with ``--stabilizer``), as
+``joint_driver`` with ``plant: mujoco`` does. No ROS, no graph: a few simulated seconds per gaze.
 
 * ``--scene demo`` (default): the robot stands in its demo scene; ``--scene floor``: a bare floor.
 * ``--map``: the executor knows the scene's voxels (0.02 m; its dampers keep its shapes off them):
@@ -18,7 +20,7 @@ acceleration (between 5 ms commands) and which joint, and every contact of the r
 other than the soles on the floor (largest normal force per pair of shapes). The last line is JSON.
 
 Usage: python bench/physics_scan.py [--robot hrp2 ...] [--scene demo|floor] [--map] [--stabilizer]
-[--no-guard] [--gazes N] [--dwell-s 1.0]
+[--no-guard] [--tracking-tau-s 0.01] [--gazes N] [--dwell-s 1.0]
 """
 from __future__ import annotations
 
@@ -42,6 +44,7 @@ from humanoid_reach_ros.execution.requests import ExecutionRequests  # noqa: E40
 from humanoid_reach_ros.robot.model import RobotModel  # noqa: E402
 from humanoid_reach_ros.robot.shapes import load_collision_model  # noqa: E402
 from humanoid_reach_ros.sim.physics.driver import PhysicsDriver  # noqa: E402
+from humanoid_reach_ros.sim.joint_sim import JointSimulator  # noqa: E402
 from humanoid_reach_ros.sim.physics.stabilizer import FootStabilizer  # noqa: E402
 
 TICK_S = 0.005
@@ -69,7 +72,7 @@ def world_contacts(driver: PhysicsDriver, seen: dict) -> None:
 
 
 def run(name: str, scene: str, with_map: bool, stabilizer: bool, gazes: int, dwell_s: float, log,
-        guard: bool = True) -> dict:
+        guard: bool = True, tau_s: float = 0.01) -> dict:
     robot = RobotModel(name)
     cfg = ExecutionConfig.from_values({})
     req = ExecutionRequests(robot, cfg)
@@ -92,6 +95,7 @@ def run(name: str, scene: str, with_map: bool, stabilizer: bool, gazes: int, dwe
         driver.stabilizer = FootStabilizer(pm)
         driver.stabilizer.cfg = dataclasses.replace(pm.config.stabilizer, enabled=True)
     hs = robot.half_sitting_joints
+    sim = JointSimulator(robot, hs, velocity_scale=1.0, time_constant_s=tau_s)   # joint_driver's defaults
     for _ in range(100):                       # 0.5 s: settle on the floor
         driver.step(hs, TICK_S)
     cmd = hs.copy()
@@ -117,7 +121,8 @@ def run(name: str, scene: str, with_map: bool, stabilizer: bool, gazes: int, dwe
             if a.max() > worst["accel_rad_s2"]:
                 worst["accel_rad_s2"], worst["accel_joint"] = float(a.max()), robot.joint_names[int(a.argmax())]
             v_prev, cmd = v, new
-            driver.step(cmd, TICK_S)
+            sim.set_command(robot.joint_names, cmd)
+            driver.step(sim.step(TICK_S).copy(), TICK_S)
             ticks += 1
             m = driver.metrics
             worst["margin_mm"] = min(worst["margin_mm"], 1e3 * m.cop_margin_m)
@@ -153,20 +158,24 @@ def main() -> None:
     ap.add_argument("--stabilizer", action="store_true",
                     help="the foot force stabilizer on (physics.yaml's settings)")
     ap.add_argument("--no-guard", action="store_true", help="the force guard off")
+    ap.add_argument("--tracking-tau-s", type=float, default=0.01,
+                    help="the joint driver's tracking time constant (config/joint_driver.yaml: 0.01 s)")
     ap.add_argument("--gazes", type=int, default=8, help="at most this many gazes (default 8)")
     ap.add_argument("--dwell-s", type=float, default=1.0)
     args = ap.parse_args()
-    if args.gazes < 1 or not args.dwell_s >= 0.0:
-        ap.error("--gazes must be >= 1 and --dwell-s >= 0")
+    if args.gazes < 1 or not args.dwell_s >= 0.0 or not args.tracking_tau_s >= 0.0:
+        ap.error("--gazes must be >= 1, --dwell-s and --tracking-tau-s >= 0")
     with tempfile.TemporaryDirectory() as tmp:
         scene = "demo"
         if args.scene == "floor":
             scene = str(Path(tmp) / "bare_floor.yaml")
             Path(scene).write_text(FLOOR)
         per = {r: run(r, scene, args.map, args.stabilizer, args.gazes, args.dwell_s, lambda s: print(s, flush=True),
-                      guard=not args.no_guard) for r in (args.robot or ["hrp2", "talos", "g1"])}
+                      guard=not args.no_guard, tau_s=args.tracking_tau_s)
+               for r in (args.robot or ["hrp2", "talos", "g1"])}
     summary = {r: {k: v for k, v in d.items() if k != "gazes"} for r, d in per.items()}
     print(json.dumps({"scene": args.scene, "map": args.map, "stabilizer": args.stabilizer, "guard": not args.no_guard,
+                      "tracking_tau_s": args.tracking_tau_s,
                       "robots": summary,
                       "details": per}))
 
