@@ -12,7 +12,7 @@ from humanoid_reach_ros.nodes.common import scene_file_voxels
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner
 from humanoid_reach_ros.planning.wgr import valve_region
-from humanoid_reach_ros.robot.model import RobotModel
+from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 from humanoid_reach_ros.scene.planning_scene import PlanningScene, SceneParams
 
 
@@ -262,3 +262,26 @@ def test_back_along_a_way_in_that_grazed_the_object_a_little_deeper() -> None:
         pl.retreat_planner.params = old
     assert refused is None or refused.label != "back along the approach"
     assert any("back along the approach: the hand would press into the contact's voxels" in r for r in reasons), reasons
+
+
+def test_the_way_home_is_the_way_in_reversed_where_it_is_clear(planner) -> None:
+    """After a reach from the rest posture the way home goes back the way the hand came in (a
+    retreat back along it, then the rest of it): the body swept it, so it is observed free where a
+    new search would need a tube of swept space. Every edge is checked, and it ends at the rest
+    posture; a plan that did not begin at the rest posture has no such way home."""
+    rest = planner.robot.half_sitting_joints
+    reach = planner.plan(rest, PlanRequest(valve_region(), seed=2, time_budget_s=5.0))
+    assert reach.success, reach.message
+    home = planner.plan(reach.positions[-1], PlanRequest(None, home=True, seed=2, time_budget_s=5.0))
+    assert home.success and "the way in reversed" in home.message, home.message
+    np.testing.assert_allclose(home.positions[-1], rest, atol=1e-9)
+    way = np.asarray(home.waypoints)
+    # the way home's joints pass the reach's own samples, backwards (within the offset blended out)
+    reach_samples = np.asarray(reach.positions)
+    near = [float(np.min(np.max(np.abs(reach_samples - w[N_BASE_Q:]), axis=1))) for w in way[len(way) // 2:]]
+    assert max(near) < 1e-6, max(near)
+    # from a posture no plan ended at: a searched way home
+    elsewhere = reach.positions[-1] + 0.05
+    other = planner.plan(np.clip(elsewhere, planner.robot.lower, planner.robot.upper),
+                         PlanRequest(None, home=True, seed=2, time_budget_s=5.0))
+    assert "the way in reversed" not in other.message, other.message

@@ -293,6 +293,8 @@ _DEFAULT_RETREAT = RetreatParams()
 #: plan's hand is this close to the plan's end and no joint but the head's this far off it
 REVERSE_HAND_TOL_M = 0.03
 REVERSE_JOINT_TOL_RAD = 0.35
+WAY_IN_REST_TOL_RAD = 0.02       # a plan that began this near the rest posture: its way in, reversed, goes home
+WAY_IN_WAYPOINT_RAD = 0.1        # ... through its samples this far apart (the largest joint's travel)
 
 
 class ReachPlanner:
@@ -1139,6 +1141,48 @@ class ReachPlanner:
                            f"{contact.describe()}; the retreat's end still collides ({', '.join(shapes)})")
         return retreat, end
 
+    def _way_in_reversed(self, prefix: np.ndarray, rest: np.ndarray, collision: RobotCollision) -> np.ndarray | None:
+        """The way home as the last plan's own way in, backwards: full configurations (K, nq) from the
+        end of ``prefix`` (the start, or the end of a retreat back along that plan) to ``rest``, when
+        the robot stands at that plan's end (:meth:`_reverse_of_last`), the plan began at the rest
+        posture (every joint within ``WAY_IN_REST_TOL_RAD``) and every edge between its waypoints
+        (the plan's samples, one per ``WAY_IN_WAYPOINT_RAD`` of joint travel; each edge checked every
+        quarter ``edge_resolution``, the planner's own paths' rule) is clear in ``collision``,
+        the unobserved frontier included; else None. Why: the body swept that way, so it is observed
+        free, where a new search must find its way through a tube of swept space 3 cm wider than the
+        body (make demo ROBOT=talos: after the reach the way home was UNOBSERVED_SPACE beside the
+        shoulder, three looks could not see it). The executor's deviation from the plan (the chest
+        and the legs where its own tasks take them) is why every edge is checked, not assumed."""
+        P = self._last_positions
+        if P is None or float(np.max(np.abs(P[0] - rest))) > WAY_IN_REST_TOL_RAD:
+            return None
+        first = prefix[0][N_BASE_Q:]
+        R = self._reverse_of_last(first)
+        if R is None:
+            return None
+        end = prefix[-1][N_BASE_Q:]
+        k = int(np.argmin(np.max(np.abs(R - end), axis=1)))
+        if float(np.max(np.abs(R[k] - end))) > 1e-6:
+            return None     # a retreat that left the way in (a line, not back along the approach)
+        R = np.vstack([R[k:], rest])
+        keep, last = [0], R[0]
+        step = self.params.edge_resolution / max(self.params.arm_weight, 1e-9)
+        for i in range(1, len(R) - 1):
+            if float(np.max(np.abs(R[i] - last))) >= WAY_IN_WAYPOINT_RAD:
+                keep.append(i)
+                last = R[i]
+        W = R[keep + [len(R) - 1]]
+        dense = [W[0][None]]
+        for a, b in zip(W[:-1], W[1:]):
+            m = max(1, int(math.ceil(float(np.max(np.abs(b - a))) / (step / 4))))
+            dense.append(a + (np.arange(1, m + 1)[:, None] / m) * (b - a))
+        D = np.vstack(dense)
+        if not np.all((D >= self.robot.lower - 1e-9) & (D <= self.robot.upper + 1e-9)):
+            return None
+        if not np.all(collision.check_batch(np.array([self.start_config(j) for j in D]))):
+            return None
+        return np.array([self.start_config(j) for j in W])
+
     def _home_outcome(self, pieces, q_rest, path_plan, how, stats, tp, nodes, t0, collision_stats, note,
                       retreat_kw) -> PlanOutcome:
         """SUCCESS of a way home made of ``pieces`` (each starting where the last ended), ending
@@ -1183,6 +1227,10 @@ class ReachPlanner:
         failures = []
         tp = time.perf_counter()
         nodes = 0
+        way_in = self._way_in_reversed(prefix, rest, collision)
+        if way_in is not None:
+            return self._home_outcome([prefix, way_in], q_rest, None, ", the way in reversed", stats, tp, nodes,
+                                      t0, collision_stats, note, retreat_kw)
         order = sorted(away, key=lambda a: -away[a])
         for k_arm, arm in enumerate(order):
             remaining = deadline - time.perf_counter()
