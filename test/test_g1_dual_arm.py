@@ -137,7 +137,7 @@ def test_reach_executor_takes_the_g1_for_its_dual_arm_mode(start_node, ros_probe
     ex = start_node("reach_executor", params_file="config/reach_executor.yaml",
                     params={"robot_config": "g1", "scene_file": "", "diagnostics_period_s": 0.2,
                             "joint_states_timeout_s": 5.0, "joint_states_abort_s": 10.0},
-                    ready_log=r"reach executor ready", timeout=90.0)
+                    ready_log=r"reach executor ready", timeout=180.0)   # warm-up: minutes on a loaded machine
     start_node("joint_driver", params_file="config/joint_driver.yaml",
                params={"robot_config": "g1", "command_timeout_s": 60.0}, ready_log=r"simulated g1")
     client = ActionClient(ros_probe.node, ExecuteReach, "/execute_reach")

@@ -67,8 +67,10 @@ N_STARTS = 16            # quasi-random starts besides q_ref and q_default
 SEED = 23                # their fixed seed
 
 #: the tracking iteration's weighted least norm (_active_step): a joint within this of a limit [rad] slows
-#: down towards it (RedundantArmTracker's limit margin), its mobility floored at MOBILITY_MIN
-TRACK_LIMIT_MARGIN = 0.2
+#: down towards it, its mobility floored at MOBILITY_MIN. 0.4: on the G1's Table 2 (9 x 9 pairs) 0.2 left
+#: 5 pairs whose elbow (full bend) or wrist pitch (+-92 deg) still reached its limit, a one-step kink
+#: (600-1200 rad/s^2, the ZMP up to 8 cm out of the feet); 0.4 kept all 5 balanced (ZMP margin 6.6 cm)
+TRACK_LIMIT_MARGIN = 0.4
 MOBILITY_MIN = 1e-3
 
 HIST_MAX = 16            # the stall ring's size (STALL_ITERS at most)
