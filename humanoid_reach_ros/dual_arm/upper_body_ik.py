@@ -1,6 +1,6 @@
 """Upper-body IK on the chest + both arms (dissertation Sec. 3.3-3.5 and 4.1).
 
-Unknowns ``q = (q_chest, q_right, q_left)`` (2 + 6 + 6 = 14 joints; the grippers, head,
+Unknowns ``q = (q_chest, q_right, q_left)`` (2 + 6 + 6 = 14 joints on HRP-2, 16 with 7-joint arms; the grippers, head,
 legs and the waist pose stay as given). Error ``err`` (12) = position and ``LN``
 orientation error of each hand (Algorithm 1, line 4), Jacobian ``J`` (12 x 14) of
 eq. 2, both in world axes (LOCAL_WORLD_ALIGNED).
