@@ -96,7 +96,7 @@ class ReachPlan:
 
 @dataclass(frozen=True, eq=False)
 class ControlStep:
-    """One 5 ms step: ``joints`` (30, model order), ``q`` (nq), progress ``s``, ``done``
+    """One 5 ms step: ``joints`` (the robot's joints, model order), ``q`` (nq), progress ``s``, ``done``
     (the last interpolation step of the current target), ``ok`` / ``reason``, errors of the
     hands w.r.t. the step's reference and of the CoM [m], the reference CoM."""
 
