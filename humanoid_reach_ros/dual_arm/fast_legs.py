@@ -328,8 +328,12 @@ def solve_legs_packed(q, qcols, com_now, inp, C, m_tot, tol, max_iter, h, J, jst
 
 class ClosedFormLowerBodyIK:
     """Algorithm 3's problem by closed-form legs + Newton on the waist position, with the
-    numerical :class:`LowerBodyIK` as fallback (module docstring). Same interface as
-    ``LowerBodyIK.solve``; on return ``self.data`` holds frames and CoM of the result."""
+    numerical :class:`LowerBodyIK` as fallback (module docstring). A leg outside the
+    hand-derived pattern (``kind`` 1) is solved by the numerical tracking iteration inside the
+    same kernel (the name stays: the waist's Newton and the fallback are the same). Same
+    interface as ``LowerBodyIK.solve``; on return ``self.data`` holds frames and CoM of the
+    result. ``ValueError`` for legs the kernel cannot take (not 6 joints, not hanging from the
+    free-flyer body, bodies below the hip beyond the leg's)."""
 
     def __init__(self, robot: RobotModel, support: str = "right", tol: float = 1e-7, max_iter: int = 20,
                  reference=None) -> None:
