@@ -398,24 +398,17 @@ class ExecutionManager:
         except Exception as exc:
             code = self.reject("goals_rejected", label, exc)
             return Outcome(code, str(exc))
-        # a scan first takes its head poses (or its directions' gaze points), then gazes around the
-        # body, returns to the posture it began in (the gazes turn the chest) and takes its last head
-        # pose again (no dwell: it was seen): it ends looking at the workspace in front, as before.
-        # The head poses first, because they move the head alone: the gazes around the body turn the
-        # chest and swing the head and the arms through space only the head poses have seen (the
-        # physics plant: HRP-2's first gaze, chest yaw 45 and pitch 60 deg, put its head on the
-        # left_shoulder_riser, which no pose had seen yet: 261 N, a foot lifted). ``come_back`` (the automatic looks):
+        # a scan first gazes around the body, then returns to the posture it began in (the gazes turn
+        # the chest, which a head pose holds), then its head poses (or its directions' gaze points):
+        # it ends looking at the workspace in front, as before. ``come_back`` (the automatic looks):
         # after the last pose or point, back to where the look began, through the space the body just
         # swept -- the next plan starts where the robot stood, not bent over a gaze (the hosts test:
         # from a gaze with the chest pitched 60 deg, the way onto the planning manifold went a few cm
         # beside the swept space, into unobserved space: START_IN_COLLISION)
         start = self.joints()[0] if len(around) or goal.come_back else None
-        head = [("pose", p) for p in poses] if points is None else [("point", p) for p in points]
-        items = head + [("point", p) for p in around]
-        if len(around) and start is not None:
-            items += [("back", start)] + head[-1:]
-        quiet = {len(items) - 1} if len(around) and start is not None and head else set()   # the last pose again
-        items += [("back", start)] if goal.come_back and start is not None else []
+        items = [("point", p) for p in around] + ([("back", start)] if len(around) and start is not None else []) \
+            + ([("pose", p) for p in poses] if points is None else [("point", p) for p in points]) \
+            + ([("back", start)] if goal.come_back and start is not None else [])
         asked, what = (len(poses), "head poses") if points is None else (len(points), "gaze points")
         self.log.info(f"{label}: accepted: {counted(asked, what)}, {dwell:g} s each"
                       + (" (the directions asked, for a robot without a neck)" if directions else "")
@@ -423,8 +416,7 @@ class ExecutionManager:
         out, unseen = Outcome(int(C.SUCCESS), ""), []
         count = len(items)
         for k, (item, target) in enumerate(items):
-            still = item == "back" or k in quiet   # nothing new to see: no dwell (the way back, a pose again,
-            #                                          a gaze held back at 0 %)
+            still = item == "back"   # nothing new to see: no dwell (the way back; a gaze held back at 0 %)
             try:
                 if item == "pose":
                     yaw, pitch = target
