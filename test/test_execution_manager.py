@@ -206,6 +206,34 @@ def test_a_look_that_comes_back_ends_where_it_began(robot) -> None:
     assert sum(isinstance(c, StartMotion) for c in loop2.sent) == 1
 
 
+class ShortLoop(FakeLoop):
+    """Answers the ``short``-th motion (0-based) with TARGET_NOT_REACHED: a damper held it short."""
+
+    def __init__(self, short: int) -> None:
+        super().__init__(hold=True)
+        self.short, self.n = short, 0
+
+    def send(self, command) -> None:
+        super().send(command)
+        if isinstance(command, StartMotion):
+            k, self.n = self.n, self.n + 1
+            code, text = ((C.TARGET_NOT_REACHED, "the reference ended and the hand stayed 1.2 mm off its end after "
+                           "the settle timeout (min distance 0.0100 m); holding here") if k == self.short
+                          else (C.SUCCESS, "done"))
+            threading.Timer(0.05, lambda: self.manager.on_event(
+                MotionFinished(command.motion.id, int(code), text, SUMMARY, 1.0, ""))).start()
+
+
+def test_a_look_held_short_of_a_pose_looks_from_there_and_goes_on(robot) -> None:
+    """A damper or a limit that holds the body a little short of a look's pose (TARGET_NOT_REACHED;
+    the loop holds it there) does not end the look: it looks from there, goes on and says so."""
+    m, loop, log, _ = make(robot, ShortLoop(short=1))
+    out = m.look(lambda: LookGoal((0.1, -0.1, 0.0), (0.3, 0.2, 0.1), None, 0.01), Port())
+    assert out.success and out.poses_done == 3, out
+    assert "pose 1 held short (the reference ended and the hand stayed 1.2 mm off" in out.message, out.message
+    assert sum(isinstance(c, StartMotion) for c in loop.sent) == 3
+
+
 def test_stale_joint_states_abort_the_running_motion_once(robot) -> None:
     m, loop, log, state = make(robot, FakeLoop(hold=True))
     assert m.trajectory_topic(lambda: TrajectoryGoal(reference(robot)))
