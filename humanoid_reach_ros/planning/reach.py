@@ -294,7 +294,6 @@ _DEFAULT_RETREAT = RetreatParams()
 REVERSE_HAND_TOL_M = 0.03
 REVERSE_JOINT_TOL_RAD = 0.35
 WAY_IN_REST_TOL_RAD = 0.02       # a plan that began this near the rest posture: its way in, reversed, goes home
-WAY_IN_WAYPOINT_RAD = 0.1        # ... through its samples this far apart (the largest joint's travel)
 
 
 class ReachPlanner:
@@ -329,6 +328,8 @@ class ReachPlanner:
         self.observable = observable
         self._last_plan_end: tuple[np.ndarray, np.ndarray] | None = None   # (joints, hand approach direction)
         self._last_positions: np.ndarray | None = None   # the last successful plan's samples (its reverse: a retreat)
+        # ... its sample times, waypoints and their times (the way home as its way in, reversed)
+        self._last_way: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._last_arm: str | None = None                 # and its arm
         self.projector = Projector(self.robot, LimbIKSet(self.robot, compiled=compiled_kinematics))
         self.trunk_region = TrunkRegion(self.projector, params.trunk_z_m, params.trunk_pitch_rad,
@@ -719,6 +720,9 @@ class ReachPlanner:
         if outcome.positions is None or len(outcome.positions) < 2:
             return
         self._last_positions = np.asarray(outcome.positions, float).copy()
+        self._last_way = None if outcome.times is None or outcome.waypoints is None or outcome.waypoint_times is None \
+            else (np.asarray(outcome.times, float).copy(), np.asarray(outcome.waypoints, float).copy(),
+                  np.asarray(outcome.waypoint_times, float).copy())
         self._last_arm = outcome.arm
         if outcome.arm is None:
             return
@@ -1143,45 +1147,48 @@ class ReachPlanner:
 
     def _way_in_reversed(self, prefix: np.ndarray, rest: np.ndarray, collision: RobotCollision) -> np.ndarray | None:
         """The way home as the last plan's own way in, backwards: full configurations (K, nq) from the
-        end of ``prefix`` (the start, or the end of a retreat back along that plan) to ``rest``, when
-        the robot stands at that plan's end (:meth:`_reverse_of_last`), the plan began at the rest
-        posture (every joint within ``WAY_IN_REST_TOL_RAD``) and every edge between its waypoints
-        (the plan's samples, one per ``WAY_IN_WAYPOINT_RAD`` of joint travel; each edge checked every
-        quarter ``edge_resolution``, the planner's own paths' rule) is clear in ``collision``,
-        the unobserved frontier included; else None. Why: the body swept that way, so it is observed
-        free, where a new search must find its way through a tube of swept space 3 cm wider than the
-        body (make demo ROBOT=talos: after the reach the way home was UNOBSERVED_SPACE beside the
-        shoulder, three looks could not see it). The executor's deviation from the plan (the chest
-        and the legs where its own tasks take them) is why every edge is checked, not assumed."""
-        P = self._last_positions
-        if P is None or float(np.max(np.abs(P[0] - rest))) > WAY_IN_REST_TOL_RAD:
+        end of ``prefix`` (the start, or the end of a retreat back along that plan's samples) through
+        the plan's waypoints before that point, in reverse order, to ``rest``; when the robot stands at
+        that plan's end (:meth:`_reverse_of_last`), the plan began at the rest posture (every joint
+        within ``WAY_IN_REST_TOL_RAD``) and every edge is clear in ``collision``, the unobserved
+        frontier included (checked every quarter ``edge_resolution``, the planner's own paths' rule);
+        else None. The plan's waypoints keep the soles exactly on their stance (its samples between
+        them do not). Why: the body swept that way, so it is observed free, where a new search must
+        find its way through a tube of swept space 3 cm wider than the body (make demo ROBOT=talos:
+        after the reach the way home was UNOBSERVED_SPACE beside the shoulder, three looks could not
+        see it). The executor's deviation from the plan (the chest and the legs where its own tasks
+        take them) is why every edge is checked, not assumed."""
+        P, way = self._last_positions, self._last_way
+        if P is None or way is None or float(np.max(np.abs(P[0] - rest))) > WAY_IN_REST_TOL_RAD:
             return None
-        first = prefix[0][N_BASE_Q:]
-        R = self._reverse_of_last(first)
+        times, W, wt = way
+        if len(times) != len(P):
+            return None
+        R = self._reverse_of_last(prefix[0][N_BASE_Q:])
         if R is None:
             return None
         end = prefix[-1][N_BASE_Q:]
         k = int(np.argmin(np.max(np.abs(R - end), axis=1)))
         if float(np.max(np.abs(R[k] - end))) > 1e-6:
             return None     # a retreat that left the way in (a line, not back along the approach)
-        R = np.vstack([R[k:], rest])
-        keep, last = [0], R[0]
-        step = self.params.edge_resolution / max(self.params.arm_weight, 1e-9)
-        for i in range(1, len(R) - 1):
-            if float(np.max(np.abs(R[i] - last))) >= WAY_IN_WAYPOINT_RAD:
-                keep.append(i)
-                last = R[i]
-        W = R[keep + [len(R) - 1]]
-        dense = [W[0][None]]
-        for a, b in zip(W[:-1], W[1:]):
-            m = max(1, int(math.ceil(float(np.max(np.abs(b - a))) / (step / 4))))
+        t_k = float(times[len(times) - 1 - k])
+        before = np.flatnonzero(wt < t_k - 1e-9)[::-1]
+        if not len(before):
+            return None
+        ways = W[before].copy()
+        ways[-1] = self.start_config(rest)         # the plan's first waypoint: the rest posture, exactly
+        J = np.vstack([end, ways[:, N_BASE_Q:]])
+        step = self.params.edge_resolution / max(self.params.arm_weight, 1e-9) / 4.0
+        dense = [J[0][None]]
+        for a, b in zip(J[:-1], J[1:]):
+            m = max(1, int(math.ceil(float(np.max(np.abs(b - a))) / step)))
             dense.append(a + (np.arange(1, m + 1)[:, None] / m) * (b - a))
         D = np.vstack(dense)
         if not np.all((D >= self.robot.lower - 1e-9) & (D <= self.robot.upper + 1e-9)):
             return None
         if not np.all(collision.check_batch(np.array([self.start_config(j) for j in D]))):
             return None
-        return np.array([self.start_config(j) for j in W])
+        return np.vstack([self.start_config(end)[None], ways])
 
     def _home_outcome(self, pieces, q_rest, path_plan, how, stats, tp, nodes, t0, collision_stats, note,
                       retreat_kw) -> PlanOutcome:
@@ -1385,7 +1392,7 @@ class ReachPlanner:
         from humanoid_reach_ros import kinematics
 
         kinematics.warm_up()
-        saved, last, positions = self.scene, self._last_plan_end, self._last_positions
+        saved, last, positions, way = self.scene, self._last_plan_end, self._last_positions, self._last_way
         try:   # a scene of its own: the shared one (fed by a node) is left alone
             self.scene = PlanningScene(self.robot, saved.params, self.collision_model)
             self.set_map(np.array([[5.0, 5.0, 5.0]]))
@@ -1393,7 +1400,7 @@ class ReachPlanner:
                             PlanRequest(valve_region(), goal_count=1, time_budget_s=float(budget_s)))
             return bool(out.success)
         finally:
-            self.scene, self._last_plan_end, self._last_positions = saved, last, positions
+            self.scene, self._last_plan_end, self._last_positions, self._last_way = saved, last, positions, way
 
 
 @dataclass(frozen=True, eq=False)
