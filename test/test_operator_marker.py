@@ -36,12 +36,15 @@ def operator(env, *args: str) -> tuple[int, dict, str]:
 
 
 def test_marker_out_of_view_the_head_turns_to_find_it(start_node, ros_env) -> None:
-    start_node("joint_driver", params_file="config/joint_driver.yaml", ready_log=r"simulated hrp2", timeout=60.0)
-    start_node("scene_sim", params_file="config/scene_sim.yaml", ready_log=r"scene sensors ready", timeout=60.0)
-    blind = start_node("marker_localizer", params_file="config/marker_localizer.yaml", params=NO_SUCH_MARKER,
-                       ready_log=r"marker localizer ready", timeout=60.0)
-    start_node("reach_executor", params_file="config/reach_executor.yaml", ready_log=r"reach executor ready",
-               timeout=180.0)
+    # the four start together (each waits for its own inputs), then each is awaited
+    nodes = [(start_node("joint_driver", params_file="config/joint_driver.yaml"), r"simulated hrp2"),
+             (start_node("scene_sim", params_file="config/scene_sim.yaml"), r"scene sensors ready"),
+             (start_node("marker_localizer", params_file="config/marker_localizer.yaml", params=NO_SUCH_MARKER),
+              r"marker localizer ready"),
+             (start_node("reach_executor", params_file="config/reach_executor.yaml"), r"reach executor ready")]
+    for proc, ready in nodes:
+        proc.wait_for_log(ready, 180.0)
+    blind = nodes[2][0]
 
     # the marker never comes: the executor's marker look, a countdown, then the operator gives up (6)
     code, out, err = operator(ros_env, "--marker", "--timeout", "5", "--marker-wait", "6")
