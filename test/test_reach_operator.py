@@ -253,8 +253,10 @@ def test_waiting_for_a_server_is_visible_and_ctrl_c_ends_it(ros_env, tmp_path: P
 
 @pytest.mark.node
 def test_plan_and_bad_requests_against_reach_planner(start_node, ros_env) -> None:
-    start_node("joint_driver", params_file="config/joint_driver.yaml", ready_log=r"simulated hrp2")
-    start_node("reach_planner", params_file="config/reach_planner.yaml", ready_log=r"reach planner ready")
+    started = [(start_node("joint_driver", params_file="config/joint_driver.yaml"), r"simulated hrp2"),
+               (start_node("reach_planner", params_file="config/reach_planner.yaml"), r"reach planner ready")]
+    for proc, ready in started:   # started together, awaited in turn
+        proc.wait_for_log(ready, 60.0)
 
     def planned():  # the planner may not have /joint_states yet right after start
         r = run_operator(["--target", "0.71", "0.03", "0.90", "--budget", "20", "--seed", "1"], ros_env)
@@ -287,10 +289,11 @@ def test_plan_and_bad_requests_against_reach_planner(start_node, ros_env) -> Non
 
 @pytest.mark.node
 def test_execute_with_progress_and_cancel(start_node, ros_env, tmp_path: Path) -> None:
-    start_node("joint_driver", params_file="config/joint_driver.yaml", ready_log=r"simulated hrp2")
-    start_node("reach_planner", params_file="config/reach_planner.yaml", ready_log=r"reach planner ready")
-    start_node("reach_executor", params_file="config/reach_executor.yaml", ready_log=r"reach executor ready",
-               timeout=60.0)
+    started = [(start_node("joint_driver", params_file="config/joint_driver.yaml"), r"simulated hrp2"),
+               (start_node("reach_planner", params_file="config/reach_planner.yaml"), r"reach planner ready"),
+               (start_node("reach_executor", params_file="config/reach_executor.yaml"), r"reach executor ready")]
+    for proc, ready in started:   # started together, awaited in turn
+        proc.wait_for_log(ready, 90.0)
     args = ["--target", "0.71", "0.03", "0.90", "--budget", "20", "--execute", "--json"]
 
     def executed():
