@@ -436,7 +436,10 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
 
     def held_after_motion():   # the probe's queue may still hold motion commands when the log line arrives
         Jm, _ = command_array(commands, model, n1)
-        return len(Jm) > 60 and np.max(np.abs(Jm[-40:] - Jm[-1])) < 1e-9
+        # ... or not have them yet: the hold before the motion is 40 equal commands too (ci41: the hand
+        # 0.58 m from the end, the probe behind the log line); the motion must be in before its hold
+        return (len(Jm) > 60 and np.max(np.abs(Jm[-40:] - Jm[-1])) < 1e-9
+                and float(np.max(np.abs(Jm - Jm[0]))) > 0.01)
 
     ros_probe.spin_until(held_after_motion, 30.0, "the robot to hold at the end of /reach_trajectory #4",
                          on_timeout=ex.log_tail)
