@@ -219,12 +219,10 @@ def test_replay_beside_a_live_graph_leaves_its_map_and_joint_states_alone(start_
     replay_states = ros_probe.collect(JointState, "/replay/joint_states",
                                       QoSProfile(depth=5000, reliability=ReliabilityPolicy.RELIABLE))
     replay_clouds = ros_probe.collect(PointCloud2, "/replay/head_camera/points", qos_profile_sensor_data)
-    started = [(start_node("joint_driver", params_file="config/joint_driver.yaml"), r"simulated hrp2"),
-               (start_node("scene_sim", params_file="config/scene_sim.yaml"), "scene sensors ready"),
-               (start_node("voxel_mapper", params_file=MAPPER_PARAMS), "voxel mapper ready")]
-    for proc, ready in started:   # started together, awaited in turn
-        proc.wait_for_log(ready, 120.0)
-    sensors = started[1][0]
+    start_node("joint_driver", params_file="config/joint_driver.yaml", ready_log=r"simulated hrp2")
+    sensors = start_node("scene_sim", params_file="config/scene_sim.yaml", ready_log="scene sensors ready",
+                         timeout=120.0)
+    start_node("voxel_mapper", params_file=MAPPER_PARAMS, ready_log="voxel mapper ready", timeout=120.0)
 
     def voxels() -> int:
         return maps.last.width * maps.last.height if len(maps) else 0
