@@ -173,6 +173,27 @@ def test_late_solver_evaluates_at_the_deadline_it_will_be_sent_at() -> None:
     assert h.engine.times[-1] == pytest.approx(t_before + 3 * DT)
 
 
+def test_a_motion_started_while_the_tick_is_late_is_not_shortened() -> None:
+    """The tick thread woke late (its next deadline already past when the motion starts): the
+    reference's origin is the first deadline after the start, so the motion lasts its whole
+    duration from its start (ci43: 2.3558 s of a 2.3610 s reference, 0.2 ms beyond a period)."""
+    h = Harness()
+    h.sup.tick(h.deadline() + DT)                 # ticking; its next deadline is 100.005
+    h.clock.now = h.deadline() + 2.3 * DT         # the motion comes 1.3 periods after that deadline
+    h.sup.submit(h.motion(1, duration=0.2))
+    start = h.clock.now
+    h.k += 3                                      # the next tick is the first deadline after now
+    for _ in range(80):
+        h.sup.work()
+        h.clock.now = h.deadline()
+        h.sup.tick(h.deadline() + DT)
+        h.k += 1
+    m = h.finished[0]
+    assert m.code == C.SUCCESS
+    assert m.ended - start >= 0.2 - DT - 1e-9, m.ended - start
+    assert m.summary(h.clock.now)["duration_s"] >= 0.2 - DT - 1e-9
+
+
 def fill(h: Harness) -> None:
     """The solver as the threaded loop runs it: it works while there is work (the queued
     commands, then steps until ``lookahead_steps`` are computed ahead)."""

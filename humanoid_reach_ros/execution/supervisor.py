@@ -411,8 +411,11 @@ class ExecutionSupervisor:
                 self._finish(previous, C.PREEMPTED, f"preempted by {motion.label} (from the last command)")
             motion.started = self.clock()
             # reference time origin: the step for the next deadline is at t = one period
+            period = self.config.period_s
             nxt = self._next_deadline if math.isfinite(self._next_deadline) else motion.started
-            motion.t_origin = nxt - self.config.period_s
+            if nxt < motion.started:  # the tick is late: the first step goes out at the first deadline after now
+                nxt += math.ceil((motion.started - nxt) / period) * period
+            motion.t_origin = nxt - period
             self.motion = motion
             self.mode = RUN
             self._starting = False
