@@ -280,6 +280,17 @@ def test_the_way_home_is_the_way_in_reversed_where_it_is_clear(planner) -> None:
     reach_samples = np.asarray(reach.positions)
     near = [float(np.min(np.max(np.abs(reach_samples - w[N_BASE_Q:]), axis=1))) for w in way[len(way) // 2:]]
     assert max(near) < 1e-6, max(near)
+    # a reach that began with the head pitched down (a scan ends so: the console's Home, ci42)
+    # goes home the same way, the last edge turning the head to the rest posture's
+    neck = [planner.robot.joint_index[n] for n in planner.robot.spec.neck_joints]
+    assert neck
+    looking = rest.copy()
+    looking[neck[-1]] = np.clip(0.6, planner.robot.lower[neck[-1]], planner.robot.upper[neck[-1]])
+    reach2 = planner.plan(looking, PlanRequest(valve_region(), seed=2, time_budget_s=5.0))
+    assert reach2.success, reach2.message
+    home2 = planner.plan(reach2.positions[-1], PlanRequest(None, home=True, seed=2, time_budget_s=5.0))
+    assert home2.success and "the way in reversed" in home2.message, home2.message
+    np.testing.assert_allclose(home2.positions[-1], rest, atol=1e-9)
     # from a posture no plan ended at: a searched way home
     elsewhere = reach.positions[-1] + 0.05
     other = planner.plan(np.clip(elsewhere, planner.robot.lower, planner.robot.upper),

@@ -293,7 +293,7 @@ _DEFAULT_RETREAT = RetreatParams()
 #: plan's hand is this close to the plan's end and no joint but the head's this far off it
 REVERSE_HAND_TOL_M = 0.03
 REVERSE_JOINT_TOL_RAD = 0.35
-WAY_IN_REST_TOL_RAD = 0.02       # a plan that began this near the rest posture: its way in, reversed, goes home
+WAY_IN_REST_TOL_RAD = 0.02       # a plan that began this near rest (head aside): its way in, reversed, goes home
 
 
 class ReachPlanner:
@@ -1152,14 +1152,20 @@ class ReachPlanner:
         that plan's end (:meth:`_reverse_of_last`), the plan began at the rest posture (every joint
         within ``WAY_IN_REST_TOL_RAD``) and every edge is clear in ``collision``, the unobserved
         frontier included (checked every quarter ``edge_resolution``, the planner's own paths' rule);
-        else None. The plan's waypoints keep the soles exactly on their stance (its samples between
+        else None. The head may have begun anywhere (a scan ends with it pitched down: the console's
+        Home after a reach that followed one, ci42): the last edge turns it to the rest posture's, and
+        is checked like the others. The plan's waypoints keep the soles exactly on their stance (its samples between
         them do not). Why: the body swept that way, so it is observed free, where a new search must
         find its way through a tube of swept space 3 cm wider than the body (make demo ROBOT=talos:
         after the reach the way home was UNOBSERVED_SPACE beside the shoulder, three looks could not
         see it). The executor's deviation from the plan (the chest and the legs where its own tasks
         take them) is why every edge is checked, not assumed."""
         P, way = self._last_positions, self._last_way
-        if P is None or way is None or float(np.max(np.abs(P[0] - rest))) > WAY_IN_REST_TOL_RAD:
+        if P is None or way is None:
+            return None
+        body = np.ones(self.robot.n_joints, bool)     # the head may differ (a scan ends looking down)
+        body[[self.robot.joint_index[n] for n in self.robot.spec.neck_joints]] = False
+        if float(np.max(np.abs(P[0] - rest)[body])) > WAY_IN_REST_TOL_RAD:
             return None
         times, W, wt = way
         if len(times) != len(P):
