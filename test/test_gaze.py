@@ -535,3 +535,50 @@ def test_a_gaze_held_back_turns_the_head_alone_the_rest_of_its_way() -> None:
         others = np.setdiff1d(np.arange(len(j)), head)
         np.testing.assert_allclose(g.joints[others], partial[others], atol=1e-9)   # the chest and legs stop there
         assert g.off_axis_deg < unaimed.off_axis_deg - 5.0, (g.off_axis_deg, unaimed.off_axis_deg)
+
+
+def test_a_gaze_keeps_the_body_out_of_the_unobserved_frontier() -> None:
+    """Issue 31: a gaze that turns the chest swings the arms through space the head may never have
+    seen (the scan's first gaze swung HRP-2's arm into an unseen riser in the physics plant). With
+    the mapper's frontier (/voxel_map/unobserved) in the way, the gaze stops short where the body
+    would enter it, and says so; the measured voxels alone (or ``look_avoids_unobserved`` off)
+    let it turn all the way. A malformed frontier is refused and the previous one kept."""
+    from types import SimpleNamespace
+
+    from humanoid_reach_ros.execution import config as reach_executor_params
+    from humanoid_reach_ros.execution.requests import ExecutionRequests
+
+    robot = RobotModel("hrp2")
+    p = {k: spec.default for k, spec in reach_executor_params.PARAMETERS.items()}
+    p["scene_file"] = ""
+    req = ExecutionRequests(robot, p)
+    j = robot.half_sitting_joints
+    far = np.array([[2.0 + 0.02 * i, 0.0, 1.0] for i in range(5)])      # a measured map, away from the body
+    req.measured_map(SimpleNamespace(points=far, frame_id="world", dropped_nonfinite=0))
+    _, free = req.gaze(0, "point 0", HIP, j, "")
+    assert not free.held_back and req.look_clearance(j, free.joints) == (1.0, "")
+    # frontier voxels around where the gaze takes the left hand (the chest's turn swings it)
+    tip = robot.hand_frames["left"]
+    h0 = robot.frame_pose(robot.config(j, robot.base_on_feet(j)), tip).translation
+    h1 = robot.frame_pose(robot.config(free.joints, robot.base_on_feet(free.joints)), tip).translation
+    assert np.linalg.norm(h1 - h0) > 0.15, (h0, h1)
+    cube = np.array([h1 + 0.02 * np.array([a, b, c]) for a in range(-3, 4) for b in range(-3, 4)
+                     for c in range(-3, 4)])
+    line, first = req.unobserved_map(SimpleNamespace(points=cube, frame_id="world", dropped_nonfinite=0))
+    assert first and f"({len(cube)} voxels)" in line
+    share, why = req.look_clearance(j, free.joints)
+    assert 0.0 < share < 1.0 and "space no sensor has seen" in why, (share, why)
+    _, held = req.gaze(1, "point 0", HIP, j, "")
+    assert "space no sensor has seen" in held.held_back, held.held_back
+    x = j + share * (free.joints - j)
+    assert req._look_unseen_collision().min_distance(robot.config(x, robot.base_on_feet(x))) >= 0.0
+    # a frontier in another frame is refused; the previous one stays
+    with pytest.raises(ValueError, match="not the map frame"):
+        req.unobserved_map(SimpleNamespace(points=cube + 5.0, frame_id="camera", dropped_nonfinite=0))
+    assert req.look_clearance(j, free.joints) == (share, why)
+    # off: the measured voxels only
+    p["look_avoids_unobserved"] = False
+    off = ExecutionRequests(robot, p)
+    off.measured_map(SimpleNamespace(points=far, frame_id="world", dropped_nonfinite=0))
+    off.unobserved_map(SimpleNamespace(points=cube, frame_id="world", dropped_nonfinite=0))
+    assert off.look_clearance(j, free.joints) == (1.0, "")

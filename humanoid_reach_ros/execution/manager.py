@@ -398,17 +398,22 @@ class ExecutionManager:
         except Exception as exc:
             code = self.reject("goals_rejected", label, exc)
             return Outcome(code, str(exc))
-        # a scan first gazes around the body, then returns to the posture it began in (the gazes turn
-        # the chest, which a head pose holds), then its head poses (or its directions' gaze points):
-        # it ends looking at the workspace in front, as before. ``come_back`` (the automatic looks):
-        # after the last pose or point, back to where the look began, through the space the body just
-        # swept -- the next plan starts where the robot stood, not bent over a gaze (the hosts test:
-        # from a gaze with the chest pitched 60 deg, the way onto the planning manifold went a few cm
-        # beside the swept space, into unobserved space: START_IN_COLLISION)
-        start = self.joints()[0] if len(around) or goal.come_back else None
-        items = [("point", p) for p in around] + ([("back", start)] if len(around) and start is not None else []) \
-            + ([("pose", p) for p in poses] if points is None else [("point", p) for p in points]) \
+        # a scan first takes its head poses (or its directions' gaze points), which see the space in
+        # front and beside the body; then it gazes around the body, whose chest turns swing the arms
+        # through space the poses saw (a gaze keeps the body out of the frontier: look_avoids_unobserved;
+        # gazes first swung HRP-2's arm into an unseen riser in the physics plant), then returns to the
+        # posture those gazes began in: it ends looking at the workspace in front, as before.
+        # ``come_back`` (the automatic looks): after the last pose or point, back to where the look
+        # began, through the space the body just swept -- the next plan starts where the robot stood,
+        # not bent over a gaze (the hosts test: from a gaze with the chest pitched 60 deg, the way onto
+        # the planning manifold went a few cm beside the swept space, into unobserved space:
+        # START_IN_COLLISION)
+        start = self.joints()[0] if goal.come_back else None
+        start = None if start is None else np.array(start, float)
+        items = ([("pose", p) for p in poses] if points is None else [("point", p) for p in points]) \
+            + [("around", p) for p in around] + ([("back", None)] if len(around) else []) \
             + ([("back", start)] if goal.come_back and start is not None else [])
+        around_start = None     # where the gazes around the body began: the scan's way back goes there
         asked, what = (len(poses), "head poses") if points is None else (len(points), "gaze points")
         self.log.info(f"{label}: accepted: {counted(asked, what)}, {dwell:g} s each"
                       + (" (the directions asked, for a robot without a neck)" if directions else "")
@@ -423,11 +428,16 @@ class ExecutionManager:
                     motion = self.requests.look(next(self._motion_ids), f"{label} pose {k}", (yaw, pitch),
                                                 *self.joints())
                 elif item == "back":
+                    target = around_start if target is None else target
+                    if target is None:
+                        continue   # no measured joints when the gazes around began: they did not run
                     motion = self.requests.back_to(next(self._motion_ids), f"{label} back {k}", target,
                                                    *self.joints())
                     yaw, pitch = self.requests.head_targets(target)
                 else:
                     joints = self.joints()
+                    if item == "around" and around_start is None and joints[0] is not None:
+                        around_start = np.array(joints[0], float)
                     motion, gaze = self.requests.gaze(next(self._motion_ids), f"{label} point {k}", target,
                                                       *joints)
                     yaw, pitch = self.requests.head_targets(gaze.joints)
@@ -554,6 +564,22 @@ class ExecutionManager:
             return False
         self._send(SetMap(tree))
         if changed:   # state changes at INFO, repetition at DEBUG
+            self.log.info(line)
+        else:
+            self.log.debug(line)
+        return True
+
+    def unobserved_message(self, build: Callable[[], Any]) -> bool:
+        """``/voxel_map/unobserved`` (``build()``: the parsed cloud): the frontier gazes keep the
+        body out of; a malformed one is counted and the previous one kept."""
+        try:
+            line, first = self.requests.unobserved_map(build())
+        except Exception as exc:
+            self.requests.reject_map(exc, "/voxel_map/unobserved")
+            self.log.warning(f"rejected /voxel_map/unobserved ({self.counters.maps_rejected} maps rejected so far): "
+                             f"{exc}; keeping the previous frontier", throttle_duration_sec=self.config.warn_throttle_s)
+            return False
+        if first:
             self.log.info(line)
         else:
             self.log.debug(line)

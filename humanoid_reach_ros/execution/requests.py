@@ -176,6 +176,7 @@ class RequestCounters(Counters):
     maps_rejected: int = 0
     map_source: str = "none"
     map_voxels: int = 0
+    unobserved_voxels: int = -1              # the mapper's frontier (-1: none received)
     map_build_ms: float = 0.0
     dual_arm_goals: int = 0
     dual_arm_infeasible: int = 0
@@ -204,6 +205,7 @@ class ExecutionRequests:
         self._reshaper = None
         self._look_cm = None      # the collision model and checker of look_clearance, made on first use
         self._look_coll = None
+        self._look_unseen = None  # ... and its checker on the map plus the unobserved frontier
         self._retreat = None      # the planner's contact test (planning/retreat.py), made on first use
         self._reshape_lock = threading.Lock()
         self._sampler = None
@@ -260,9 +262,24 @@ class ExecutionRequests:
         return tree, (f"map source: /voxel_map ({len(cloud.points)} voxels{dropped}, sphere tree built in "
                       f"{c.map_build_ms:.1f} ms; replaces {previous})"), changed
 
-    def reject_map(self, exc: Exception) -> None:
+    def unobserved_map(self, cloud) -> tuple[str, bool]:
+        """A parsed /voxel_map/unobserved (the mapper's frontier: unobserved voxels next to observed
+        free space, the body-swept space already out of it) -> (log line, first one). Only gazes use
+        it (``look_avoids_unobserved``): the loop's map stays the occupied voxels, whose dampers
+        follow plans that already keep out of unobserved space."""
+        if cloud.frame_id not in ("", self.config.map_frame):
+            raise ValueError(f"frame_id {cloud.frame_id!r} is not the map frame {self.config.map_frame!r}")
+        with self._map_lock:
+            self.scene.set_unobserved(frontier=cloud.points)
+        first = self.counters.unobserved_voxels < 0
+        self.counters.set(unobserved_voxels=len(cloud.points))
+        off = "" if self.config.look_avoids_unobserved else " (off: look_avoids_unobserved is false)"
+        return (f"unobserved frontier: /voxel_map/unobserved ({len(cloud.points)} voxels): gazes keep the body out "
+                f"of it{off}"), first
+
+    def reject_map(self, exc: Exception, topic: str = "/voxel_map") -> None:
         self.counters.count("maps_rejected")
-        self.counters.set(last_rejection=f"/voxel_map: {type(exc).__name__}: {exc}")
+        self.counters.set(last_rejection=f"{topic}: {type(exc).__name__}: {exc}")
 
     def _aim_map_at(self, positions: np.ndarray, arm: str, log: Callable[[str], None] | None) -> None:
         """Before a motion: leave the voxels around its hand's start and final positions out of
@@ -605,34 +622,45 @@ class ExecutionRequests:
         ``security_distance_m`` nor, from nearer still, nearer than the start. ``samples``
         points along the way, then ``bisections`` halvings between the last clear and the first
         blocked one."""
-        coll = self._look_collision()
+        coll, unseen = self._look_collision(), self._look_unseen_collision()
         d_s, margin = float(self.config.executor.security_distance_m), float(self.config.look_clearance_m)
         need = d_s + margin
 
-        def clearance(share: float) -> tuple[float, str]:
+        def distances(share: float) -> tuple[float, str, float]:
             j = start + share * (goal - start)
             with self._fk_lock:
                 q = self.robot.config(j, self.robot.base_on_feet(j))
             d_env, d_self = coll.min_distance(q), coll.self_min_distance(q)
-            return (d_env, "the map") if d_env <= d_self else (d_self, "its own body")
+            d_unseen = unseen.min_distance(q) if unseen is not None else math.inf
+            return (d_env, "the map", d_unseen) if d_env <= d_self else (d_self, "its own body", d_unseen)
 
-        d0 = clearance(0.0)[0]
+        d0, _, u0 = distances(0.0)
         if d0 < need:   # a start already nearer (a hand at the valve): it may come nearer by the margin,
             # never within 2 mm of the dampers' d_s, never nearer than it is where it is nearer still
             need = min(max(d_s + 0.002, d0 - margin), d0)
+        need_unseen = min(0.0, u0)   # out of the frontier's voxels; from a start already in them, no deeper
+
+        def blocked(share: float) -> str:
+            d, what, u = distances(share)
+            if d < need:
+                return f"further, the body would come within {max(d, 0.0) * 1e3:.0f} mm of {what} (the look " \
+                       f"keeps {need * 1e3:.0f} mm)"
+            if u < need_unseen:
+                return "further, the body would enter space no sensor has seen (the unobserved frontier)"
+            return ""
+
         last = 0.0
         for share in np.linspace(0.0, 1.0, samples + 1)[1:]:
-            d, what = clearance(float(share))
-            if d < need:
+            why = blocked(float(share))
+            if why:
                 lo, hi = last, float(share)
                 for _ in range(bisections):
                     mid = 0.5 * (lo + hi)
-                    if clearance(mid)[0] >= need:
+                    if not blocked(mid):
                         lo = mid
                     else:
                         hi = mid
-                return lo, (f"further, the body would come within {max(d, 0.0) * 1e3:.0f} mm of {what} (the look "
-                            f"keeps {need * 1e3:.0f} mm)")
+                return lo, why
             last = float(share)
         return 1.0, ""
 
@@ -648,6 +676,25 @@ class ExecutionRequests:
         if self._look_coll is None or self._look_coll.tree is not tree:
             self._look_coll = RobotCollision(self.robot, self._look_cm, tree)
         return self._look_coll
+
+    def _look_unseen_collision(self):
+        """A :class:`~humanoid_reach_ros.geometry.distance.RobotCollision` on the measured map plus
+        the unobserved frontier (cached per sphere tree) for :meth:`look_clearance`; None where
+        ``look_avoids_unobserved`` is off, no frontier came or the map is not a measured one."""
+        if not self.config.look_avoids_unobserved:
+            return None
+        from humanoid_reach_ros.geometry.distance import RobotCollision
+        from humanoid_reach_ros.robot.shapes import load_collision_model
+        with self._map_lock:
+            snap = self.scene.snapshot()
+            if snap.source != "/voxel_map" or snap.frontier is None or not len(snap.frontier):
+                return None
+            tree, _ = snap.tree(None, unobserved=True)
+        if self._look_cm is None:
+            self._look_cm = load_collision_model(None, self.robot)
+        if self._look_unseen is None or self._look_unseen.tree is not tree:
+            self._look_unseen = RobotCollision(self.robot, self._look_cm, tree)
+        return self._look_unseen
 
     def head_targets(self, joints: np.ndarray) -> tuple[float, float]:
         """Head yaw and pitch [rad] of a joint vector (the ``Look`` feedback's fields); without a

@@ -13,7 +13,8 @@ node's callbacks never share an interpreter lock with the 5 ms deadlines. This n
   pattern, or gaze points);
 * ``/reach_trajectory`` (executed like a goal with ``arm = 0``), ``/dual_arm/targets``
   (PoseArray right, left; followed while ``dual_arm_follow``), ``~/dual_arm_sequential``,
-  ``/voxel_map`` (the collision map) and ``/joint_states`` (the start posture; stale after
+  ``/voxel_map`` (the collision map), ``/voxel_map/unobserved`` (the frontier a gaze keeps the
+  body out of) and ``/joint_states`` (the start posture; stale after
   ``joint_states_timeout_s``: NO_JOINT_STATES; after ``joint_states_abort_s`` a running motion
   is ABORTED and the last command held);
 * the results, feedback and ``/diagnostics``.
@@ -147,6 +148,8 @@ class ReachExecutorNode(Node):
                                   ReentrantCallbackGroup())
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(PointCloud2, "voxel_map", lambda msg: m.map_message(
+            lambda: msgs.points_from_cloud(msg)), LATCHED, callback_group=inputs)
+        self.create_subscription(PointCloud2, "voxel_map/unobserved", lambda msg: m.unobserved_message(
             lambda: msgs.points_from_cloud(msg)), LATCHED, callback_group=inputs)
         self.create_subscription(JointTrajectory, "reach_trajectory", lambda msg: m.trajectory_topic(
             lambda: TrajectoryGoal(exec_msgs.reference_from_trajectory(msg, self.robot), msg.header.frame_id)),
