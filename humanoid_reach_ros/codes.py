@@ -32,7 +32,8 @@ class ErrorCode(IntEnum):
     NO_JOINT_STATES = 10        # /joint_states missing or stale (a plan, a motion, a look)
     BUSY = 11
     UNOBSERVED_SPACE = 12
-    NO_GOAL_FOUND = 13          # the budget ran out before a goal posture was found (not proven out of reach)
+    NO_GOAL_FOUND = 13          # the budget ran out before a goal posture was found (not proven out of reach),
+    #                             or at once when the target lies in a pocket the map closes (planning/enclosure.py)
     UNOBSERVABLE_SPACE = 14     # as UNOBSERVED_SPACE, but no reachable gaze of the head camera sees that space
     PREEMPTED = 20              # a motion replaced by a newer one (blended, never a jump)
     CANCELED = 21

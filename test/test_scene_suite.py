@@ -73,6 +73,9 @@ def test_each_case_answers_as_expected(planners, robot, case):
             np.testing.assert_allclose(hand.translation, case.target_pose[:3, 3], atol=1e-6)
         elif o.error.name == "TARGET_OUT_OF_REACH":
             assert o.stats["samples"] == 0 and o.stats["total_time_s"] < 0.05
+        elif o.error.name == "NO_GOAL_FOUND" and o.stats["samples"] == 0:
+            # proven at once: the target in a pocket the map closes (planning/enclosure.py, issue 35)
+            assert "proven, not sampled" in o.message and o.stats["total_time_s"] < 0.5, o.message
         else:
             assert o.stats["samples"] > 0
             if o.error.name == "NO_GOAL_FOUND":

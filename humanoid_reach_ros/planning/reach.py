@@ -50,7 +50,8 @@ import pinocchio as pin
 from humanoid_reach_ros.geometry.distance import RobotCollision
 from humanoid_reach_ros.planning.goal_sampler import Goals, sample_goals
 from humanoid_reach_ros.planning.trunk_region import TrunkRegion, TrunkSampler
-from humanoid_reach_ros.planning.reach_map import InverseReach, ReachMap
+from humanoid_reach_ros.planning.reach_map import InverseReach, ReachMap, region_centre
+from humanoid_reach_ros.planning.enclosure import ArmTube, cell_size as enclosure_cell, enclosed, trunk_cells
 from humanoid_reach_ros.planning.path import (
     PLANNER_NAMES, PlanningSpace, PlanStatus, ShortcutOptions, plan as run_planner, shortcut_path,
 )
@@ -341,6 +342,8 @@ class ReachPlanner:
             self.reach = InverseReach(ReachMap.load(self.robot.spec.reach_map, self.robot), self.trunk_region,
                                       params.reach_map_step_rad)
         self.early_exit_checks = bool(early_exit_checks)
+        self._tubes: dict | None = None   # arm -> enclosure.ArmTube (None: no proof for that arm), at first use
+        self._trunk_cells: tuple | None = None   # enclosure.trunk_cells, without a reach map, at first use
         self._tree_build_s = 0.0
         self._pre_segment_why = ""
         self._plan_lock = threading.Lock()
@@ -953,6 +956,10 @@ class ReachPlanner:
             collision, known, build_s = collisions[0], None, 0.0
         stats["sphere_tree_build_time_s"] = build_s
         stats["map_voxels"] = int((known or collision).tree.n_spheres)   # occupied, the target's object left out
+        if region is not None:
+            why = self._enclosed(region, arm_req, known or collision, reach_cells)
+            if why:     # proven: no goal posture exists (issue 35: at once, not after the whole budget)
+                raise _failure(PlanError.NO_GOAL_FOUND, why)
         c0 = replace(collision.counters)
         q_first = self.start_config(joints)
         # a retreat leaves the contact in the map as it is: the new target's object is left out of
@@ -1073,6 +1080,40 @@ class ReachPlanner:
         stats["total_time_s"] = time.perf_counter() - t0
         return self._fail(PlanError.NO_PATH, f"{len(goals)} goal postures found but no path to any within "
                                              f"{budget:.2f} s ({why}): {hint}", stats, **goal_kw, **retreat_kw)
+
+    def _enclosed(self, region: WorkspaceGoalRegion, arm: str, collision: RobotCollision,
+                  cells: np.ndarray | None = None) -> str:
+        """The collision proof at the target (planning/enclosure.py): the message when the target
+        lies in a pocket of the occupied map closed all round (every posture with the hand in the
+        region collides), else ''. ``cells``: the trunk cells the reach map leaves for the arms
+        (None: every cell of the trunk region, as the reach map's inverse grids it)."""
+        names = _arm_names(arm)
+        if self._tubes is None:
+            self._tubes = {a: ArmTube.of(self.robot, self.collision_model, a) for a in ARM_NAMES.values()}
+        tubes = [self._tubes[a] for a in names]
+        tree = collision.tree
+        if any(t is None for t in tubes) or not tree.n_spheres:
+            return ""
+        h = enclosure_cell(tubes, float(tree.radii.min()), self.params.resolution_m)
+        if h is None:
+            return ""
+        if self.reach is not None and cells is not None:
+            r = self.reach
+            trunk = (cells, r.half, r.v, r.cog_xy, r.chest_p, r.chest_R)
+        else:
+            if self._trunk_cells is None:
+                self._trunk_cells = trunk_cells(self.trunk_region, self.params.reach_map_step_rad)
+            trunk = self._trunk_cells
+        lo, hi = np.asarray(region.lower[:3], float), np.asarray(region.upper[:3], float)
+        pocket = enclosed(region_centre(region), float(np.linalg.norm(hi - lo) / 2), tubes, tree.centers, tree.radii,
+                          h, trunk)
+        if pocket is None:
+            return ""
+        both = " and ".join(names)
+        return (f"no goal posture exists (proven, not sampled): the target lies in {pocket.describe()} that the "
+                f"occupied map (without the target's object) closes all round, and the {both} arm"
+                f"{'s' if len(names) > 1 else ''} ({1e3 * min(t.radius for t in tubes):.0f} mm thick from the hand "
+                f"to the chest) cannot reach into it without a collision: open a way in, or check /voxel_map there")
 
     # ------------------------------------------------------------ start, retreat, home
     def _start_or_retreat(self, joints: np.ndarray, q_start: np.ndarray, collision: RobotCollision,
@@ -1398,6 +1439,17 @@ class ReachPlanner:
         from humanoid_reach_ros import kinematics
 
         kinematics.warm_up()
+        if self._tubes is None:     # the enclosure proof's arms (planning/enclosure.py), not in a request's time
+            self._tubes = {a: ArmTube.of(self.robot, self.collision_model, a) for a in ARM_NAMES.values()}
+        tubes = [t for t in self._tubes.values() if t is not None]
+        if tubes:                   # ... and its kernels, on a closed box far from the robot
+            if self._trunk_cells is None:
+                self._trunk_cells = trunk_cells(self.trunk_region, self.params.reach_map_step_rad)
+            h = self.params.resolution_m
+            g = np.arange(-5, 6) * h
+            box = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+            box = box[np.max(np.abs(box), axis=1) > 4.5 * h] + 5.0
+            enclosed(np.full(3, 5.0), 0.0, tubes, box, np.full(len(box), h), h, self._trunk_cells)
         saved, last, positions, way = self.scene, self._last_plan_end, self._last_positions, self._last_way
         try:   # a scene of its own: the shared one (fed by a node) is left alone
             self.scene = PlanningScene(self.robot, saved.params, self.collision_model)

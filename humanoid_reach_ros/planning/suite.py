@@ -8,7 +8,8 @@ paper's eq. 3 -- hand at the target, roll and pitch within +-90 deg, yaw free --
 ``cone``: roll and pitch within +-``cone_deg``), ``exclude_groups`` (default
 ``[target]``: the reached object is not an obstacle) and ``expect`` per arm:
 ``reachable`` (SUCCESS), ``out_of_reach`` (TARGET_OUT_OF_REACH, proven by the geometric
-bound), ``no_goal`` (NO_GOAL_FOUND: not ruled out by the bound, yet no goal posture) or
+bound), ``no_goal`` (NO_GOAL_FOUND: not ruled out by a reach bound, yet no goal posture; at once
+where the collision proof at the target decides it, planning/enclosure.py) or
 ``marginal`` (SUCCESS, NO_GOAL_FOUND or NO_PATH: the hand fits the model with zero
 clearance, so a path exists only at the collision margin's edge; whether the planner finds
 one within its budget depends on the samples: any of the three is a right answer, an error
