@@ -131,3 +131,43 @@ def test_no_false_no_over_random_goal_postures(planner):
         if tried >= 40:
             break
     assert tried >= 40
+
+
+@pytest.mark.parametrize("name", ["hrp2", "talos", "g1"])
+def test_the_tube_is_inside_the_shapes_at_random_arm_postures(name):
+    """The tube's claim, checked where it is used: at random arm joints within the limits, every
+    point of the polyline (tip, joint origins, into the chest) past the lead lies at least the
+    tube's radius deep inside one of the robot's shapes."""
+    import pinocchio as pin
+
+    rp = ReachPlanner(RobotModel(name))
+    model, cm = rp.robot.model, rp.collision_model
+    data = model.createData()
+    rng = np.random.default_rng(7)
+    for arm in ("right", "left"):
+        tube = ArmTube.of(rp.robot, cm, arm)
+        limb = rp.robot.limbs[f"{arm}_arm"]
+        jids = [model.getJointId(j) for j in limb.joints]
+        for _ in range(30):
+            q = pin.neutral(model)
+            for j in jids:
+                i = model.joints[j].idx_q
+                q[i] = rng.uniform(model.lowerPositionLimit[i], model.upperPositionLimit[i])
+            pin.framesForwardKinematics(model, data, q)
+            root = data.oMf[model.getFrameId(limb.root)]
+            pts = [data.oMf[model.getFrameId(limb.tip)].translation] + \
+                [data.oMi[j].translation for j in reversed(jids)] + [root.act(tube.shoulder)]
+            P0, P1, radii = cm.world_shapes(q)
+            s0 = 0.0
+            for a, b in zip(pts[:-1], pts[1:]):
+                L = float(np.linalg.norm(b - a))
+                for t in np.linspace(0.0, 1.0, max(2, int(L / 0.005) + 1)):
+                    if s0 + t * L < tube.lead + 1e-9:
+                        continue
+                    p = a + t * (b - a)
+                    ab = P1 - P0
+                    den = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
+                    u = np.clip(np.einsum("ij,ij->i", p - P0, ab) / den, 0.0, 1.0)
+                    depth = np.max(radii - np.linalg.norm(p - (P0 + u[:, None] * ab), axis=1))
+                    assert depth >= tube.radius - 1e-9, (name, arm, s0 + t * L, depth, tube.radius)
+                s0 += L

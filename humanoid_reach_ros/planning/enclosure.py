@@ -6,30 +6,36 @@ disconnection proofs in motion planning -- e.g. Basch et al. 2001, "Disconnectio
 motion planning"; here one point-to-point connectivity test on a grid, no configuration space):
 
 1. **The arm is a thick curve.** The polyline from the hand's tip frame through the origins of
-   the arm's joints, last to first (the shoulder), is rigid piecewise: each of its segments is
-   fixed in one joint's body. :class:`ArmTube` checks once per robot, in each body's own frame,
-   that every point of the polyline but its first ``lead`` metres (from the tip) lies ``radius``
-   deep inside one of that body's collision shapes (sampled every ``STEP_M``, minus half a step:
-   a point moves by at most its distance along the segment). So wherever that point is, an
-   environment sphere whose centre comes within ``radius + its own radius`` of it collides with
-   that shape.
-2. **Blocked cells.** A grid of cells (the map's resolution) around the target: a cell is blocked
-   when its farthest corner lies within ``radius + sphere radius`` of one sphere centre of the
-   planner's collision map: any point of the polyline in a blocked cell means a collision.
+   the arm's joints, last to first, and on from the first joint's origin towards the middle of
+   the arm root's (the chest's) thickest shape, is rigid piecewise: each of its segments is
+   fixed in one body. :class:`ArmTube` checks once per robot, in each body's own frame, that
+   every point of the polyline but its first ``lead`` metres (from the tip) lies ``radius`` deep
+   inside a collision shape: one of that body's, one of its parent's or child's turned about the
+   joint between them over that joint's limits (every ``Q_STEP``, less the point's motion between
+   two samples), or a sphere centred on a joint origin every joint in between shares (sampled
+   every ``STEP_M``, less half a step); the segment into the chest is kept as far as it keeps
+   80 % of the arm's depth. So wherever a point of it is, an environment sphere whose centre comes
+   within ``radius`` plus the sphere's own radius of it collides with that shape.
+2. **Blocked cells.** A grid of cells around the target (:func:`cell_size`: the map's resolution,
+   or half of it for a thin tube): a cell is blocked when its eight corners lie strictly within
+   ``radius + sphere radius`` of one sphere centre of the planner's collision map (the occupied
+   voxels, without the target's object): any point of the polyline in a blocked cell collides.
 3. **The pocket.** The cells within ``lead + extent`` (the region's position box) of the target
-   hold the polyline's start. A fill from those that are not blocked, through
-   cells sharing a face, an edge or a corner (26 neighbours: every continuous curve from cell to
-   cell goes through such a sequence), stays inside the box around the target (``BOX_M``):
-   the pocket is closed. If it reached the box's border there is no proof.
-4. **The shoulder is outside.** The polyline's other end, the shoulder (the first arm joint's
-   origin), lies at every trunk posture searched (the reach map's trunk cells, each with its
-   motion) farther than a cell's half diagonal from every pocket cell.
+   hold the polyline's start. A fill from those that are not blocked, through cells sharing a
+   face, an edge or a corner (26 neighbours: every continuous curve from cell to cell goes
+   through such a sequence), stays inside the box around the target (``BOX_M``): the pocket is
+   closed. If it reaches the box's border there is no proof.
+4. **The far end is outside.** The polyline's far end, in the chest, lies at every trunk posture
+   searched (the trunk cells of the reach map's inverse, or the same grid without a map:
+   :func:`trunk_cells`; each cell's motion counted, cells that come close split in 16 up to
+   ``SHOULDER_LEVELS`` times) farther than a cell's half diagonal from every pocket cell.
 
-Then every continuous curve from the tip to the shoulder leaves the pocket through a blocked
-cell: every posture with the hand in the region collides. ``NO_GOAL_FOUND`` is answered at once,
-with what closes the pocket. Sound for the map the planner checks against (its occupied voxels,
-without the target's object); a target whose pocket is open, or a shoulder that might be inside
-it, is left to the goal sampler as before.
+Then every continuous curve from the tip to the chest leaves the pocket through a blocked cell:
+every posture with the hand in the region collides. ``NO_GOAL_FOUND`` is answered at once, with
+the pocket in the message. Sound for the map the planner checks against and for the postures it
+searches (Algorithm 1's: the chest joints at the reference, the trunk in the leg-feasible cells);
+a target whose pocket is open, or a chest that might be inside it, is left to the goal sampler
+as before.
 
 No ROS here.
 """
