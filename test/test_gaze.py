@@ -551,6 +551,8 @@ def test_a_gaze_keeps_the_body_out_of_the_unobserved_frontier() -> None:
     robot = RobotModel("hrp2")
     p = {k: spec.default for k, spec in reach_executor_params.PARAMETERS.items()}
     p["scene_file"] = ""
+    assert p["look_avoids_unobserved"] is False        # off by default (docs/operator.md: the known gap)
+    p["look_avoids_unobserved"] = True
     req = ExecutionRequests(robot, p)
     j = robot.half_sitting_joints
     far = np.array([[2.0 + 0.02 * i, 0.0, 1.0] for i in range(5)])      # a measured map, away from the body

@@ -104,11 +104,12 @@ NODE_PARAMETERS: dict[str, ParamSpec] = {
     "look_clearance_m": ParamSpec(0.002, "a gaze's reference keeps this much more than security_distance_m to the "
                                   "map and between the robot's shapes; it stops short where it would not [m]",
                                   (0.0, 0.5)),
-    "look_avoids_unobserved": ParamSpec(True, "a gaze's reference keeps the body out of the space no sensor has seen "
-                                        "(voxel_mapper's frontier, /voxel_map/unobserved, once one came with a "
-                                        "measured /voxel_map): it stops short where the body would enter it (issue "
-                                        "31: the scan's first gaze swung HRP-2's arm into an unseen riser); false: "
-                                        "the measured voxels only"),
+    "look_avoids_unobserved": ParamSpec(False, "a gaze's reference keeps the body out of the space no sensor has "
+                                        "seen (voxel_mapper's frontier, /voxel_map/unobserved, once one came with a "
+                                        "measured /voxel_map): it stops short where the body would enter it. Off by "
+                                        "default: on, the scan's chest turns stop at 0-60 % and the space beside the "
+                                        "hips stays unseen, so make demo's reach ends UNOBSERVED_SPACE after its "
+                                        "looks (docs/operator.md, known gap); false: the measured voxels only"),
     "look_distance_m": ParamSpec(1.0, "a robot without a neck looks in a direction (the scan pattern, a look at "
                                  "yaw/pitch) by a whole-body gaze at the point this far from its camera [m]",
                                  (0.1, 20.0)),
