@@ -113,7 +113,8 @@ def test_the_operator_flow_across_three_hosts_and_a_cut_link(three_hosts, ros_en
         # through the executor (/look across two links), then plans again on the grown map
         before = link_bytes("operator")
         code, summary, err, _ = operator(ros_env, "--target", "0.71", "0.03", "0.90")
-        assert code == 0 and summary["plan"]["error_name"] == "SUCCESS", (summary, err, logs())
+        assert code == 0 and summary["plan"]["error_name"] == "SUCCESS", \
+            f"exit {code}\n{json.dumps(summary, indent=1)}\nstderr:\n{err[-4000:]}\n{logs()}"   # whole, not truncated
         looks = summary.get("auto_looks") or []
         assert all(look.get("success") for look in looks), summary
         operator_mb = (link_bytes("operator") - before) / 1e6
@@ -139,7 +140,7 @@ def test_the_operator_flow_across_three_hosts_and_a_cut_link(three_hosts, ros_en
             tries.append(code)
             if code == 0:
                 break
-        assert tries and tries[-1] == 0, (tries, err, logs())
+        assert tries and tries[-1] == 0, f"exits {tries}\nstderr:\n{err[-4000:]}\n{logs()}"
         print(f"after the link came back: {len(tries)} request(s), success {time.monotonic() - t_up:.1f} s after")
 
         # ---- the operator's link cut while a long action runs on the robot: a look held 6 s; the link
@@ -163,7 +164,8 @@ def test_the_operator_flow_across_three_hosts_and_a_cut_link(three_hosts, ros_en
             hosts("link", "operator", "up")
             runner.join(180.0)
         code, summary, err, took = result["out"]
-        assert code == 0 and summary["look"]["success"], (code, summary, err, logs())
+        assert code == 0 and summary["look"]["success"], \
+            f"exit {code}\n{json.dumps(summary, indent=1)}\nstderr:\n{err[-4000:]}\n{logs()}"
         print(f"the operator's link down 3 s during a look: exit {code} after {took:.1f} s")
 
         # ---- who may command the robot: a /joint_command publisher on the operator's host moves nothing

@@ -412,7 +412,7 @@ def test_the_console_in_a_browser_plans_executes_and_goes_home(ros_env, ros_prob
         wait_for(lambda: any(r["op"] == "plan" for r in results()), 120.0, "the plan's result",
                  on_timeout=lambda: page.inner_text("#log"))
         plan = [r for r in results() if r["op"] == "plan"][-1]
-        assert plan["ok"], (plan["text"], page.inner_text("#log"))
+        assert plan["ok"], f"{plan['text']}\nlog:\n{page.inner_text('#log')}"   # whole, not truncated
         assert counts()["ghostFrames"] >= 2 and "goals" in page.inner_text("#stats")
         assert float(np.max(np.abs(joints() - before))) < 1e-3, "planning moved the robot"
         assert viewer.evaluate("hr.counts.ghostFrames") >= 2       # the viewer sees the preview too
@@ -424,7 +424,7 @@ def test_the_console_in_a_browser_plans_executes_and_goes_home(ros_env, ros_prob
         wait_for(lambda: any(r["op"] == "execute" for r in results()), 90.0, "the execution's result",
                  on_timeout=lambda: page.inner_text("#log"))
         ex = [r for r in results() if r["op"] == "execute"][-1]
-        assert ex["ok"], (ex["text"], page.inner_text("#log"))
+        assert ex["ok"], f"{ex['text']}\nlog:\n{page.inner_text('#log')}"   # whole, not truncated
         frame = model.hand_frames[plan["plan"]["arm"]]
 
         def hand_error() -> float:
@@ -441,7 +441,7 @@ def test_the_console_in_a_browser_plans_executes_and_goes_home(ros_env, ros_prob
         wait_for(lambda: any(r["op"] == "home" for r in results()), 120.0, "home's result",
                  on_timeout=lambda: page.inner_text("#log"))
         home = [r for r in results() if r["op"] == "home"][-1]
-        assert home["ok"], (home["text"], page.inner_text("#log"))
+        assert home["ok"], f"{home['text']}\nlog:\n{page.inner_text('#log')}"   # whole, not truncated
         ros_probe.spin_until(lambda: float(np.max(np.abs(joints() - model.half_sitting_joints))) < 0.02, 30.0,
                              "the joints at half-sitting")
         assert not [c for c in browser.console if c.startswith("pageerror")], browser.console
