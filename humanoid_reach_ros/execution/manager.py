@@ -398,11 +398,14 @@ class ExecutionManager:
         except Exception as exc:
             code = self.reject("goals_rejected", label, exc)
             return Outcome(code, str(exc))
-        # a scan first takes its head poses (or its directions' gaze points), which see the space in
-        # front and beside the body; then it gazes around the body, whose chest turns swing the arms
-        # through space the poses saw (a gaze keeps the body out of the frontier: look_avoids_unobserved;
-        # gazes first swung HRP-2's arm into an unseen riser in the physics plant), then returns to the
-        # posture those gazes began in: it ends looking at the workspace in front, as before.
+        # a scan first gazes around the body, then returns to the posture those gazes began in (they turn
+        # the chest, which a head pose holds), then takes its head poses (or its directions' gaze
+        # points): it ends looking at the workspace in front. The poses first was tried (2026-11-29) and
+        # reverted: with the poses' voxels in the map the gazes stop where their straight joint-space
+        # way would come near them (Talos: the first gaze's chest turn 86 deg -> 45 %), so the space
+        # beside the shoulder stayed unseen and make demo ROBOT=talos ended UNOBSERVED_SPACE after three
+        # looks. Gazes first turn on a map with less in it -- the known gap docs/operator.md names
+        # (in the physics plant HRP-2's first gaze hit a riser no pose had yet seen).
         # ``come_back`` (the automatic looks): after the last pose or point, back to where the look
         # began, through the space the body just swept -- the next plan starts where the robot stood,
         # not bent over a gaze (the hosts test: from a gaze with the chest pitched 60 deg, the way onto
@@ -410,8 +413,8 @@ class ExecutionManager:
         # START_IN_COLLISION)
         start = self.joints()[0] if goal.come_back else None
         start = None if start is None else np.array(start, float)
-        items = ([("pose", p) for p in poses] if points is None else [("point", p) for p in points]) \
-            + [("around", p) for p in around] + ([("back", None)] if len(around) else []) \
+        items = [("around", p) for p in around] + ([("back", None)] if len(around) else []) \
+            + ([("pose", p) for p in poses] if points is None else [("point", p) for p in points]) \
             + ([("back", start)] if goal.come_back and start is not None else [])
         around_start = None     # where the gazes around the body began: the scan's way back goes there
         asked, what = (len(poses), "head poses") if points is None else (len(points), "gaze points")
