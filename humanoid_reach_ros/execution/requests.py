@@ -206,6 +206,8 @@ class ExecutionRequests:
         self._look_cm = None      # the collision model and checker of look_clearance, made on first use
         self._look_coll = None
         self._look_unseen = None  # ... and its checker on the map plus the unobserved frontier
+        self._frontier: np.ndarray | None = None            # the last /voxel_map/unobserved
+        self._frontier_in_scene: np.ndarray | None = None   # the one the scene holds (set when a gaze needs it)
         self._retreat = None      # the planner's contact test (planning/retreat.py), made on first use
         self._reshape_lock = threading.Lock()
         self._sampler = None
@@ -269,8 +271,9 @@ class ExecutionRequests:
         follow plans that already keep out of unobserved space."""
         if cloud.frame_id not in ("", self.config.map_frame):
             raise ValueError(f"frame_id {cloud.frame_id!r} is not the map frame {self.config.map_frame!r}")
-        with self._map_lock:
-            self.scene.set_unobserved(frontier=cloud.points)
+        points = np.asarray(cloud.points, float).reshape(-1, 3)
+        with self._map_lock:   # into the scene when a gaze needs it: a new scene version rebuilds the loop's tree
+            self._frontier = points
         first = self.counters.unobserved_voxels < 0
         self.counters.set(unobserved_voxels=len(cloud.points))
         off = "" if self.config.look_avoids_unobserved else " (off: look_avoids_unobserved is false)"
@@ -686,6 +689,9 @@ class ExecutionRequests:
         from humanoid_reach_ros.geometry.distance import RobotCollision
         from humanoid_reach_ros.robot.shapes import load_collision_model
         with self._map_lock:
+            if self._frontier is not self._frontier_in_scene:
+                self.scene.set_unobserved(frontier=self._frontier)
+                self._frontier_in_scene = self._frontier
             snap = self.scene.snapshot()
             if snap.source != "/voxel_map" or snap.frontier is None or not len(snap.frontier):
                 return None
