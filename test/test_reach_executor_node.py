@@ -351,6 +351,13 @@ def test_execute_preempt_cancel_topic_and_bad_inputs(start_node, ros_probe, mode
     ros_probe.spin_until(lambda: (s := status(diags, ": inputs")) is not None
                          and msgs.diagnostic_values(s)["map_source"] == "/voxel_map", 20.0, "map source diagnostic")
     assert int(msgs.diagnostic_values(status(diags, ": inputs"))["maps_rejected"]) == 1
+    # /voxel_map/unobserved (the frontier a gaze may keep out of): taken, and a malformed one refused
+    frontier_pub = ros_probe.node.create_publisher(PointCloud2, "/voxel_map/unobserved", LATCHED)
+    frontier_pub.publish(broken)
+    wait_log(ros_probe, ex, r"rejected /voxel_map/unobserved \(2 maps rejected so far\): .*no z field.*keeping the "
+                            r"previous frontier")
+    frontier_pub.publish(msgs.cloud_from_points(np.array([[-1.0, 0.0, 1.0], [-1.02, 0.0, 1.0]]), "world"))
+    wait_log(ros_probe, ex, r"unobserved frontier: /voxel_map/unobserved \(2 voxels\)")
 
     # G1 to the valve, preempted at a quarter by G2 (same trajectory: its start differs from where G1 is)
     g1 = Run(ros_probe, client, goal(forward))
