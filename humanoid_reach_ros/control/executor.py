@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -61,7 +62,8 @@ from threadpoolctl import threadpool_limits
 
 from humanoid_reach_ros.control.active_set import ActiveSetCascade
 from humanoid_reach_ros.control.hqp import HierarchicalQP, Level, SaturatedNullSpaceHQP
-from humanoid_reach_ros.control.limits import (damper_bound, env_pair_geometry, joint_step_bounds, pair_point_rows,
+from humanoid_reach_ros.control.limits import (braking_speed, damper_bound, damper_braking_bound, env_pair_geometry,
+                                               joint_step_bounds, joint_step_box, pair_point_rows,
                                                self_pair_geometry, support_masks, world_point_rows)
 from humanoid_reach_ros.control.tasks import ComTask, DofSelection, FrameTask, PostureTask
 from humanoid_reach_ros.geometry.distance import RobotCollision
@@ -106,6 +108,9 @@ class ExecutorParams:
     com_recenter_speed_mps: float = 0.05    # mean speed of the COG target back to its nominal point
     max_catch_up_periods: float = 4.0       # a late step may cover at most this many periods (step(t))
     com_recenter_min_m: float = 0.005       # a start this close to the nominal COG holds it where it is
+    max_joint_acceleration_rad_s2: float = 0.0    # bound of every commanded joint acceleration (0: none;
+                                                  # the node's default is 10.0, config/reach_executor.yaml)
+    damper_deceleration_mps2: float = 1.5   # a damper pair's approach speed brakes at most at this [m/s^2]
 
     def validate(self) -> "ExecutorParams":
         checks = [
@@ -120,6 +125,8 @@ class ExecutorParams:
             ("com_recenter_speed_mps", self.com_recenter_speed_mps > 0),
             ("max_catch_up_periods", self.max_catch_up_periods >= 1), ("blas_threads", self.blas_threads >= 0),
             ("osqp_max_iter", self.osqp_max_iter >= 1),
+            ("max_joint_acceleration_rad_s2", self.max_joint_acceleration_rad_s2 >= 0),
+            ("damper_deceleration_mps2", self.damper_deceleration_mps2 > 0),
         ]
         for name, ok in checks:
             v = getattr(self, name)
@@ -151,6 +158,10 @@ class StepMetrics:
     self_distance_m: float = math.inf   # smallest self-collision pair distance
     damper_rows: int = 0                # velocity-damper rows in level 1 (environment + self)
     fallback: bool = False              # the closed-form solver fell back to OSQP
+    accel_relaxed: int = 0              # joints whose acceleration bound gave way to their position/velocity
+                                        # limits (1..k); < 0: level 1 was infeasible with the dampers' braking
+                                        # curves: -10 solved with the plain dampers, -40 with them and the
+                                        # bound x4, -1000 without the bound
 
 
 @dataclass(frozen=True)
@@ -164,6 +175,45 @@ class StepResult:
 def _smoothstep5(s: float) -> float:
     s = min(max(s, 0.0), 1.0)
     return s * s * s * (10.0 + s * (-15.0 + 6.0 * s))
+
+
+_SMOOTHSTEP5_PEAK_ACC = 10.0 / math.sqrt(3.0)   # max |s5''(u)| on [0, 1]
+_HOLD_DECELERATION = 0.8                         # a hold brakes at this fraction of the acceleration bound
+_ACCEL_INFEASIBLE = 1e-6                         # level-1 violation above which a step widens the bound
+_ACCEL_LEVEL2 = 1e-8                             # ... and level-2 (feet, COG) residual [m, rad a step]
+_ACCEL_TIERS = (1.0, 4.0, 0.0)                   # then, one solve each, the plain dampers with the bound
+                                                 # times these (0: no bound)
+_DAMPER_JOINT_SHARE = 0.5                        # a damper pair brakes with at most this share of the joints' bound
+
+
+def _pick(cands):
+    """The step among the tiers' candidates (first = the bound and the braking curves): level 1
+    met first, then the feet and COG; among steps that meet level 1 and hold level 2 as well as
+    the best one (within 1e-8 or a factor 2), the first tier's: a joint limit or a damper that
+    keeps the feet/COG off their target for every tier is no reason to drop the bound."""
+    ok = [c for c in cands if c[1][0] <= _ACCEL_INFEASIBLE]
+    if not ok:
+        return min(cands, key=lambda c: c[1][0])
+    best = min(c[1][1] if len(c[1]) > 1 else 0.0 for c in ok)
+    return next(c for c in ok if (c[1][1] if len(c[1]) > 1 else 0.0) <= max(2.0 * best, best + _ACCEL_LEVEL2))
+
+
+class _BrakingReference:
+    """The reference of :meth:`WholeBodyExecutor.hold` under an acceleration bound: each joint
+    from ``q0`` at its commanded velocity ``v0`` decelerating at ``a`` to rest. A constant
+    reference would ask the bounded acceleration to stop at once: the joints would overshoot
+    it and swing back."""
+
+    def __init__(self, q0: np.ndarray, v0: np.ndarray, a: float) -> None:
+        self.q0, self.v0, self.a = q0.copy(), v0.copy(), float(a)
+        self.t_stop = np.abs(self.v0) / self.a
+        self.duration = 0.0                     # a hold: done at once, as with a constant reference
+        self.waypoints = self.position(float(self.t_stop.max(initial=0.0)))[None]
+        self.times = np.zeros(1)
+
+    def position(self, t: float) -> np.ndarray:
+        tt = np.minimum(t, self.t_stop)
+        return self.q0 + self.v0 * tt - 0.5 * np.sign(self.v0) * self.a * tt * tt
 
 
 class WholeBodyExecutor:
@@ -186,6 +236,10 @@ class WholeBodyExecutor:
         self._active = False
         self._holding = False
         self._end_t = 0.0
+        self._v = np.zeros(self.sel.n)          # velocity of the last step (selected unknowns, per second)
+        self._h_xi = np.zeros(0)                # this step's damper rows without the braking curve
+        self._ref_now: tuple | None = None      # (joints, hand pose) of the reference at self._t
+        self._history: deque = deque(maxlen=16)  # (q, v) of the last steps: a start from one keeps its velocity
         self._blend_offset = np.zeros(robot.n_joints)
         self._blend_s = 0.0
         self._sole_targets: tuple[pin.SE3, pin.SE3] | None = None
@@ -306,6 +360,7 @@ class WholeBodyExecutor:
             self.params = p_new
         self._fix_stance(q)
         self._recenter_com(q)
+        self._v = self._velocity_at(q)
         self._q = q
         self._ref = reference
         self._arm = arm
@@ -313,6 +368,7 @@ class WholeBodyExecutor:
         self._end_t = reference.duration
         self._holding = False
         self._active = True
+        self._ref_now = None
         self._set_blend(reference.position(0.0))
 
     def hold(self, q: np.ndarray | None = None) -> None:
@@ -328,6 +384,7 @@ class WholeBodyExecutor:
             if q is None:
                 raise ValueError("hold() needs q before the first start()")
             self._q = q
+            self._v = np.zeros(self.sel.n)
         if self._sole_targets is None or q is not None and not self._active:
             self._fix_stance(self._q)
         # a hold freezes the COG target where it is (mid-recentering included)
@@ -335,9 +392,16 @@ class WholeBodyExecutor:
         self._com_offset = np.zeros(2)
         self._com_blend_s = 0.0
         joints = self._q[N_BASE_Q:].copy()
-        self._ref = SplineTrajectory(joints[None], np.zeros(1))
+        a = self.params.max_joint_acceleration_rad_s2
+        vj = np.zeros(self.robot.n_joints)
+        vj[self._joint_sel] = self._v[self._joint_cols]
+        if a > 0 and np.any(vj != 0.0):
+            self._ref = _BrakingReference(joints, vj, _HOLD_DECELERATION * a)
+        else:
+            self._ref = SplineTrajectory(joints[None], np.zeros(1))
         self._t = 0.0
         self._end_t = 0.0
+        self._ref_now = None
         self._holding = True
         self._active = True
         self._blend_offset[:] = 0.0
@@ -378,10 +442,21 @@ class WholeBodyExecutor:
             return self._com_target + (1.0 - _smoothstep5(t / self._com_blend_s)) * self._com_offset
         return self._com_target
 
+    def _velocity_at(self, q: np.ndarray) -> np.ndarray:
+        """The commanded velocity at ``q`` when ``q`` is one of the last steps (a start from the
+        last *sent* command, which may be a few steps behind the computed ones), else zero."""
+        for qh, vh in reversed(self._history):
+            if np.max(np.abs(qh - q)) <= 1e-12:
+                return vh.copy()
+        return np.zeros(self.sel.n)
+
     def _set_blend(self, ref0: np.ndarray) -> None:
         diff = self._q[N_BASE_Q:] - ref0
         v = self.robot.velocity_limit * self.params.velocity_scale
         need = float(np.max(np.abs(diff) / (0.5 * v))) if len(v) else 0.0
+        a = self.params.max_joint_acceleration_rad_s2
+        if a > 0 and len(diff):   # the blend's own acceleration within half the bound
+            need = max(need, 0.5 * math.sqrt(_SMOOTHSTEP5_PEAK_ACC * float(np.max(np.abs(diff))) / (0.5 * a)))
         self._blend_offset = diff
         self._blend_s = max(self.params.blend_min_s, 2.0 * need) if np.any(np.abs(diff) > 1e-9) else 0.0
 
@@ -436,22 +511,41 @@ class WholeBodyExecutor:
         ti = time.perf_counter()
         jr = self.reference_joints(t_next)
         hand_target = self.reference_hand(jr)
-        levels = self._levels(q, jr, hand_target, G_d, h_d, self._com_ref(t_next))
-        if p.solver == "osqp":
-            res = self._osqp.solve([Level(None, None, levels[0][2], levels[0][3])]
-                                   + [Level(A, b) for A, b, _, _ in levels[1:]], n=self.sel.n)
-            x, slacks, n_act, fallback = res.x, res.slacks, res.n_active_inequalities, False
-        else:
-            r = self._ns.solve(levels[0][2], levels[0][3], [(A, b) for A, b, _, _ in levels[1:]],
-                               fallback=self._osqp, groups=np.concatenate([self._joint_groups, groups_d]),
-                               active_set=self._active_set)
-            x, slacks, n_act, fallback = r.x, r.slacks, r.n_active, r.fallback
+        com_target = self._com_ref(t_next)
+        accel = p.max_joint_acceleration_rad_s2 > 0
+        if accel and self._ref_now is None:
+            jr0 = self.reference_joints(self._t)
+            self._ref_now = (jr0, self.reference_hand(jr0))
+        levels, x_pred, n_relaxed = self._levels(q, jr, hand_target, G_d, h_d, com_target, accel)
+        x, slacks, n_act, fallback = self._solve(levels, groups_d)
+        if accel:
+            h_xi = self._h_xi
+            cands = [(x + x_pred, slacks, n_act, fallback, n_relaxed)]
+            for widen in _ACCEL_TIERS:
+                if slacks[0] <= _ACCEL_INFEASIBLE and (len(slacks) < 2 or slacks[1] <= _ACCEL_LEVEL2):
+                    break
+                # the acceleration bound and the dampers' braking curves admit no step together, or
+                # none that holds the feet and the exact COG (a pair that entered the influence
+                # distance too fast, an obstacle that appeared close, a pair whose approach speed
+                # grows with the posture faster than the bound can brake it): the bound with the
+                # plain Faverjon-Tournassoud dampers (d never crosses d_s); the bound x4; then no
+                # bound, the step the smallest change of the last velocity that keeps level 1 and
+                # the feet and COG (hand and posture wait a step)
+                levels, x_pred, n_relaxed = self._levels(q, jr, hand_target, G_d, h_xi, com_target, True, widen)
+                if widen == 0.0:
+                    levels = levels[:2]
+                x, slacks, n_act, fallback = self._solve(levels, groups_d)
+                cands.append((x + x_pred, slacks, n_act, fallback, -int(10 * widen) if widen > 0 else -1000))
+            x, slacks, n_act, fallback, n_relaxed = _pick(cands)
+        self._v = x / dt
         dq = self.sel.expand(x)
         q_new = pin.integrate(model, q, dq)
         ik_time = time.perf_counter() - ti
         # ---- metrics at the new configuration (position errors only: cheap FK)
         self._q = q_new
         self._t = t_next
+        self._history.append((q_new, self._v))
+        self._ref_now = (jr, hand_target)
         pin.framesForwardKinematics(model, data, q_new)
         H = data.oMf[self._hand_ids[self._arm]]
         e_pos = float(np.linalg.norm(H.translation - hand_target.translation))
@@ -460,36 +554,102 @@ class WholeBodyExecutor:
         com_err = float(np.linalg.norm(com[:2] - self._com_ref(t_next)))
         dur = self.duration
         progress = 1.0 if dur <= 0 else min(t_next / dur, 1.0)
+        # with the acceleration bound a motion ends at rest (every joint slow enough to stop within a step:
+        # the hold that follows repeats the last command)
+        moving = accel and float(np.max(np.abs(self._v[self._joint_cols]), initial=0.0)) > \
+            p.max_joint_acceleration_rad_s2 * p.period_s
         done = self._holding or (t_next >= self._end_t and (
-            (e_pos <= p.converge_position_m and e_rot <= p.converge_rotation_rad)
+            (e_pos <= p.converge_position_m and e_rot <= p.converge_rotation_rad and not moving)
             or t_next >= self._end_t + p.settle_timeout_s))
         solve_time = time.perf_counter() - t0
         m = StepMetrics(t_next, progress, solve_time, distance_time, ik_time, n_env, n_act, len(levels),
                         com_err, dmin_env, e_pos, e_rot, tuple(float(s) for s in slacks), dmin_self,
-                        len(h_d), fallback)
+                        len(h_d), fallback, n_relaxed)
         return StepResult(q_new.copy(), q_new[N_BASE_Q:].copy(), m, bool(done))
 
+    def _braking_feedback(self, q, jr, hand_target, b3, b4):
+        """Hand and posture rows with the acceleration bound: the reference's own motion over the
+        step (feed-forward) plus a correction of the error at the step's start whose speed is
+        one the bounded motion can still brake to zero at the target (:func:`braking_speed`;
+        the hand at ``damper_deceleration_mps2`` and half the bound in rad/s^2, the joints at half
+        the bound). A per-step gain of 1 on the whole error asks a bounded acceleration to stop
+        at once: the hand overshoots and swings about its target at the velocity limits."""
+        p = self.params
+        dt, a = self._dt, p.max_joint_acceleration_rad_s2
+        jr0, hand0 = self._ref_now
+        fid = self._hand_ids[self._arm]
+        e_next = FrameTask(fid, hand_target).error(self.data)
+        e_now = FrameTask(fid, hand0).error(self.data)
+        fb = -p.hand_gain * e_now
+        for part, acc in ((slice(0, 3), p.damper_deceleration_mps2), (slice(3, 6), 0.5 * a)):
+            n = float(np.linalg.norm(fb[part]))
+            if n > 0.0:
+                fb[part] *= min(1.0, dt * float(braking_speed(n, acc, dt)) / n)
+        b3 = (e_now - e_next) + fb
+        e4 = PostureTask(jr0, joints=self._posture_joints).error(q, self.robot.n_joints)
+        fb4 = -p.posture_gain * e4
+        cap = dt * braking_speed(np.abs(e4), 0.5 * a, dt)
+        b4 = (jr - jr0)[self._joint_sel] + np.clip(fb4, -cap, cap)
+        return b3, b4
+
+    def _solve(self, levels, groups_d):
+        """The prioritized solve of ``levels``: ``(x, slacks, n_active, fallback)``."""
+        p = self.params
+        G, h = levels[0][2], levels[0][3]
+        eq = [(A, b) for A, b, _, _ in levels[1:]]
+        if p.solver == "osqp":
+            res = self._osqp.solve([Level(None, None, G, h)] + [Level(A, b) for A, b in eq], n=self.sel.n)
+            x, slacks, n_act, fallback = res.x, res.slacks, res.n_active_inequalities, False
+        else:
+            r = self._ns.solve(G, h, eq, fallback=self._osqp, groups=np.concatenate([self._joint_groups, groups_d]),
+                               active_set=self._active_set)
+            x, slacks, n_act, fallback = r.x, r.slacks, r.n_active, r.fallback
+        return x, slacks, n_act, fallback
+
     # ------------------------------------------------------------ rows
-    def _levels(self, q, jr, hand_target, G_d, h_d, com_target):
-        """[(None, None, G, h) level 1, (A, b, ...) levels 2-4] on the selected unknowns.
+    def _levels(self, q, jr, hand_target, G_d, h_d, com_target, accel: bool = False, widen: float = 1.0):
+        """([(None, None, G, h) level 1, (A, b, ...) levels 2-4] on the selected unknowns,
+        x_pred, relaxed joints).
 
         The rows are those of :mod:`~humanoid_reach_ros.control.tasks` (``FrameTask``,
         ``ComTask``, ``PostureTask``) and :mod:`~humanoid_reach_ros.control.limits`
         (``joint_step_bounds``, the damper rows), the implementations their tests check;
-        only the constant joint-row matrices are built once here."""
+        only the constant joint-row matrices are built once here.
+
+        With ``accel`` (the acceleration bound) the joint rows are :func:`joint_step_box`'s
+        and the unknown is the step's *difference* from ``x_pred``, the last step's velocity
+        continued (each joint's clipped into its box, the base's as it was): the solvers need
+        ``x = 0`` inside level 1 (their task scaling, DAQP's start), and a moving joint's
+        acceleration box need not contain ``dq = 0``. The caller adds ``x_pred`` back."""
         p = self.params
         model, data, sel = self.model, self.data, self.sel.index
         # level 1: joint limits + velocity limits (selected joints) and dampers
         js = self._joint_sel
         qj = q[N_BASE_Q + js]
-        vdt = self.robot.velocity_limit[js] * p.velocity_scale * self._dt
-        up, lo = joint_step_bounds(qj, self.robot.lower[js] + p.limit_margin_rad,
-                                   self.robot.upper[js] - p.limit_margin_rad, vdt)
+        lower, upper = self.robot.lower[js] + p.limit_margin_rad, self.robot.upper[js] - p.limit_margin_rad
+        vmax = self.robot.velocity_limit[js] * p.velocity_scale
+        x_pred, n_relaxed = None, 0
+        if accel:
+            cols = self._joint_cols
+            if widen > 0:
+                up, lo, relaxed = joint_step_box(qj, lower, upper, vmax, self._v[cols],
+                                                 widen * p.max_joint_acceleration_rad_s2, self._dt)
+                n_relaxed = int(np.count_nonzero(relaxed))
+            else:   # the bound dropped: position and velocity limits only
+                up, lo = joint_step_bounds(qj, lower, upper, vmax * self._dt)
+            x_pred = self._v * self._dt
+            pj = np.minimum(np.maximum(x_pred[cols], -lo), up)
+            x_pred[cols] = pj
+            up, lo = up - pj, lo + pj
+        else:
+            up, lo = joint_step_bounds(qj, lower, upper, vmax * self._dt)
         k = len(js)
         G = np.empty((2 * k + len(h_d), len(sel)))
         G[:2 * k] = self._G_joint
         if len(h_d):
             np.take(G_d, sel, axis=1, out=G[2 * k:])
+        if x_pred is not None and len(h_d):
+            h_d = h_d - G[2 * k:] @ x_pred
         h = np.concatenate([up, lo, h_d])
         # level 2: soles 6D + COG xy
         rows = [FrameTask(fid, target, p.feet_gain).rows(model, data)
@@ -503,10 +663,16 @@ class WholeBodyExecutor:
         A3, b3 = hand.A[:, sel], hand.b
         # level 4: posture on the selected joints
         b4 = -p.posture_gain * PostureTask(jr, joints=self._posture_joints).error(q, self.robot.n_joints)
-        return [(None, None, G, h), (A2, b2, None, None), (A3, b3, None, None), (self._A_posture, b4, None, None)]
+        if accel and self._ref_now is not None:
+            b3, b4 = self._braking_feedback(q, jr, hand_target, b3, b4)
+        if x_pred is not None:
+            b2, b3, b4 = b2 - A2 @ x_pred, b3 - A3 @ x_pred, b4 - x_pred[self._joint_cols]
+        return ([(None, None, G, h), (A2, b2, None, None), (A3, b3, None, None), (self._A_posture, b4, None, None)],
+                x_pred, n_relaxed)
 
     def _damper_rows(self):
-        """Velocity-damper rows ``n^T J_p dq <= xi (d - d_s)`` (all nv columns), the number of
+        """Velocity-damper rows ``n^T J_p dq <= xi (d - d_s)`` (all nv columns; with the acceleration
+        bound :func:`~humanoid_reach_ros.control.limits.damper_braking_bound`), the number of
         environment spheres in the bound, and the environment / self minimum distances.
 
         Capsules from the numba forward kinematics of :class:`RobotCollision`, the
@@ -529,7 +695,7 @@ class WholeBodyExecutor:
                 if p.collision_avoidance:
                     pts, nrm = env_pair_geometry(P0, P1, s_idx, tree.centers[k_idx])
                     rows_G.append(world_point_rows(J, self._shape_masks, pts, nrm, s_idx))
-                    rows_h.append(damper_bound(dist, p.security_distance_m, p.damper_xi))
+                    rows_h.append(dist)
                     rows_g.append(np.asarray(s_idx, dtype=np.int64))
             else:
                 dmin_env = float(tree.min_distance_batch(P0, P1, R).min())
@@ -538,13 +704,26 @@ class WholeBodyExecutor:
             k, pa, pb, nrm, d, dmin_self = self_pair_geometry(P0, P1, R, self._pi, self._pj, p.distance_bound_m)
             if p.collision_avoidance and p.self_collision and len(k):
                 rows_G.append(pair_point_rows(J, self._shape_masks, self._pi[k], pa, self._pj[k], pb, nrm))
-                rows_h.append(damper_bound(d, p.security_distance_m, p.damper_xi))
+                rows_h.append(d)
                 rows_g.append(self.cm.n_shapes + k)
         if rows_G:
             G = rows_G[0] if len(rows_G) == 1 else np.vstack(rows_G)
-            h = rows_h[0] if len(rows_h) == 1 else np.concatenate(rows_h)
+            d = rows_h[0] if len(rows_h) == 1 else np.concatenate(rows_h)
             g = rows_g[0] if len(rows_g) == 1 else np.concatenate(rows_g)
+            if p.max_joint_acceleration_rad_s2 > 0:
+                # approach speeds at the last step's velocity; each pair brakes at damper_deceleration_mps2,
+                # or at what half the joints' acceleration bound gives it (|n^T J_joints|_1 a / 2: a pair
+                # moved by short levers, e.g. the two thighs, cannot be braked harder by the bounded joints)
+                Gs = G[:, self.sel.index]
+                a_row = np.minimum(p.damper_deceleration_mps2,
+                                   _DAMPER_JOINT_SHARE * p.max_joint_acceleration_rad_s2
+                                   * np.abs(Gs[:, N_BASE_V:]).sum(axis=1))
+                h = damper_braking_bound(d, p.security_distance_m, p.damper_xi, Gs @ self._v, a_row, self._dt)
+                self._h_xi = damper_bound(d, p.security_distance_m, p.damper_xi)
+            else:
+                h = damper_bound(d, p.security_distance_m, p.damper_xi)
             return G, h, g, n_env, dmin_env, float(dmin_self)
+        self._h_xi = np.zeros(0)
         return np.zeros((0, self.model.nv)), np.zeros(0), np.zeros(0, np.int64), n_env, dmin_env, float(dmin_self)
 
     def warm_up(self) -> None:
@@ -556,7 +735,7 @@ class WholeBodyExecutor:
         tree_warm_up()   # every tree kernel: a step far from the map calls some the steps below do not
         saved = (self._tree, self._q, self._ref, self._arm, self._t, self._active, self._holding, self._end_t,
                  self._blend_offset, self._blend_s, self._sole_targets, self._com_target, self._com_offset,
-                 self._com_blend_s)
+                 self._com_blend_s, self._v, self._dt, list(self._history))
         try:
             q = self.robot.half_sitting()
             hand = self.robot.frame_pose(q, self.robot.hand_frames["right"]).translation
@@ -567,7 +746,9 @@ class WholeBodyExecutor:
         finally:
             (self._tree, self._q, self._ref, self._arm, self._t, self._active, self._holding, self._end_t,
              self._blend_offset, self._blend_s, self._sole_targets, self._com_target, self._com_offset,
-                 self._com_blend_s) = saved
+                 self._com_blend_s, self._v, self._dt, history) = saved
+            self._history.clear()
+            self._history.extend(history)
 
     def with_params(self, **changes) -> ExecutorParams:
         """A copy of the current parameters with ``changes`` (for ``start(..., params=)``)."""

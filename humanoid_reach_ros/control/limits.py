@@ -77,6 +77,61 @@ def joint_step_bounds(qj: np.ndarray, lower: np.ndarray, upper: np.ndarray,
     return up, lo
 
 
+def braking_speed(s: np.ndarray, a: float, dt: float) -> np.ndarray:
+    """Largest speed ``v >= 0`` from which a distance ``s`` (clamped at 0) can still be stopped
+    within, moving ``v dt`` this step and then decelerating at ``a``: ``v dt + v^2 / (2 a) <= s``,
+    ``v = a (sqrt(dt^2 + 2 s / a) - dt)``. The discrete braking distance is below ``v^2 / (2 a)``,
+    so the bound is conservative, and it is recursively feasible: from ``v <= braking_speed(s)``
+    the next step's ``max(v - a dt, 0)`` is within ``braking_speed(s - v dt)`` (for any ``dt``)."""
+    s = np.maximum(np.asarray(s, dtype=float), 0.0)
+    return a * (np.sqrt(dt * dt + 2.0 * s / a) - dt)
+
+
+def joint_step_box(qj: np.ndarray, lower: np.ndarray, upper: np.ndarray, vmax: np.ndarray,
+                   v_prev: np.ndarray, a: float, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bounds ``dq_j <= up_j``, ``-dq_j <= lo_j`` of one step of ``dt`` with the joint
+    acceleration bounded by ``a`` (Kanoun-style acceleration rows on a velocity-resolved IK,
+    the position limits made viable as in Del Prete, RA-L 2018): the joint velocity
+    ``dq / dt`` within ``v_prev +- a dt``, within ``+-vmax``, within :func:`braking_speed` of
+    each limit (so the joint can always stop at it with ``a``), and ``q + dq`` in the range.
+
+    Where the acceleration box and the position/velocity box do not meet (a joint that moved
+    faster than its limit allows, a shrunk velocity limit, a start outside the range) the
+    acceleration bound is dropped for that joint this step (returned ``relaxed`` mask): the
+    position and velocity limits win. A joint outside its range returns at most at ``vmax``,
+    as :func:`joint_step_bounds`. Returns ``(up, lo, relaxed)``."""
+    s_up = upper - qj
+    s_lo = qj - lower
+    p_hi = np.minimum(vmax, braking_speed(s_up, a, dt))
+    p_lo = -np.minimum(vmax, braking_speed(s_lo, a, dt))
+    hi = np.minimum(p_hi, v_prev + a * dt)
+    lo_v = np.maximum(p_lo, v_prev - a * dt)
+    relaxed = lo_v > hi
+    if np.any(relaxed):
+        hi = np.where(relaxed, p_hi, hi)
+        lo_v = np.where(relaxed, p_lo, lo_v)
+    vdt = vmax * dt
+    up = np.maximum(np.minimum(hi * dt, s_up), -vdt)
+    lo = np.maximum(np.minimum(-lo_v * dt, s_lo), -vdt)
+    return up, lo, relaxed
+
+
+def damper_braking_bound(d: np.ndarray, d_s: float, xi: float, approach_speed: np.ndarray,
+                         a: "float | np.ndarray", dt: float) -> np.ndarray:
+    """Right-hand side of the damper rows with the approach decelerating at most ``a`` [m/s^2]
+    (one value, or one per row):
+    per step the distance ``d`` may shrink by ``dt max(braking_speed(d - d_s, a), v - a dt)``
+    (``v`` the pair's approach speed at the previous step's velocity: a pair that entered the
+    influence distance faster than the braking curve allows, or whose obstacle appeared in a new
+    map, keeps braking at ``a`` instead of being stopped in one step), and never by more than
+    :func:`damper_bound`'s ``xi max(d - d_s, 0)`` (the Faverjon-Tournassoud damper: ``d`` never
+    crosses ``d_s``). Never negative: ``dq = 0`` satisfies every row."""
+    s = np.maximum(np.asarray(d, dtype=float) - d_s, 0.0)
+    a = np.maximum(a, 1e-6)
+    v = np.maximum(braking_speed(s, a, dt), np.asarray(approach_speed, dtype=float) - a * dt)
+    return np.minimum(xi * s, dt * v)
+
+
 def joint_limit_rows(q: np.ndarray, lower: np.ndarray, upper: np.ndarray, dt: float,
                      velocity_limit: np.ndarray, joints: Sequence[int] | None = None) -> LimitRows:
     """Position limits over one step and velocity limits of the selected joints.
@@ -343,6 +398,7 @@ def warm_up() -> None:
                     P[1:])
 
 
-__all__ = ["joint_step_bounds", "LimitRows", "damper_bound", "joint_limit_rows", "point_normal_rows",
+__all__ = ["joint_step_bounds", "braking_speed", "joint_step_box", "damper_braking_bound",
+           "LimitRows", "damper_bound", "joint_limit_rows", "point_normal_rows",
            "environment_damper_rows", "self_collision_damper_rows", "velocity_damper_rows", "self_pair_geometry",
            "env_pair_geometry", "support_masks", "world_point_rows", "pair_point_rows", "warm_up"]

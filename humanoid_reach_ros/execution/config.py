@@ -35,6 +35,15 @@ EXECUTOR_PARAMETERS: dict[str, ParamSpec] = {
     "velocity_scale": ParamSpec(0.5, "fraction of the URDF joint velocity limits a step may use (headroom for the "
                                 "joints' own tracking: commands at the limit are tracked with a lag that differs "
                                 "joint by joint, seen as feet/COG drift)", (0.01, 1.0)),
+    "max_joint_acceleration_rad_s2": ParamSpec(10.0, "bound of every commanded joint "
+                                               "acceleration (between 5 ms commands) [rad/s^2]: a real robot's "
+                                               "servos follow no more, and the body's momentum tips it; the joint "
+                                               "limits are approached on a braking curve, the dampers brake at "
+                                               "damper_deceleration_mps2; 0 = none", (0.0, 10000.0)),
+    "damper_deceleration_mps2": ParamSpec(_D.damper_deceleration_mps2, "with the acceleration bound, a damper "
+                                          "pair's approach speed is kept on the curve from which it stops at "
+                                          "security_distance_m decelerating at this [m/s^2] (capped by damper_xi)",
+                                          (0.01, 1000.0)),
     "com_recenter_speed_mps": ParamSpec(_D.com_recenter_speed_mps, "mean speed of the COG target back to its "
                                         "nominal point after a start away from it [m/s]", (0.001, 1.0)),
     "blend_min_s": ParamSpec(_D.blend_min_s, "shortest blend of a reference that starts away from the last "
