@@ -207,12 +207,30 @@ def test_the_collision_model_covers_the_meshes(g1, cm, visual):
 
 
 def test_the_hand_shapes_keep_clear_of_the_grasp_point(g1, cm):
+    """The hand's body shapes end short of the grasp point; only its tool sphere is there."""
     data = g1.forward(g1.half_sitting())
     P0, P1, r = cm.world_shapes(data)
+    body = np.array([not n.endswith("_hand_tool") for n in cm.names])
     for side in ("right", "left"):
         G = data.oMf[g1.frame_id(g1.hand_frames[side])].translation
         d = point_segment_distance(G[None], P0, P1)[0] - r
-        assert d.min() >= GRASP_CLEARANCE_M, cm.names[int(np.argmin(d))]
+        assert d[body].min() >= GRASP_CLEARANCE_M, cm.names[int(np.argmin(np.where(body, d, np.inf)))]
+
+
+def test_the_hand_tool_spheres_are_the_plants_and_touch_the_environment_only(g1, cm):
+    """Each grasp frame carries the physics plant's tool sphere (physics.yaml hand_sphere_radius_m),
+    so the executor's dampers and the planner see what the plant's hand touches with; no
+    self-collision pair names it (as Talos's palm and gripper)."""
+    from humanoid_reach_ros.sim.physics.config import load_physics_config
+    radius = load_physics_config(g1.spec.path.parent).hand_sphere_radius_m
+    data = g1.forward(g1.half_sitting())
+    P0, P1, r = cm.world_shapes(data)
+    for side, tool in (("right", "r_hand_tool"), ("left", "l_hand_tool")):
+        i = cm.names.index(tool)
+        G = data.oMf[g1.frame_id(g1.hand_frames[side])].translation
+        np.testing.assert_allclose([P0[i], P1[i]], [G, G], atol=1e-12)
+        assert r[i] == pytest.approx(radius)
+        assert i not in cm.pair_index
 
 
 def test_every_moving_link_with_a_mesh_carries_a_shape_or_sits_inside_a_neighbours(g1, cm, visual):
