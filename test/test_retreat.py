@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
 
 from humanoid_reach_ros.codes import PlanError
+from humanoid_reach_ros.geometry.sphere_tree import SphereTree
 from humanoid_reach_ros.nodes.common import scene_file_voxels
 from humanoid_reach_ros.paths import config_path
 from humanoid_reach_ros.planning.reach import PlannerParams, PlanRequest, ReachPlanner
@@ -196,16 +198,60 @@ def test_the_way_back_along_the_last_plan_from_a_posture_off_its_end(planner, at
     assert planner._reverse_of_last(moved) is None
 
 
+def _unchecked_planner(robot: RobotModel) -> ReachPlanner:
+    """The fixture's planner without the target object's depth check (planning/approach.py):
+    paths as they were before it, an approach free to pass through the object."""
+    pl = ReachPlanner(robot, PlannerParams(safety_margin_m=0.01, object_depth_tolerance_m=math.inf))
+    pl.scene = PlanningScene(robot, SceneParams(safety_margin_m=0.01, target_exclusion_radius_m=0.15),
+                             pl.collision_model)
+    pl.scene.set_occupied(scene_file_voxels(config_path("scenes/plant.yaml"), 0.02, ()), "set_map")
+    return pl
+
+
 def test_a_way_in_through_the_object_is_not_a_way_out(planner) -> None:
-    """The reach onto the passage pipe's top came down through voxels the planner left out
-    around its target: its reverse presses into the pipe and is refused; a Cartesian retreat
-    frees the hand instead."""
+    """Without the object's depth check the reach onto the passage pipe's top came down through
+    voxels the planner left out around its target: its reverse presses into the pipe and is
+    refused; a Cartesian retreat frees the hand instead."""
+    pl = _unchecked_planner(planner.robot)
     top = dataclasses.replace(valve_region(), target_p=np.array([0.35, -0.15, 0.78]))
-    reach = planner.plan(planner.robot.half_sitting_joints, PlanRequest(top, seed=1, time_budget_s=5.0))
+    reach = pl.plan(pl.robot.half_sitting_joints, PlanRequest(top, seed=1, time_budget_s=5.0))
     assert reach.success, reach.message
-    assert planner._reverse_of_last(reach.positions[-1]) is not None
-    home = planner.plan(reach.positions[-1], PlanRequest(None, home=True, seed=4, time_budget_s=5.0))
+    assert pl._reverse_of_last(reach.positions[-1]) is not None
+    home = pl.plan(reach.positions[-1], PlanRequest(None, home=True, seed=4, time_budget_s=5.0))
     assert home.success and "retreat" in home.message and "back along" not in home.message, home.message
+
+
+def _deepest_beyond_the_end(pl: ReachPlanner, positions: np.ndarray, target: np.ndarray) -> float:
+    """How much deeper [m] than at the path's end any shape goes into the target's object (the
+    voxels within 0.15 m of the target, the planner's exclusion) along the path's samples."""
+    V = pl.scene.snapshot().occupied
+    obj = SphereTree.from_voxels(V[np.linalg.norm(V - target, axis=1) <= 0.15], 0.02, 0.0)
+    D = np.array([obj.nearest_batch(*pl.collision_model.world_shapes(pl.start_config(j)))[0] for j in positions])
+    return float(np.max(np.minimum(0.0, D[-1])[None] - D))
+
+
+@pytest.mark.parametrize("target, arm, seed", [([0.35, -0.15, 0.78], "auto", 1),      # the passage pipe's top
+                                               ([0.741, 0.077, 0.883], "left", 3)])   # the valve's hub, inside the rim
+def test_the_way_in_comes_to_the_object_from_outside(planner, target, arm, seed) -> None:
+    """The planner leaves the object at the target out of its map (a hand must touch it), but a
+    path's shapes go no deeper into it than at the path's ends (planning/approach.py): the hand
+    comes to the object from outside, and the way back along the approach is a way out. Was
+    (the check off): through the pipe's top 21 mm deeper than the hand rests, and the left hand
+    to the hub through the rim 20 mm deeper -- the operator console's Home after such a reach
+    failed START_IN_COLLISION ("back along the approach: the hand would press into the
+    contact's voxels at sample 5")."""
+    target = np.array(target)
+    region = dataclasses.replace(valve_region(), target_p=target)
+    tolerance = 0.005     # the planner's 3 mm and the spline between the checked points
+    old = _unchecked_planner(planner.robot).plan(planner.robot.half_sitting_joints,
+                                                 PlanRequest(region, arm=arm, seed=seed, time_budget_s=5.0))
+    assert old.success and _deepest_beyond_the_end(planner, old.positions, target) > 0.015, old.message
+    reach = planner.plan(planner.robot.half_sitting_joints, PlanRequest(region, arm=arm, seed=seed, time_budget_s=5.0))
+    assert reach.success, reach.message
+    assert _deepest_beyond_the_end(planner, reach.positions, target) <= tolerance
+    home = planner.plan(reach.positions[-1], PlanRequest(None, home=True, seed=4, time_budget_s=5.0))
+    assert home.success and "back along the approach" in home.message, home.message
+    np.testing.assert_allclose(home.positions[-1], planner.robot.half_sitting_joints, atol=1e-9)
 
 
 # Where bench/session s15 (plant, seed 1) left HRP-2: the right hand on the passage pipe after a
@@ -240,7 +286,8 @@ def test_back_along_a_way_in_that_grazed_the_object_a_little_deeper() -> None:
     way back along it may go ``way_back_depth_m`` deeper than the start; with no allowance at all
     (``clearance_tolerance_m`` only) it is refused, and in the measured map nothing else freed the hand."""
     robot = RobotModel("talos")
-    pl = ReachPlanner(robot, PlannerParams(safety_margin_m=0.01))
+    # the way in as it was before the object's depth check (planning/approach.py): it grazed the rim
+    pl = ReachPlanner(robot, PlannerParams(safety_margin_m=0.01, object_depth_tolerance_m=math.inf))
     pl.scene = PlanningScene(robot, SceneParams(safety_margin_m=0.01, target_exclusion_radius_m=0.15),
                              pl.collision_model)
     pl.scene.set_occupied(scene_file_voxels(str(robot.spec.demo_scene), 0.02, ()), "set_map")

@@ -48,6 +48,7 @@ import numpy as np
 import pinocchio as pin
 
 from humanoid_reach_ros.geometry.distance import RobotCollision
+from humanoid_reach_ros.planning.approach import ObjectDepthCheck
 from humanoid_reach_ros.planning.goal_sampler import Goals, sample_goals
 from humanoid_reach_ros.planning.trunk_region import TrunkRegion, TrunkSampler
 from humanoid_reach_ros.planning.reach_map import InverseReach, ReachMap, region_centre
@@ -159,6 +160,9 @@ class PlannerParams:
     reach_map_candidates: int = 16
     reach_map_min_orientations: int = 4     # cells where the map holds fewer at the target come last
     reach_map_batch_size: int = 64          # goal samples per batch with the map (goal_batch_size without)
+    # the target's object (the voxels left out around the target): a path's shapes no deeper in it than
+    # at the path's ends, give or take this (planning/approach.py; the retreat back along it allows 15 mm)
+    object_depth_tolerance_m: float = 0.003
 
     def __post_init__(self) -> None:
         for name in ("resolution_m", "time_budget_s", "joint_velocity_rad_s", "output_period_s", "edge_resolution",
@@ -168,6 +172,9 @@ class PlannerParams:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"PlannerParams.{name} must be finite and > 0, got {v}")
+        if not self.object_depth_tolerance_m >= 0:     # inf: the object's depth unchecked (the old paths)
+            raise ValueError(f"PlannerParams.object_depth_tolerance_m must be >= 0, got "
+                             f"{self.object_depth_tolerance_m}")
         if not (self.safety_margin_m >= 0 and math.isfinite(self.safety_margin_m)):
             raise ValueError(f"PlannerParams.safety_margin_m must be >= 0, got {self.safety_margin_m}")
         if self.goal_count < 1:
@@ -574,6 +581,42 @@ class ReachPlanner:
         if self.early_exit_checks:
             is_valid.first_invalid = first_invalid
         return is_valid
+
+    def _object_depth_check(self, arm: str, collision: RobotCollision, snap: SceneSnapshot, target: np.ndarray,
+                            q_start: np.ndarray, start_plan: np.ndarray, goal_plan: np.ndarray,
+                            ) -> ObjectDepthCheck | None:
+        """The path search's checker with the target's object (planning/approach.py): the voxels
+        ``collision`` leaves out around ``target``, no shape deeper in them than at the start (and
+        its projection) or at the deepest of ``goal_plan``; None when nothing is left out."""
+        r = float(snap.params.target_exclusion_radius_m)
+        V = np.asarray(snap.occupied, float).reshape(-1, 3)
+        if r <= 0.0 or not len(V) or not math.isfinite(self.params.object_depth_tolerance_m):
+            return None
+        obj = V[np.sum((V - np.asarray(target, float)) ** 2, axis=1) <= r * r]
+        if not len(obj):
+            return None
+
+        def project(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            res = self.projector.project_plan_config(Q, arm)
+            return res.q, res.ok
+
+        check = ObjectDepthCheck(self.validity_fn(arm, collision), project, collision, obj,
+                                 float(snap.params.resolution_m), self.params.object_depth_tolerance_m,
+                                 float(snap.params.safety_margin_m))
+        q, ok = project(np.vstack([start_plan[None], goal_plan]))
+        check.set_ends(np.vstack([q_start[None], q[ok]]))
+        return check
+
+    def _dense_full(self, path_plan: np.ndarray, arm: str) -> np.ndarray:
+        """Full configurations of a q_plan path with its edges cut at ``edge_resolution`` (the
+        metric's weights), the rows that do not project left out."""
+        W = self.params.weights_for(path_plan.shape[1] - 4)
+        rows = [path_plan[:1]]
+        for a, b in zip(path_plan[:-1], path_plan[1:]):
+            m = max(1, int(math.ceil(float(np.linalg.norm(W * (b - a))) / self.params.edge_resolution)))
+            rows.append(a + (np.arange(1, m + 1)[:, None] / m) * (b - a))
+        res = self.projector.project_plan_config(np.vstack(rows), arm)
+        return res.q[res.ok]
 
     def _plan_checker(self, arm: str, collision: RobotCollision) -> PlanChecker:
         with self._checker_lock:
@@ -1037,16 +1080,34 @@ class ReachPlanner:
                 break
             sel = np.flatnonzero(goals.arm == ARM_CODES[arm])
             goal_plan = self.projector.plan_config_of(goals.q[sel], arm)
+            goal_full = goals.q[sel]
             onto = self._onto_manifold(q_start, arm, collision, failures)
             if onto is None:
                 continue
             pre, start_plan = onto
-            result, path_plan, n_nodes = self.search_path(
-                arm, start_plan, goal_plan, collision, rng, planner, remaining, trunk,
-                shortcut_s=lambda: min(p.shortcut_time_s, max(0.0, deadline - time.perf_counter())))
-            nodes += n_nodes
+            # the target's object: the approach no deeper in it than its ends (planning/approach.py)
+            depth_check = self._object_depth_check(arm, collision, snap, region.target_p, q_start, start_plan,
+                                                   goal_plan)
+            t_arm = time.perf_counter()
+            while True:
+                result, path_plan, n_nodes = self.search_path(
+                    arm, start_plan, goal_plan, collision, rng, planner, remaining - (time.perf_counter() - t_arm),
+                    trunk, shortcut_s=lambda: min(p.shortcut_time_s, max(0.0, deadline - time.perf_counter())),
+                    is_valid=depth_check)
+                nodes += n_nodes
+                if path_plan is None or depth_check is None or depth_check.path_ok(
+                        self._dense_full(path_plan, arm), goal_full[result.goal_index], q_start):
+                    break
+                # deeper in the object than the goal it reached lets it (the search bounds the depth by
+                # the arm's deepest goal): that goal is dropped and the others searched again
+                stats["approach_goals_dropped"] = stats.get("approach_goals_dropped", 0) + 1
+                keep = np.arange(len(goal_plan)) != result.goal_index
+                goal_plan, sel, goal_full, path_plan = goal_plan[keep], sel[keep], goal_full[keep], None
+                if not len(goal_plan):
+                    break
             if path_plan is None:
-                failures.append((arm, result.status))
+                failures.append((arm, result.status if len(goal_plan) else
+                                 "every path found went deeper into the target's object than its goal"))
                 continue
             stats["path_planning_time_s"] = time.perf_counter() - tp
             stats["tree_nodes"] = nodes

@@ -38,7 +38,9 @@ that stage for a humanoid:
    (the allowed contact) and never press into them deeper than at the start (never into them
    at all when the start is clear of them; ``clearance_tolerance_m``) -- on the way back along
    the approach, ``way_back_depth_m`` (15 mm) deeper: the planner left the voxels around the
-   target out, so the way in grazed the object deeper than where the hand rests (Talos's gripper
+   target out, so the way in grazed the object deeper than where the hand rests (since
+   planning/approach.py a path goes no deeper than its goal, within 3 mm: the allowance is now for
+   the executor's deviation from the plan and the spline between checked points; Talos's gripper
    at the valve's rim: 38 mm in at its end, 40-48 mm at the samples before; in the measured map
    every other retreat was blocked and the way home failed), but a way in *through* the object
    (a reach onto a pipe's top from above it) goes far deeper and is still refused; the clearance is
