@@ -42,7 +42,11 @@ class ObjectDepthCheck:
         self.base = base
         self.project = project
         self.collision = collision
-        self.tree = SphereTree.from_voxels(np.asarray(voxels, float).reshape(-1, 3), resolution_m, 0.0)
+        V = np.asarray(voxels, float).reshape(-1, 3)
+        self.tree = SphereTree.from_voxels(V, resolution_m, 0.0)
+        # the object's bounding ball: shapes farther from it than the margin skip the tree
+        self.centre = V.mean(axis=0) if len(V) else np.zeros(3)
+        self.reach = (float(np.max(np.linalg.norm(V - self.centre, axis=1))) if len(V) else 0.0) + 0.5 * resolution_m
         self.radii = np.asarray(collision.cm.radii, float)
         self.tolerance_m = float(tolerance_m)
         self.margin_m = float(margin_m)
@@ -59,7 +63,15 @@ class ObjectDepthCheck:
             return np.full((len(Q_full), len(self.radii)), np.inf)
         P0, P1 = self.collision.world_shapes_batch(Q_full)
         C, S = P0.shape[:2]
-        d, _ = self.tree.nearest_batch(P0.reshape(-1, 3), P1.reshape(-1, 3), np.tile(self.radii, C))
+        P0, P1, R = P0.reshape(-1, 3), P1.reshape(-1, 3), np.tile(self.radii, C)
+        # a lower bound of each shape's distance (segment to the ball's centre): the exact one only
+        # where it could be within the margin (the bound is never above the margin)
+        u = P1 - P0
+        t = np.clip(np.einsum("ij,ij->i", self.centre - P0, u) / np.maximum(np.einsum("ij,ij->i", u, u), 1e-18), 0, 1)
+        d = np.linalg.norm(P0 + t[:, None] * u - self.centre, axis=1) - R - self.reach
+        near = np.flatnonzero(d <= self.margin_m + 1e-3)
+        if near.size:
+            d[near] = self.tree.nearest_batch(P0[near], P1[near], R[near])[0]
         return d.reshape(C, S)
 
     def bound_of(self, Q_full: np.ndarray) -> np.ndarray:

@@ -1100,7 +1100,6 @@ class ReachPlanner:
                     break
                 # deeper in the object than the goal it reached lets it (the search bounds the depth by
                 # the arm's deepest goal): that goal is dropped and the others searched again
-                stats["approach_goals_dropped"] = stats.get("approach_goals_dropped", 0) + 1
                 keep = np.arange(len(goal_plan)) != result.goal_index
                 goal_plan, sel, goal_full, path_plan = goal_plan[keep], sel[keep], goal_full[keep], None
                 if not len(goal_plan):
