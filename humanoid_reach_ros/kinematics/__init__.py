@@ -29,13 +29,14 @@ from humanoid_reach_ros.kinematics.general_ik_compiled import _rot as chain_axis
 from humanoid_reach_ros.kinematics.hand_derived import LEG_WORK_SIZE, LimbIK, LimbStructureError, leg_ik_pose
 from humanoid_reach_ros.kinematics.hand_derived_compiled import CompiledArmIK
 from humanoid_reach_ros.kinematics.ik_types import IKReason, IKResult
-from humanoid_reach_ros.kinematics.numerical_ik import (NumericalLimbTracker, numerical_ik_track,
+from humanoid_reach_ros.kinematics.numerical_ik import (NumericalLimbTracker, numerical_ik_pose, numerical_ik_track,
                                                         numerical_leg_constants, work_size as numerical_work_size)
 from humanoid_reach_ros.kinematics.protocol import LimbSolver
 from humanoid_reach_ros.kinematics.redundant_tracker import RedundantArmTracker
 from humanoid_reach_ros.kinematics.registry import SOLVERS, LimbIKSet, limb_solver, warm_up
 
-__all__ = ["Chain6", "chain_rotations", "chain_axis_rotation", "NumericalLimbTracker", "numerical_ik_track",
+__all__ = ["Chain6", "chain_rotations", "chain_axis_rotation", "NumericalLimbTracker", "numerical_ik_pose",
+           "numerical_ik_track",
            "numerical_leg_constants", "numerical_work_size", "CompiledArmIK", "IKReason", "IKResult", "LEG_WORK_SIZE",
            "LimbIK", "LimbIKSet", "LimbSolver", "LimbStructureError", "RedundantArmTracker", "SOLVERS", "leg_ik_pose",
            "limb_solver", "warm_up"]

@@ -134,6 +134,9 @@ class GeneralLimb:
         return P, np.transpose(rR, (0, 2, 1)) @ np.broadcast_to(tip_R, (n, 3, 3))
 
     def solve(self, root_p, root_R, tip_p, tip_R, q_ref=None):
+        if self.kind == "numerical":     # the relative poses, the checks and the solve in one compiled call
+            q, ok, reason = self.ik.solve_world(root_p, root_R, tip_p, tip_R, q_ref)
+            return IKResult(q, ok, reason, np.where(ok, 0, -1).astype(np.int8))
         P, R = self._relative(root_p, root_R, tip_p, tip_R)
         finite = np.isfinite(P).all(axis=1) & np.isfinite(R).all(axis=(1, 2))
         res = self.ik.solve(np.nan_to_num(P), np.where(finite[:, None, None], R, np.eye(3)), q_ref)

@@ -571,6 +571,43 @@ def numerical_ik_batch(P, Rt, ref, K, q_out, ok_out):
                                       K, q_out[i], work)
 
 
+@nb.njit(**_JIT)
+def numerical_ik_world_batch(root_p, root_R, tip_p, tip_R, ref, K, q_out, ok_out, reason_out):
+    """:func:`numerical_ik_pose` over N world poses in one call (``GeneralLimb.solve`` of the
+    numerical kind, without its numpy passes: the G1's legs are solved ~10^4 times a plan, a few
+    rows a call): the root link at ``root_p`` (N or 1, 3), ``root_R`` (N or 1, 3, 3), the tip at
+    ``tip_p`` (N or 1, 3), ``tip_R`` (N or 1, 3, 3), ``ref`` (N or 1, n); the tip relative to the
+    root ``P = root_R^T (tip_p - root_p)``, ``Rt = root_R^T tip_R``. Writes ``q_out`` (N, n)
+    (NaN when not ok), ``ok_out`` (N,) and ``reason_out`` (N,) (``IKReason``: 0 OK,
+    1 UNREACHABLE, 3 INVALID_INPUT where a pose is not finite)."""
+    n = int(K[0])
+    work = np.empty(work_size(n))
+    P = np.empty(3)
+    Rt = np.empty((3, 3))
+    for r in range(q_out.shape[0]):
+        rp = root_p[r if root_p.shape[0] > 1 else 0]
+        rR = root_R[r if root_R.shape[0] > 1 else 0]
+        tp = tip_p[r if tip_p.shape[0] > 1 else 0]
+        tR = tip_R[r if tip_R.shape[0] > 1 else 0]
+        finite = True
+        for i in range(3):
+            P[i] = rR[0, i] * (tp[0] - rp[0]) + rR[1, i] * (tp[1] - rp[1]) + rR[2, i] * (tp[2] - rp[2])
+            if not np.isfinite(P[i]):
+                finite = False
+            for j in range(3):
+                Rt[i, j] = rR[0, i] * tR[0, j] + rR[1, i] * tR[1, j] + rR[2, i] * tR[2, j]
+                if not np.isfinite(Rt[i, j]):
+                    finite = False
+        if not finite:
+            for k in range(n):
+                q_out[r, k] = np.nan
+            ok_out[r] = False
+            reason_out[r] = 3
+            continue
+        ok_out[r] = numerical_ik_pose(P, Rt, ref[r if ref.shape[0] > 1 else 0], K, q_out[r], work)
+        reason_out[r] = 0 if ok_out[r] else 1
+
+
 def quasi_random_starts(lower: np.ndarray, upper: np.ndarray, count: int = N_STARTS, seed: int = SEED) -> np.ndarray:
     """``count`` deterministic starts inside the limits: a scrambled Halton sequence (fixed
     ``seed``) over the middle 90 % of each joint's range."""
@@ -616,6 +653,22 @@ class NumericalLimbIK:
         numerical_ik_batch(P, Rt, ref, self.K, q, ok)
         return GeneralIKResult(q, ok)
 
+    def solve_world(self, root_p, root_R, tip_p, tip_R, q_ref=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Tip poses in the world, the chain's root at ``(root_p, root_R)`` (each (N or 1, ...)):
+        ``(q (N, n), ok (N,), reason (N,) int8)`` in one compiled call
+        (:func:`numerical_ik_world_batch`; the answers of :meth:`solve` on the relative poses)."""
+        n = self.n_joints
+        a = [_rows(root_p, 1), _rows(root_R, 2), _rows(tip_p, 1), _rows(tip_R, 2),
+             _rows(self._ref if q_ref is None else q_ref, 1)]
+        N = max(len(x) for x in a[:4])
+        if (any(len(x) not in (1, N) for x in a) or a[0].shape[1:] != (3,) or a[1].shape[1:] != (3, 3)
+                or a[2].shape[1:] != (3,) or a[3].shape[1:] != (3, 3) or a[4].shape[1:] != (n,)):
+            raise ValueError(f"root / tip poses and references {[x.shape for x in a]} are not (N or 1, 3), "
+                             f"(N or 1, 3, 3), (N or 1, 3), (N or 1, 3, 3), (N or 1, {n})")
+        q, ok, reason = np.empty((N, n)), np.empty(N, dtype=np.bool_), np.empty(N, dtype=np.int8)
+        numerical_ik_world_batch(a[0], a[1], a[2], a[3], a[4], self.K, q, ok, reason)
+        return q, ok, reason
+
     def solve_one(self, target_p: np.ndarray, target_R: np.ndarray,
                   q_ref: np.ndarray | None = None) -> tuple[bool, np.ndarray]:
         """One pose, the cheapest call: ``(ok, q)`` with ``q`` (n,) a new array, NaN when not ok."""
@@ -640,11 +693,12 @@ def warm_up() -> None:
         p, R = c.fk(np.full((1, nj), 0.3))
         ik.solve(p, R)
         ik.solve_one(p[0], R[0])
+        ik.solve_world(np.zeros((1, 3)), np.eye(3)[None], p, R, np.full((1, nj), 0.29))
         q = np.empty(nj)
         numerical_track_world(np.zeros(3), np.eye(3), p[0], np.ascontiguousarray(R[0]), np.full(nj, 0.29), ik.K, q,
                               ik._work)
 
 
 __all__ = ["NumericalLimbIK", "NumericalLimbTracker", "numerical_leg_constants", "numerical_ik_pose",
-           "numerical_ik_track", "numerical_track_world", "numerical_ik_batch", "quasi_random_starts", "warm_up",
-           "work_size"]
+           "numerical_ik_track", "numerical_track_world", "numerical_ik_batch", "numerical_ik_world_batch",
+           "quasi_random_starts", "warm_up", "work_size"]

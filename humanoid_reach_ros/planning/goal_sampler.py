@@ -30,6 +30,7 @@ if TYPE_CHECKING:
 
 
 DRY_SAMPLES = 512   # a TrunkSampler's cells widen after this many samples without a goal
+PROJECT_CHUNK = 16  # samples of a batch projected at a time (at least twice the goals still needed)
 
 
 @dataclass(frozen=True)
@@ -169,27 +170,44 @@ def sample_goals(region: WorkspaceGoalRegion, n_goals: int, robot: RobotModel, c
                 z_t, rpy_t = trunk.sample_for(rng, p_e, R_e, arm, batch=dry // DRY_SAMPLES)
             else:
                 z_t, rpy_t = trunk.sample(rng, batch_size)
-        res = projector.project_config(p_e, R_e, z_t, rpy_t, arm=arm)
-        idx = np.flatnonzero(res.ok)
-        free = collision.check_batch(res.q[idx]) if idx.size else np.zeros(0, bool)
         need = n_goals - len(qs)
-        take = idx[free][:need]
-        # the samples this batch accounts for: all, or up to the last goal taken
-        end = batch_size if len(take) < need else int(take[-1]) + 1
-        if end < batch_size:   # recount the failures on the prefix (rare: last batch only)
-            res = projector.project_config(p_e[:end], R_e[:end], z_t[:end], rpy_t[:end], arm=arm)
-        for k, v in res.failures.items():
-            stats.ik_failures[k] += v
+        # the batch is drawn whole (the same draws whatever the chunking) but projected and
+        # checked in chunks, in order (twice the goals still needed, at least PROJECT_CHUNK
+        # samples, each chunk twice the last), until it holds the goals needed: the same goals
+        # and counts as projecting it whole, without the IK of the samples past the last goal
+        # taken (a failed numerical limb IK costs ~0.5 ms: every start runs)
+        chunk = max(PROJECT_CHUNK, 2 * need)
+        take, n_in_coll, n_checked = [], 0, 0
+        end = batch_size
+        s1 = 0
+        while s1 < batch_size:
+            s0, s1 = s1, min(s1 + chunk, batch_size)
+            chunk *= 2
+            res = projector.project_config(p_e[s0:s1], R_e[s0:s1], z_t[s0:s1], rpy_t[s0:s1], arm=arm)
+            idx = np.flatnonzero(res.ok)
+            free = collision.check_batch(res.q[idx]) if idx.size else np.zeros(0, bool)
+            got = idx[free][:need - len(take)]
+            # the samples this chunk accounts for: all, or up to the last goal taken
+            stop = len(take) + len(got) == need
+            e = int(got[-1]) + 1 if stop else s1 - s0
+            in_prefix = idx < e
+            n_checked += int(np.count_nonzero(in_prefix))
+            n_in_coll += int(np.count_nonzero(in_prefix & ~free))
+            for k, v in res.failures_upto(e).items():
+                stats.ik_failures[k] += v
+            for k in got:
+                qs.append(res.q[k])
+                arms.append(res.arm[k])
+                ps.append(p_e[s0 + k])
+                Rs.append(R_e[s0 + k])
+            take.extend((s0 + got).tolist())
+            if stop:
+                end = s0 + e
+                break
         dry += batch_size if len(take) == 0 else 0
-        in_prefix = idx < end
         stats.n_samples += end
-        stats.collision_checks += int(np.count_nonzero(in_prefix))
-        stats.n_in_collision += int(np.count_nonzero(in_prefix & ~free))
-        for k in take:
-            qs.append(res.q[k])
-            arms.append(res.arm[k])
-            ps.append(p_e[k])
-            Rs.append(R_e[k])
+        stats.collision_checks += n_checked
+        stats.n_in_collision += n_in_coll
     c1 = collision.counters
     checked = c1.checks - chk0
     scale = stats.collision_checks / checked if checked else 0.0   # time of the counted checks only

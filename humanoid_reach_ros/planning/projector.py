@@ -44,7 +44,8 @@ import numpy as np
 
 from humanoid_reach_ros.codes import ARM_CODES, ARM_LEFT, ARM_NONE, ARM_RIGHT
 from humanoid_reach_ros.planning.wgr import matrix_rpy, rpy_matrix
-from humanoid_reach_ros.kinematics import LEG_WORK_SIZE, LimbIKSet, leg_ik_pose
+from humanoid_reach_ros.kinematics import (LEG_WORK_SIZE, LimbIKSet, leg_ik_pose, numerical_ik_pose,
+                                           numerical_work_size)
 from humanoid_reach_ros.robot.model import N_BASE_Q, RobotModel
 
 ARMS = ("right_arm", "left_arm")
@@ -161,6 +162,85 @@ def _project_plan_kernel(q_plan, v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, leg
         ok[k] = good
 
 
+@nb.njit(**_JIT)
+def _project_plan_numerical_kernel(q_plan, v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, leg_cols, feet_p, feet_R,
+                                   leg_K, seeded, seed_grid, seed_table, leg_default, Q, ok, trunk_p, trunk_R, fails):
+    """:meth:`Projector.project_plan_config` for N rows in one compiled call where both legs are
+    of the numerical kind (the G1's): the steps of :func:`_project_plan_kernel`, each leg by
+    :func:`~humanoid_reach_ros.kinematics.numerical_ik.numerical_ik_pose` from the numpy path's
+    start (``Projector._leg_ref``: the trunk grid's nearest leg solution, ``seed_table`` (2, nz,
+    np, 6) over ``seed_grid`` = (z0, dz, pitch0, dpitch), when ``seeded``; else ``leg_default``
+    (2, 6)). ``leg_K`` (2, k): the legs' packed constants. ``fails``: (right_leg, left_leg,
+    arm_limits) counts."""
+    n = q_plan.shape[0]
+    nq = q_ref.shape[0]
+    na = arm_cols.shape[0]
+    Rt = np.empty((3, 3))
+    pt = np.empty(3)
+    P = np.empty(3)
+    Rl = np.empty((3, 3))
+    qleg = np.empty(6)
+    work = np.empty(numerical_work_size(6))
+    for k in range(n):
+        roll, pitch, yaw = q_plan[k, na + 1], q_plan[k, na + 2], q_plan[k, na + 3]
+        rpy_into(Rt, roll, pitch, yaw)
+        for a in range(3):
+            pt[a] = Rt[a, 0] * v[0] + Rt[a, 1] * v[1] + Rt[a, 2] * v[2]
+        pt[0] += cog_xy[0]
+        pt[1] += cog_xy[1]
+        pt[2] = q_plan[k, na]
+        for a in range(3):
+            trunk_p[k, a] = pt[a]
+            for b in range(3):
+                trunk_R[k, a, b] = Rt[a, b]
+        for i in range(nq):
+            Q[k, i] = q_ref[i]
+        Q[k, 0], Q[k, 1], Q[k, 2] = pt[0], pt[1], pt[2]
+        hr, hp, hy = 0.5 * roll, 0.5 * pitch, 0.5 * yaw
+        cr, sr = math.cos(hr), math.sin(hr)
+        cp, sp = math.cos(hp), math.sin(hp)
+        cy, sy = math.cos(hy), math.sin(hy)
+        Q[k, 3] = sr * cp * cy - cr * sp * sy
+        Q[k, 4] = cr * sp * cy + sr * cp * sy
+        Q[k, 5] = cr * cp * sy - sr * sp * cy
+        Q[k, 6] = cr * cp * cy + sr * sp * sy
+        lim = True
+        for a in range(na):
+            x = q_plan[k, a]
+            Q[k, arm_cols[a]] = x
+            if not (x >= arm_lo[a] and x <= arm_hi[a]):
+                lim = False
+        ok[k] = False
+        if not lim:
+            fails[2] += 1
+            continue
+        iz, ip = 0, 0
+        if seeded:
+            s20 = min(max(Rt[2, 0], -1.0), 1.0)
+            tp = -math.asin(s20)
+            iz = min(max(int(np.rint((pt[2] - seed_grid[0]) / seed_grid[1])), 0), seed_table.shape[1] - 1)
+            ip = min(max(int(np.rint((tp - seed_grid[2]) / seed_grid[3])), 0), seed_table.shape[2] - 1)
+        good = True
+        for g in range(2):
+            fp, fR = feet_p[g], feet_R[g]
+            for i in range(3):     # the foot in the trunk frame (GeneralLimb._relative)
+                P[i] = Rt[0, i] * (fp[0] - pt[0]) + Rt[1, i] * (fp[1] - pt[1]) + Rt[2, i] * (fp[2] - pt[2])
+                for j in range(3):
+                    Rl[i, j] = Rt[0, i] * fR[0, j] + Rt[1, i] * fR[1, j] + Rt[2, i] * fR[2, j]
+            ref = seed_table[g, iz, ip] if seeded else leg_default[g]
+            if not numerical_ik_pose(P, Rl, ref, leg_K[g], qleg, work):
+                fails[g] += 1
+                good = False
+                break
+            for a in range(6):
+                Q[k, leg_cols[g, a]] = qleg[a]
+        ok[k] = good
+
+
+#: the limbs of ``ProjectionResult.failed``'s columns
+FAILURE_LIMBS = ("right_arm", "left_arm", "right_leg", "left_leg")
+
+
 @dataclass(frozen=True, eq=False)
 class ProjectionResult:
     """Outcome of :meth:`Projector.project_config` for N samples.
@@ -171,7 +251,10 @@ class ProjectionResult:
     failures per limb, counted as in
     Table I (left arm tried only where the right one failed in ``auto`` mode, the
     legs only where an arm succeeded, the left leg only after the right one);
-    ``trunk_p`` (N, 3), ``trunk_R`` (N, 3, 3): trunk (waist) poses.
+    ``trunk_p`` (N, 3), ``trunk_R`` (N, 3, 3): trunk (waist) poses; ``failed`` (N, 4) bool or
+    None: per row, the limbs of ``FAILURE_LIMBS`` whose failure ``failures`` counts (its sum
+    over the rows is ``failures``; :meth:`Projector.project_config` only), so that a prefix's
+    counts need no second projection.
     """
 
     q: np.ndarray
@@ -180,6 +263,12 @@ class ProjectionResult:
     failures: dict
     trunk_p: np.ndarray
     trunk_R: np.ndarray
+    failed: np.ndarray | None = None
+
+    def failures_upto(self, end: int) -> dict:
+        """``failures`` over the rows before ``end`` (``failed`` needed)."""
+        counts = self.failed[:end].sum(axis=0)
+        return {k: int(c) for k, c in zip(FAILURE_LIMBS, counts)}
 
 
 class Projector:
@@ -219,11 +308,23 @@ class Projector:
         self._q_ref_c = np.array(self.q_ref, dtype=float)
         #: project_plan_config runs the fused numba kernel when the IK set is compiled and both
         #: legs have the hand-derived compiled leg kernel (``LimbIK``'s z x y | y | y x pattern);
-        #: other legs (a general closed form, the numerical solver) go through the limb protocol
+        #: two numerical legs their own compiled kernel (below); other legs (a general closed
+        #: form) go through the limb protocol
         legs = [self.ik[leg] for leg in LEGS]
         self.compiled = bool(getattr(self.ik, "compiled", False)) and all(hasattr(lk, "_kc") for lk in legs)
         self._kernel_legs: tuple = ()
         self._leg_seeds = None   # set_leg_seeds
+        #: both legs numerical (6 joints): project_plan_config's compiled kernel for them
+        #: (_project_plan_numerical_kernel; the same answers as the limb protocol's path)
+        self._numerical_legs = None
+        if not self.compiled and all(getattr(lk, "kind", "") == "numerical" and getattr(lk, "n_joints", 0) == 6
+                                     and hasattr(getattr(lk, "ik", None), "K") for lk in legs):
+            self._numerical_legs = (
+                np.ascontiguousarray(np.stack([self.cols[leg] for leg in LEGS]), dtype=np.int64),
+                np.ascontiguousarray(np.stack([self.feet[leg][0] for leg in LEGS])),
+                np.ascontiguousarray(np.stack([self.feet[leg][1] for leg in LEGS])),
+                np.ascontiguousarray(np.stack([lk.ik.K for lk in legs])),
+                np.ascontiguousarray(np.stack([lk.ik.q_default for lk in legs])))
         if self.compiled:
             kc = [np.ascontiguousarray(np.stack([lk._kc[i] for lk in legs])) for i in range(8)]
             self._kernel_legs = (
@@ -290,25 +391,30 @@ class Projector:
             t[bad] = self.ik[leg].q_default
             table[leg] = t
         self._leg_seeds = (float(z[0]), dz, float(pitch[0]), dp, table) if table else None
+        if self._leg_seeds is not None and all(leg in table for leg in LEGS):    # the compiled kernel's form
+            self._leg_seeds += (np.ascontiguousarray(np.stack([table[leg] for leg in LEGS]), dtype=np.float64),)
 
     def _leg_ref(self, leg: str, p_t: np.ndarray, R_t: np.ndarray) -> np.ndarray | None:
         seeds = self._leg_seeds
         if seeds is None or leg not in seeds[4]:
             return None
-        z0, dz, p0, dp, table = seeds
+        z0, dz, p0, dp, table = seeds[:5]
         pitch = -np.arcsin(np.clip(R_t[:, 2, 0], -1.0, 1.0))        # R = Rz Ry Rx: R[2, 0] = -sin(pitch)
         iz = np.clip(np.rint((p_t[:, 2] - z0) / dz).astype(np.int64), 0, table[leg].shape[0] - 1)
         ip = np.clip(np.rint((pitch - p0) / dp).astype(np.int64), 0, table[leg].shape[1] - 1)
         return table[leg][iz, ip]
 
-    def _legs(self, Q, p_t, R_t, idx, failures) -> np.ndarray:
-        """Lines 10-15 on rows ``idx``; returns the rows where both legs succeeded."""
+    def _legs(self, Q, p_t, R_t, idx, failures, failed=None) -> np.ndarray:
+        """Lines 10-15 on rows ``idx``; returns the rows where both legs succeeded (``failed``:
+        ProjectionResult's, marked)."""
         for leg in LEGS:
             if idx.size == 0:
                 break
             fp, fR = self.feet[leg]
             res = self.ik.solve(leg, p_t[idx], R_t[idx], fp, fR, self._leg_ref(leg, p_t[idx], R_t[idx]))
             failures[leg] += int(np.count_nonzero(~res.ok))
+            if failed is not None:
+                failed[idx[~res.ok], FAILURE_LIMBS.index(leg)] = True
             good = idx[res.ok]
             Q[good[:, None], self.cols[leg][None]] = res.q[res.ok]
             idx = good
@@ -332,6 +438,7 @@ class Projector:
         c_p, c_R = self.chest_pose(p_t, R_t)
         Q = self._base(p_t, R_t, rpy_t)
         failures = {"right_arm": 0, "left_arm": 0, "right_leg": 0, "left_leg": 0}
+        failed = np.zeros((n, len(FAILURE_LIMBS)), bool)
         arm_used = np.full(n, ARM_NONE, np.int8)
         todo = np.arange(n)
         order = ARMS if arm == "auto" else (("right_arm",) if arm == "right" else ("left_arm",))
@@ -352,12 +459,13 @@ class Projector:
                 Q[good[:, None], self.cols[name][None]] = res.q[res.ok]
                 arm_used[good] = ARM_RIGHT if name == "right_arm" else ARM_LEFT
             failures[name] += int(np.count_nonzero(~ok_rows))
+            failed[todo[~ok_rows], FAILURE_LIMBS.index(name)] = True
             todo = todo[~ok_rows]
-        idx = self._legs(Q, p_t, R_t, np.flatnonzero(arm_used != ARM_NONE), failures)
+        idx = self._legs(Q, p_t, R_t, np.flatnonzero(arm_used != ARM_NONE), failures, failed)
         ok = np.zeros(n, bool)
         ok[idx] = True
         arm_used[~ok] = ARM_NONE
-        return ProjectionResult(Q, ok, arm_used, failures, p_t, R_t)
+        return ProjectionResult(Q, ok, arm_used, failures, p_t, R_t, failed)
 
     def project_plan_config(self, q_plan, arm: str) -> ProjectionResult:
         """The planner's space (eq. 2): ``q_plan`` (N, n + 4) = (q_arm (n), z_t, rpy_t (3))
@@ -374,6 +482,8 @@ class Projector:
             raise ValueError(f"q_plan must have {na + 4} columns (q_arm ({na}), z_t, rpy_t), got {q_plan.shape}")
         if self.compiled:
             return self._project_plan_compiled(q_plan, arm)
+        if self._numerical_legs is not None:
+            return self._project_plan_numerical(q_plan, arm)
         name = f"{arm}_arm"
         p_t, R_t = self.trunk_pose(q_plan[:, na], q_plan[:, na + 1:na + 4])
         Q = self._base(p_t, R_t, q_plan[:, na + 1:na + 4])
@@ -404,6 +514,28 @@ class Projector:
         arm_used = np.where(ok, ARM_CODES[arm], ARM_NONE).astype(np.int8)
         return ProjectionResult(Q, ok, arm_used, failures, p_t, R_t)
 
+    def _project_plan_numerical(self, q_plan: np.ndarray, arm: str) -> ProjectionResult:
+        cols, feet_p, feet_R, leg_K, leg_default = self._numerical_legs
+        seeds = self._leg_seeds
+        if seeds is not None and all(leg in seeds[4] for leg in LEGS):
+            grid = np.array(seeds[:4], dtype=float)
+            table = seeds[5] if len(seeds) > 5 else np.ascontiguousarray(np.stack([seeds[4][leg] for leg in LEGS]))
+            seeded = True
+        else:
+            grid, table, seeded = np.zeros(4), np.zeros((2, 1, 1, 6)), False
+        n = len(q_plan)
+        Q = np.empty((n, len(self.q_ref)))
+        ok = np.empty(n, np.bool_)
+        p_t = np.empty((n, 3))
+        R_t = np.empty((n, 3, 3))
+        fails = np.zeros(3, np.int64)
+        _project_plan_numerical_kernel(np.ascontiguousarray(q_plan, dtype=np.float64), self._v_c, self._cog_xy_c,
+                                       self._q_ref_c, *self._kernel_arm[arm], cols, feet_p, feet_R, leg_K, seeded,
+                                       grid, table, leg_default, Q, ok, p_t, R_t, fails)
+        failures = {"right_leg": int(fails[0]), "left_leg": int(fails[1]), "arm_limits": int(fails[2])}
+        arm_used = np.where(ok, ARM_CODES[arm], ARM_NONE).astype(np.int8)
+        return ProjectionResult(Q, ok, arm_used, failures, p_t, R_t)
+
     def plan_config_of(self, q: np.ndarray, arm: str) -> np.ndarray:
         """Inverse of :meth:`project_plan_config` on its image: (N, nq) -> (N, n + 4)."""
         q = np.atleast_2d(np.asarray(q, float))
@@ -411,4 +543,4 @@ class Projector:
         return np.concatenate([q[:, self.cols[f"{arm}_arm"]], q[:, 2:3], matrix_rpy(R)], axis=1)
 
 
-__all__ = ["Projector", "ProjectionResult", "quat_xyzw_from_rpy", "quat_xyzw_matrix"]
+__all__ = ["Projector", "ProjectionResult", "FAILURE_LIMBS", "quat_xyzw_from_rpy", "quat_xyzw_matrix"]

@@ -294,6 +294,31 @@ def _within_edge_order(counts: np.ndarray) -> np.ndarray:
     return np.concatenate([o + bisect_order(int(c)) for o, c in zip(offsets.tolist(), counts.tolist())])
 
 
+#: the first chunks :func:`_first_invalid_in_chunks` hands an early-exit checker (then the rest)
+PREFIX_CHUNKS = (1, 8)
+
+
+def _first_invalid_in_chunks(checker: ValidityFn, Q: np.ndarray) -> int:
+    """:func:`first_invalid` of ``Q`` (the same answer), for a checker that stops at the first
+    invalid configuration (``first_invalid``), handed ``Q`` in chunks -- its first row, the next
+    8, then the rest -- until one holds an invalid row. The robot's checker without a fused
+    kernel (the G1's numerical legs) solves the legs of every row it is handed before its
+    collision check stops: on three of the generality suite's cases, 70 % of the G1's edge
+    checks met an invalid point, the first of their coarse-to-fine order in 3 of 4 of them.
+    A checker without ``first_invalid`` gets ``Q`` whole (it checks every row anyway)."""
+    inner = checker._fn if isinstance(checker, CountingChecker) else checker
+    if getattr(inner, "first_invalid", None) is None or len(Q) <= PREFIX_CHUNKS[0] + 1:
+        return first_invalid(checker, Q)
+    start = 0
+    for size in PREFIX_CHUNKS + (len(Q),):
+        stop = min(start + size, len(Q))
+        k = first_invalid(checker, Q[start:stop])
+        if k < stop - start or stop == len(Q):
+            return start + k
+        start = stop
+    return len(Q)
+
+
 def check_edges(A: np.ndarray, B: np.ndarray, checker: ValidityFn, space: PlanningSpace,
                 include_endpoints: bool = False, max_configs_per_call: int = 200_000,
                 prefix: bool = False) -> np.ndarray:
@@ -337,7 +362,7 @@ def check_edges(A: np.ndarray, B: np.ndarray, checker: ValidityFn, space: Planni
         pts, counts = _edges_points(A[start:stop], B[start:stop], space, include_endpoints)
         if len(pts) and prefix:
             perm = _within_edge_order(counts)
-            k = first_invalid(checker, pts[perm])
+            k = _first_invalid_in_chunks(checker, pts[perm])
             if k < len(pts):
                 bad = start + int(np.searchsorted(np.cumsum(counts), perm[k], side="right"))
                 ok[bad:] = False
