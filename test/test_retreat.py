@@ -191,7 +191,7 @@ def test_the_way_back_along_the_last_plan_from_a_posture_off_its_end(planner, at
     assert home.success and "back along the approach" in home.message, home.message
     np.testing.assert_allclose(home.positions[0], q, atol=1e-9)
     far = end.copy()
-    far[cols] = np.clip(far[cols] + 0.5, robot.lower[cols], robot.upper[cols])
+    far[cols] = np.clip(far[cols] + 0.8, robot.lower[cols], robot.upper[cols])
     assert planner._reverse_of_last(far) is None                       # too far from the plan's end
     moved = end.copy()
     moved[list(robot.limbs[f"{arm}_arm"].joint_index)] += 0.1          # the hand 3+ cm from the plan's

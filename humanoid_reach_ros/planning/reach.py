@@ -300,7 +300,10 @@ _DEFAULT_RETREAT = RetreatParams()
 #: the robot "stands at the last plan's end" (its reverse is the first retreat tried) when the
 #: plan's hand is this close to the plan's end and no joint but the head's this far off it
 REVERSE_HAND_TOL_M = 0.03
-REVERSE_JOINT_TOL_RAD = 0.35
+# the console's left-arm reach into the valve's hub ended 0.17-0.34 rad off the plan's end (chest yaw, the arm's
+# shoulder; four graphs); at 0.35 one such Home tried no reverse (its hand had converged, so a joint was
+# farther off) and no line freed the hand inside the wheel: START_IN_COLLISION. Every sample is checked
+REVERSE_JOINT_TOL_RAD = 0.5
 WAY_IN_REST_TOL_RAD = 0.02       # a plan that began this near rest (head aside): its way in, reversed, goes home
 
 

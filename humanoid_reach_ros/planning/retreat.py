@@ -20,7 +20,7 @@ that stage for a humanoid:
    back toward the shoulder.
 3. **Motion**: first back along the last plan's own samples when the robot stands at its end
    (the way the hand came in is a way out; "at its end": the hand within 3 cm of the plan's,
-   no joint 0.35 rad off, the offset blended out along the way back: ``ReachPlanner.
+   no joint 0.5 rad off, the offset blended out along the way back: ``ReachPlanner.
    _reverse_of_last``), else along a direction ``d``: the hand frame
    moves on the line ``p(s) = p_0 + s d``, ``s`` in steps of ``step_m`` up to
    ``max_distance_m``; the arm's joints follow by damped least squares on the hand's position
