@@ -176,4 +176,4 @@ def test_a_session_of_reaches_ends_at_half_sitting(start_node, ros_env, ros_prob
         p.stop()
     stops = {p.name: (p.proc.returncode, round(p.stop_s, 2)) for p in procs}
     print(f"exit code and seconds to stop after SIGINT: {stops}")
-    assert all(code == 0 and s <= STOP_DEADLINE_S for code, s in stops.values()), stops
+    assert all(code == 0 and s <= STOP_DEADLINE_S for code, s in stops.values()), f"{stops}"   # whole, not cut
