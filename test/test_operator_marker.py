@@ -70,7 +70,8 @@ def test_marker_out_of_view_the_head_turns_to_find_it(start_node, ros_env) -> No
     assert code == 0, err
     code, out, err = operator(ros_env, "--marker", "--timeout", "5")
     m = out["marker"]
-    assert m["fresh"] and m["toward"] is not None and "toward the marker's last known position" in err, (out, err)
+    assert m["fresh"] and m["toward"] is not None and "toward the marker's last known position" in err, \
+        f"{out}\nstderr:\n{err}"   # whole, not cut
     assert max(abs(a - b) for a, b in zip(m["toward"], VALVE)) < 0.02, m
     assert abs(m["looked_deg"][0] - 2.0) <= 2.0 and abs(m["looked_deg"][1] - 40.0) <= 2.0, m   # half-sitting's aim
     assert code == 3, (code, err)

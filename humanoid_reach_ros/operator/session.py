@@ -27,7 +27,9 @@ WAIT_NOTE_FIRST_S = 2.0   # waiting for a server: the first line after this long
 WAIT_NOTE_EVERY_S = 5.0   # ... then one every this long, with the seconds left
 MARKER_FRESH_WAIT_S = 2.0    # a /target_pose within this long of finding its publisher: seen now (>= 2 Hz in view)
 MARKER_DISCOVERY_S = 5.0     # a marker_localizer (a /target_pose publisher) gets this long to be discovered
-MARKER_DIAGNOSTICS_WAIT_S = 2.5   # then its diagnostics (1 Hz, the last marker position) this long at most
+# then its diagnostics (1 Hz, the last marker position) this long at most (2.5 s: ci46's fresh CLI fell back to
+# marker_look_deg with the marker's position known)
+MARKER_DIAGNOSTICS_WAIT_S = 5.0
 MAP_REPORT_WAIT_S = 2.5     # after --scan / --look: the voxel mapper's diagnostics (1 Hz, the map's size) this long
 MARKER_LOOK_DWELL_S = 0.1    # the head's hold there (the wait for the marker follows)
 
@@ -289,7 +291,8 @@ class OperatorSession:
         # its diagnostics (1 Hz) hold the last position: wait for one that does, up to the deadline (a fresh
         # CLI on a busy machine once heard a status without it first, and looked at marker_look_deg instead)
         t_diag = time.monotonic() + MARKER_DIAGNOSTICS_WAIT_S
-        client.spin_until(lambda: watch.last is not None or watch.pose_t >= t0 or time.monotonic() > t_diag, None)
+        client.spin_until(lambda: (watch.last is not None and watch.joints is not None) or watch.pose_t >= t0
+                          or time.monotonic() > t_diag, None)   # the aim needs both
         if watch.pose_t >= t0:
             report["fresh"] = True
             return EXIT["success"]
