@@ -102,6 +102,42 @@ def rpy_into(R, roll, pitch, yaw) -> None:
 
 
 @nb.njit(**_JIT)
+def _trunk_row(k, q_plan, na, v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, Rt, pt, Q, trunk_p, trunk_R):
+    """Row ``k`` of the projection kernels, up to the legs: the trunk pose by lines 2-4 into ``Rt``,
+    ``pt``, ``trunk_p[k]``, ``trunk_R[k]``; ``Q[k]`` the reference with that base and the row's arm
+    joints; whether the arm joints are within their limits."""
+    roll, pitch, yaw = q_plan[k, na + 1], q_plan[k, na + 2], q_plan[k, na + 3]
+    rpy_into(Rt, roll, pitch, yaw)
+    for a in range(3):
+        pt[a] = Rt[a, 0] * v[0] + Rt[a, 1] * v[1] + Rt[a, 2] * v[2]
+    pt[0] += cog_xy[0]
+    pt[1] += cog_xy[1]
+    pt[2] = q_plan[k, na]
+    for a in range(3):
+        trunk_p[k, a] = pt[a]
+        for b in range(3):
+            trunk_R[k, a, b] = Rt[a, b]
+    for i in range(q_ref.shape[0]):
+        Q[k, i] = q_ref[i]
+    Q[k, 0], Q[k, 1], Q[k, 2] = pt[0], pt[1], pt[2]
+    hr, hp, hy = 0.5 * roll, 0.5 * pitch, 0.5 * yaw
+    cr, sr = math.cos(hr), math.sin(hr)
+    cp, sp = math.cos(hp), math.sin(hp)
+    cy, sy = math.cos(hy), math.sin(hy)
+    Q[k, 3] = sr * cp * cy - cr * sp * sy
+    Q[k, 4] = cr * sp * cy + sr * cp * sy
+    Q[k, 5] = cr * cp * sy - sr * sp * cy
+    Q[k, 6] = cr * cp * cy + sr * sp * sy
+    lim = True
+    for a in range(na):
+        x = q_plan[k, a]
+        Q[k, arm_cols[a]] = x
+        if not (x >= arm_lo[a] and x <= arm_hi[a]):
+            lim = False
+    return lim
+
+
+@nb.njit(**_JIT)
 def _project_plan_kernel(q_plan, v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, leg_cols, feet_p, feet_R, leg_ref,
                          R0, t0, Re, te, l1, l2, leg_lo, leg_hi, Q, ok, trunk_p, trunk_R, fails):
     """:meth:`Projector.project_plan_config` for N rows in one compiled call (same
@@ -110,43 +146,14 @@ def _project_plan_kernel(q_plan, v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, leg
     limb's default reference). Rows ``(q_arm (na), z_t, rpy_t (3))``, ``na`` the arm's
     joints (``arm_cols``). ``fails``: (right_leg, left_leg, arm_limits) counts."""
     n = q_plan.shape[0]
-    nq = q_ref.shape[0]
     na = arm_cols.shape[0]
     Rt = np.empty((3, 3))
     pt = np.empty(3)
     qleg = np.empty(6)
     work = np.empty(LEG_WORK_SIZE)
     for k in range(n):
-        roll, pitch, yaw = q_plan[k, na + 1], q_plan[k, na + 2], q_plan[k, na + 3]
-        rpy_into(Rt, roll, pitch, yaw)
-        for a in range(3):
-            pt[a] = Rt[a, 0] * v[0] + Rt[a, 1] * v[1] + Rt[a, 2] * v[2]
-        pt[0] += cog_xy[0]
-        pt[1] += cog_xy[1]
-        pt[2] = q_plan[k, na]
-        for a in range(3):
-            trunk_p[k, a] = pt[a]
-            for b in range(3):
-                trunk_R[k, a, b] = Rt[a, b]
-        for i in range(nq):
-            Q[k, i] = q_ref[i]
-        Q[k, 0], Q[k, 1], Q[k, 2] = pt[0], pt[1], pt[2]
-        hr, hp, hy = 0.5 * roll, 0.5 * pitch, 0.5 * yaw
-        cr, sr = math.cos(hr), math.sin(hr)
-        cp, sp = math.cos(hp), math.sin(hp)
-        cy, sy = math.cos(hy), math.sin(hy)
-        Q[k, 3] = sr * cp * cy - cr * sp * sy
-        Q[k, 4] = cr * sp * cy + sr * cp * sy
-        Q[k, 5] = cr * cp * sy - sr * sp * cy
-        Q[k, 6] = cr * cp * cy + sr * sp * sy
-        lim = True
-        for a in range(na):
-            x = q_plan[k, a]
-            Q[k, arm_cols[a]] = x
-            if not (x >= arm_lo[a] and x <= arm_hi[a]):
-                lim = False
         ok[k] = False
-        if not lim:
+        if not _trunk_row(k, q_plan, na, v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, Rt, pt, Q, trunk_p, trunk_R):
             fails[2] += 1
             continue
         good = True
@@ -173,7 +180,6 @@ def _project_plan_numerical_kernel(q_plan, v, cog_xy, q_ref, arm_cols, arm_lo, a
     (2, 6)). ``leg_K`` (2, k): the legs' packed constants. ``fails``: (right_leg, left_leg,
     arm_limits) counts."""
     n = q_plan.shape[0]
-    nq = q_ref.shape[0]
     na = arm_cols.shape[0]
     Rt = np.empty((3, 3))
     pt = np.empty(3)
@@ -182,36 +188,8 @@ def _project_plan_numerical_kernel(q_plan, v, cog_xy, q_ref, arm_cols, arm_lo, a
     qleg = np.empty(6)
     work = np.empty(numerical_work_size(6))
     for k in range(n):
-        roll, pitch, yaw = q_plan[k, na + 1], q_plan[k, na + 2], q_plan[k, na + 3]
-        rpy_into(Rt, roll, pitch, yaw)
-        for a in range(3):
-            pt[a] = Rt[a, 0] * v[0] + Rt[a, 1] * v[1] + Rt[a, 2] * v[2]
-        pt[0] += cog_xy[0]
-        pt[1] += cog_xy[1]
-        pt[2] = q_plan[k, na]
-        for a in range(3):
-            trunk_p[k, a] = pt[a]
-            for b in range(3):
-                trunk_R[k, a, b] = Rt[a, b]
-        for i in range(nq):
-            Q[k, i] = q_ref[i]
-        Q[k, 0], Q[k, 1], Q[k, 2] = pt[0], pt[1], pt[2]
-        hr, hp, hy = 0.5 * roll, 0.5 * pitch, 0.5 * yaw
-        cr, sr = math.cos(hr), math.sin(hr)
-        cp, sp = math.cos(hp), math.sin(hp)
-        cy, sy = math.cos(hy), math.sin(hy)
-        Q[k, 3] = sr * cp * cy - cr * sp * sy
-        Q[k, 4] = cr * sp * cy + sr * cp * sy
-        Q[k, 5] = cr * cp * sy - sr * sp * cy
-        Q[k, 6] = cr * cp * cy + sr * sp * sy
-        lim = True
-        for a in range(na):
-            x = q_plan[k, a]
-            Q[k, arm_cols[a]] = x
-            if not (x >= arm_lo[a] and x <= arm_hi[a]):
-                lim = False
         ok[k] = False
-        if not lim:
+        if not _trunk_row(k, q_plan, na, v, cog_xy, q_ref, arm_cols, arm_lo, arm_hi, Rt, pt, Q, trunk_p, trunk_R):
             fails[2] += 1
             continue
         iz, ip = 0, 0
