@@ -411,12 +411,11 @@ class ExecutionManager:
         # not bent over a gaze (the hosts test: from a gaze with the chest pitched 60 deg, the way onto
         # the planning manifold went a few cm beside the swept space, into unobserved space:
         # START_IN_COLLISION)
-        start = self.joints()[0] if goal.come_back else None
-        start = None if start is None else np.array(start, float)
-        items = [("around", p) for p in around] + ([("back", None)] if len(around) else []) \
+        start = self.joints()[0] if len(around) or goal.come_back else None
+        start = None if start is None else np.array(start, float)   # a copy: the measured joints move on
+        items = [("point", p) for p in around] + ([("back", start)] if len(around) and start is not None else []) \
             + ([("pose", p) for p in poses] if points is None else [("point", p) for p in points]) \
             + ([("back", start)] if goal.come_back and start is not None else [])
-        around_start = None     # where the gazes around the body began: the scan's way back goes there
         asked, what = (len(poses), "head poses") if points is None else (len(points), "gaze points")
         self.log.info(f"{label}: accepted: {counted(asked, what)}, {dwell:g} s each"
                       + (" (the directions asked, for a robot without a neck)" if directions else "")
@@ -431,16 +430,11 @@ class ExecutionManager:
                     motion = self.requests.look(next(self._motion_ids), f"{label} pose {k}", (yaw, pitch),
                                                 *self.joints())
                 elif item == "back":
-                    target = around_start if target is None else target
-                    if target is None:
-                        continue   # no measured joints when the gazes around began: they did not run
                     motion = self.requests.back_to(next(self._motion_ids), f"{label} back {k}", target,
                                                    *self.joints())
                     yaw, pitch = self.requests.head_targets(target)
                 else:
                     joints = self.joints()
-                    if item == "around" and around_start is None and joints[0] is not None:
-                        around_start = np.array(joints[0], float)
                     motion, gaze = self.requests.gaze(next(self._motion_ids), f"{label} point {k}", target,
                                                       *joints)
                     yaw, pitch = self.requests.head_targets(gaze.joints)
